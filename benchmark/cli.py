@@ -1,0 +1,72 @@
+"""The ``uavbench`` command line.
+
+Each subcommand lives in its own module, which exposes::
+
+    HELP: str                                  # one line for ``uavbench --help``
+    def add_arguments(parser: argparse.ArgumentParser) -> None
+    def run(args: argparse.Namespace) -> int   # the exit code
+
+Modules are imported only when their subcommand runs, so ``uavbench --help`` stays fast and a
+heavy dependency (mlflow, numba) is loaded only by the commands that need it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from benchmark import __version__
+
+# subcommand -> module path. Order is the pipeline order shown in --help.
+COMMANDS: dict[str, str] = {
+    "continuity": "benchmark.analysis.continuity",
+}
+
+# Loaded lazily, but --help needs the one-line descriptions without importing torch.
+COMMAND_HELP: dict[str, str] = {
+    "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
+}
+
+
+class UsageError(ValueError):
+    """Bad user input: printed without a traceback, exit code 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="uavbench",
+        description="Benchmark for UAV absolute pose estimation from a satellite image.",
+    )
+    parser.add_argument("--version", action="version", version=f"uavbench {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        sub.add_parser(name, help=COMMAND_HELP.get(name, ""), add_help=False)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    if not argv or argv[0] not in COMMANDS:
+        parser.parse_args(argv)  # handles --help / --version / unknown command (exit 2)
+        parser.print_help()
+        return 2
+    name = argv[0]
+    module = importlib.import_module(COMMANDS[name])
+    cmd_parser = argparse.ArgumentParser(prog=f"uavbench {name}", description=module.HELP)
+    module.add_arguments(cmd_parser)
+    args = cmd_parser.parse_args(argv[1:])
+    try:
+        return int(module.run(args) or 0)
+    except UsageError as err:
+        print(f"uavbench {name}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"uavbench {name}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
