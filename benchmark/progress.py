@@ -1,0 +1,110 @@
+"""A dependency-free progress bar with rate and ETA, written to stderr.
+
+Used by every long-running command (simulate, train, reproduce). On a terminal the bar redraws in
+place; when stderr is a file or pipe (CI logs) it prints one line at most every ``log_every`` seconds
+so logs stay short.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+
+def format_duration(seconds: float) -> str:
+    """``3725.0 -> '1:02:05'``; unknown (inf/nan) -> ``'?'``."""
+    if seconds != seconds or seconds == float("inf"):
+        return "?"
+    seconds = int(round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes:02d}:{secs:02d}"
+
+
+class Progress:
+    """``with Progress(total, "render", unit="pair") as bar: bar.update(1)``.
+
+    ``initial`` counts work already done before this process started (a resumed job); the rate and
+    ETA are computed from the work done in this process only, so a resume does not look
+    impossibly fast.
+    """
+
+    def __init__(
+        self,
+        total: int,
+        desc: str = "",
+        *,
+        unit: str = "it",
+        initial: int = 0,
+        stream: TextIO | None = None,
+        log_every: float = 10.0,
+        enabled: bool = True,
+    ) -> None:
+        self.total = int(total)
+        self.desc = desc
+        self.unit = unit
+        self.count = int(initial)
+        self._initial = int(initial)
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = enabled
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._log_every = log_every if not self._tty else 0.2
+        self._start = time.monotonic()
+        self._last_draw = -float("inf")
+        self.postfix = ""
+
+    def __enter__(self) -> Progress:
+        self._draw(force=True)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def rate(self) -> float:
+        elapsed = time.monotonic() - self._start
+        done = self.count - self._initial
+        return done / elapsed if elapsed > 0 else 0.0
+
+    def update(self, n: int = 1, postfix: str | None = None) -> None:
+        self.count += n
+        if postfix is not None:
+            self.postfix = postfix
+        self._draw()
+
+    def line(self) -> str:
+        elapsed = time.monotonic() - self._start
+        rate = self.rate
+        remaining = (self.total - self.count) / rate if rate > 0 else float("inf")
+        frac = self.count / self.total if self.total else 1.0
+        width = 24
+        filled = int(round(width * min(max(frac, 0.0), 1.0)))
+        bar = "#" * filled + "-" * (width - filled)
+        text = (
+            f"{self.desc} [{bar}] {self.count}/{self.total} {100 * frac:5.1f}% "
+            f"{rate:.2f} {self.unit}/s elapsed {format_duration(elapsed)} "
+            f"ETA {format_duration(remaining)}"
+        )
+        return f"{text} {self.postfix}".rstrip()
+
+    def _draw(self, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last_draw < self._log_every and self.count < self.total:
+            return
+        self._last_draw = now
+        if self._tty:
+            self.stream.write("\r" + self.line() + "\x1b[K")
+        else:
+            self.stream.write(self.line() + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        self._draw(force=True)
+        if self._tty:
+            self.stream.write("\n")
+            self.stream.flush()
