@@ -1,8 +1,8 @@
 """A dependency-free progress bar with rate and ETA, written to stderr.
 
 Used by every long-running command (simulate, train, reproduce). On a terminal the bar redraws in
-place; when stderr is a file or pipe (CI logs) it prints one line at most every ``log_every`` seconds
-so logs stay short.
+place; when stderr is a file or pipe (CI logs) it prints one line at most every ``log_every``
+seconds, so logs stay short.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ def format_duration(seconds: float) -> str:
     """``3725.0 -> '1:02:05'``; unknown (inf/nan) -> ``'?'``."""
     if seconds != seconds or seconds == float("inf"):
         return "?"
-    seconds = int(round(seconds))
+    seconds = round(seconds)
     hours, rest = divmod(seconds, 3600)
     minutes, secs = divmod(rest, 60)
     return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes:02d}:{secs:02d}"
@@ -79,7 +79,7 @@ class Progress:
         remaining = (self.total - self.count) / rate if rate > 0 else float("inf")
         frac = self.count / self.total if self.total else 1.0
         width = 24
-        filled = int(round(width * min(max(frac, 0.0), 1.0)))
+        filled = round(width * min(max(frac, 0.0), 1.0))
         bar = "#" * filled + "-" * (width - filled)
         text = (
             f"{self.desc} [{bar}] {self.count}/{self.total} {100 * frac:5.1f}% "

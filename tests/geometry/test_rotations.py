@@ -39,7 +39,7 @@ def random_euler(batch: int, dtype: torch.dtype, seed: int = 0) -> tuple[torch.T
 
 
 def scipy_matrix(yaw, pitch, roll) -> np.ndarray:
-    # R = Rz(yaw) Rx(pitch) Ry(roll) is scipy's *intrinsic* sequence "ZXY" with angles in that order.
+    # R = Rz(yaw) Rx(pitch) Ry(roll) is scipy's intrinsic "ZXY" sequence, angles in that order.
     angles = np.stack([t.double().numpy() for t in (yaw, pitch, roll)], -1)
     return Rotation.from_euler("ZXY", angles).as_matrix()
 
@@ -99,7 +99,7 @@ class TestEulerToRotmat:
         assert R.shape == (4, 5, 3, 3)
 
     def test_rejects_nonfinite(self):
-        with pytest.raises(ValueError, match="pitch.*non-finite"):
+        with pytest.raises(ValueError, match=r"pitch.*non-finite"):
             euler_to_rotmat(torch.zeros(2), torch.tensor([0.0, float("nan")]), torch.zeros(2))
 
 
