@@ -1,0 +1,156 @@
+"""``PairDataset``: the UAV/satellite pairs of one split, memory-mapped from a dataset directory.
+
+Opening checks the manifest and every file the split needs: existence and size always, sha256
+with ``verify="sha256"`` (the default; about 1 s per GB, done once per file per process, cached
+by path, size and mtime). A missing, truncated or corrupted file raises ``DatasetError`` naming
+it. UAV shards are opened with ``np.load(mmap_mode="r")`` once per process (lazily, so forked
+DataLoader workers map them themselves), never per item. The satellite images, one per centre
+and height (a few dozen), are read into memory once.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+from torch.utils.data import Dataset
+
+from benchmark.data.format import (
+    MANIFEST,
+    TABLES,
+    DatasetError,
+    read_manifest,
+    sha256_file,
+    shard_name,
+    verify_files,
+)
+
+R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major, as written by simulate
+
+_VERIFIED: set[tuple[str, int, int, str]] = set()  # (path, size, mtime_ns, sha256) hashed OK
+
+
+def _verify(root: Path, manifest: dict[str, Any], names: list[str], checksum: bool) -> None:
+    verify_files(root, manifest, names, checksum=False)  # existence and sizes, cheap
+    if not checksum:
+        return
+    for rel in names:
+        path = (root / rel).resolve()
+        st = path.stat()
+        key = (str(path), st.st_size, st.st_mtime_ns, manifest["files"][rel]["sha256"])
+        if key in _VERIFIED:
+            continue
+        if sha256_file(path) != key[3]:
+            raise DatasetError(f"corrupted file {root / rel}: sha256 differs from {MANIFEST}")
+        _VERIFIED.add(key)
+
+
+def list_splits(root: str | Path) -> list[str]:
+    """The split names of a finished dataset, in manifest order."""
+    return list(read_manifest(Path(root))["splits"])
+
+
+def _to_chw_float(img: np.ndarray) -> torch.Tensor:
+    """uint8 ``(H, W, 3)`` -> float32 ``(3, H, W)`` in [0, 1]."""
+    return torch.from_numpy(np.ascontiguousarray(img.transpose(2, 0, 1))).float().div_(255.0)
+
+
+class PairDataset(Dataset):
+    """UAV/satellite pairs of ``split`` under ``root`` (written by ``uavbench simulate``).
+
+    Item ``i`` is a dict:
+        ``uav``: float32 ``(3, H, W)`` in [0, 1]; ``sat``: float32 ``(3, H, W)`` in [0, 1];
+        ``sat_id``: int64 ``()`` row of ``sat_images`` (equal ids = the same satellite image, so a
+        model may encode each distinct one once per batch); ``R``: float32 ``(3, 3)``
+        ``R_uav^sat`` (paper Eq. 2); ``T``: float32 ``(3,)`` ``[dE, dN, dU]`` metres, UAV minus
+        satellite capture point; ``uav_euler``: float32 ``(3,)`` UAV ``(yaw, pitch, roll)``
+        radians; ``index``: int64 ``()`` row of ``poses``.
+
+    Attributes: ``poses`` (DataFrame, one row per item, all label columns), ``manifest``,
+    ``splits`` (all split names), ``sat_images`` (uint8 ``(M, H, W, 3)``), ``sat_table``.
+    """
+
+    def __init__(self, root: str | Path, split: str, *, verify: str = "sha256") -> None:
+        if verify not in ("sha256", "size"):
+            raise ValueError(f"PairDataset: verify must be 'sha256' or 'size', got {verify!r}")
+        self.root = Path(root)
+        self.manifest = read_manifest(self.root)
+        self.splits = list(self.manifest["splits"])
+        if split not in self.splits:
+            raise ValueError(
+                f"PairDataset: unknown split {split!r} in {self.root}; available: {self.splits}"
+            )
+        self.split = split
+        checksum = verify == "sha256"
+        _verify(self.root, self.manifest, list(TABLES), checksum)
+        pairs = pd.read_parquet(self.root / "pairs.parquet")
+        self.poses = pairs[pairs.split == split].reset_index(drop=True)
+        if len(self.poses) != self.manifest["splits"][split]:
+            raise DatasetError(
+                f"{self.root / 'pairs.parquet'}: {len(self.poses)} rows for split {split!r}, "
+                f"{MANIFEST} says {self.manifest['splits'][split]}"
+            )
+        self.sat_table = pd.read_parquet(self.root / "sat.parquet")
+        self.shard_size = int(self.manifest["shard_size"])
+
+        self._uav_index = self.poses["uav_index"].to_numpy(np.int64)
+        self._sat_index = self.poses["sat_index"].to_numpy(np.int64)
+        uav_shards = sorted(set((self._uav_index // self.shard_size).tolist()))
+        n_sat_shards = -(-len(self.sat_table) // self.shard_size)
+        sat_names = [shard_name("sat", k) for k in range(n_sat_shards)]
+        _verify(
+            self.root,
+            self.manifest,
+            sat_names + [shard_name("uav", k) for k in uav_shards],
+            checksum,
+        )
+
+        self.sat_images = np.concatenate(
+            [np.load(self.root / n, allow_pickle=False) for n in sat_names]
+        )
+        self._R = self.poses[R_COLUMNS].to_numpy(np.float32).reshape(-1, 3, 3)
+        self._T = self.poses[["dE", "dN", "dU"]].to_numpy(np.float32)
+        self._euler = self.poses[["yaw", "pitch", "roll"]].to_numpy(np.float32)
+        self._maps: dict[int, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_maps"] = {}  # memory maps are reopened by each process, never pickled (copied)
+        return state
+
+    def _shard(self, k: int) -> np.ndarray:
+        arr = self._maps.get(k)
+        if arr is None:
+            path = self.root / shard_name("uav", k)
+            try:
+                arr = np.load(path, mmap_mode="r", allow_pickle=False)
+            except (OSError, ValueError) as err:
+                raise DatasetError(f"cannot memory-map {path}: {err}") from err
+            self._maps[k] = arr
+        return arr
+
+    def uav_image(self, i: int) -> np.ndarray:
+        """The uint8 ``(H, W, 3)`` UAV image of item ``i`` (a view into the memory map)."""
+        u = int(self._uav_index[i])
+        return self._shard(u // self.shard_size)[u % self.shard_size]
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"PairDataset[{i}]: split {self.split!r} has {len(self)} items")
+        i = int(i) % len(self)
+        s = int(self._sat_index[i])
+        return {
+            "uav": _to_chw_float(self.uav_image(i)),
+            "sat": _to_chw_float(self.sat_images[s]),
+            "sat_id": torch.tensor(s, dtype=torch.int64),
+            "R": torch.from_numpy(self._R[i].copy()),
+            "T": torch.from_numpy(self._T[i].copy()),
+            "uav_euler": torch.from_numpy(self._euler[i].copy()),
+            "index": torch.tensor(i, dtype=torch.int64),
+        }

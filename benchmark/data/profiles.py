@@ -1,0 +1,145 @@
+"""Dataset profiles for ``uavbench simulate``: frozen configs, degrees and metres at this edge.
+
+``smoke`` is for tests and the CI smoke reproduction (seconds), ``quick`` the default (minutes on
+2 cores), ``paper`` the full-size reproduction (224 px, tens of thousands of pairs, paper Sec. 3.1).
+``--size N`` rescales every set of a profile so that the standard split holds N pairs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from dataclasses import dataclass
+
+# Fixed style roles (issue 3): two training cities, one held-out city, one flight-test city.
+TRAIN_STYLES: tuple[str, ...] = ("oxford", "cambridge")
+GENERALIZED_STYLE = "london"
+FLIGHT_STYLE = "industrial"
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Everything that determines a dataset besides the seed. Stored in the manifest."""
+
+    name: str
+    image_size: int  # UAV and satellite images are image_size x image_size (paper: 224)
+    n_standard: int  # pairs in standard/{train,val,test} together
+    standard_fractions: tuple[float, float, float] = (0.8, 0.1, 0.1)  # train, val, test
+    n_generalized_test: int = 0  # london pairs
+    n_flight_per_pitch: int = 0  # industrial pairs for each fixed pitch
+    flight_pitches_deg: tuple[float, ...] = (0.0, -10.0, -50.0)  # paper Sec. 3.5
+    flight_altitude_m: tuple[float, float] = (70.0, 90.0)  # paper Sec. 3.5
+    n_pitch_per_bin: int = 0  # pitch-sweep test pairs per bin (paper Fig. 6)
+    pitch_bin_edges_deg: tuple[float, ...] = (0.0, -10.0, -20.0, -30.0, -40.0, -50.0)
+    sat_heights_m: tuple[float, ...] = (600.0, 800.0, 1000.0, 1200.0, 1400.0)  # paper Fig. 5
+    n_height_train: int = 0  # per height, taken from standard/train (whole flights)
+    n_height_test: int = 0  # per height, taken from standard/test (whole flights)
+    sat_height_m: float = 1000.0  # paper Sec. 3.1
+    sat_footprint_m: tuple[float, float] = (2000.0, 1000.0)  # E x N at sat_height_m
+    flight_sat_footprint_m: tuple[float, float] = (2500.0, 1200.0)  # paper Sec. 3.5
+    samples_per_flight: int = 16
+    frame_stride: int = 15  # 30 fps video, one sample every 0.5 s
+    fov_deg: float = 60.0  # horizontal field of view of the UAV camera
+    supersample: int = 2
+    shard_size: int = 256  # UAV images per .npy shard
+    city_scale: float = 1.0  # passed to build_city when the world builder supports it
+
+    def __post_init__(self) -> None:
+        if self.image_size < 8:
+            raise ValueError(f"Profile.image_size must be >= 8, got {self.image_size}")
+        if self.n_standard < 3:
+            raise ValueError(
+                f"Profile.n_standard must be >= 3 (train/val/test), got {self.n_standard}"
+            )
+        if abs(sum(self.standard_fractions) - 1.0) > 1e-9 or min(self.standard_fractions) <= 0:
+            raise ValueError(
+                "Profile.standard_fractions must be positive and sum to 1, got "
+                f"{self.standard_fractions}"
+            )
+        edges = self.pitch_bin_edges_deg
+        if any(b >= a for a, b in itertools.pairwise(edges)):
+            raise ValueError(f"Profile.pitch_bin_edges_deg must decrease strictly, got {edges}")
+        if self.samples_per_flight < 1 or self.shard_size < 1:
+            raise ValueError("Profile.samples_per_flight and shard_size must be >= 1")
+
+    def with_size(self, n_standard: int) -> Profile:
+        """This profile rescaled so that the standard split holds ``n_standard`` pairs."""
+        if n_standard <= 0:
+            raise ValueError(f"size must be a positive number of pairs, got {n_standard}")
+        f = n_standard / self.n_standard
+
+        def scale(n: int) -> int:
+            return 0 if n == 0 else max(1, math.ceil(n * f))
+
+        return dataclasses.replace(
+            self,
+            n_standard=max(3, n_standard),
+            n_generalized_test=scale(self.n_generalized_test),
+            n_flight_per_pitch=scale(self.n_flight_per_pitch),
+            n_pitch_per_bin=scale(self.n_pitch_per_bin),
+            n_height_train=scale(self.n_height_train),
+            n_height_test=scale(self.n_height_test),
+        )
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Profile:
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - set(fields))
+        if unknown:
+            raise ValueError(f"Profile: unknown fields {unknown}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+PROFILES: dict[str, Profile] = {
+    "smoke": Profile(
+        name="smoke",
+        image_size=32,
+        n_standard=24,
+        n_generalized_test=6,
+        n_flight_per_pitch=4,
+        n_pitch_per_bin=2,
+        n_height_train=8,
+        n_height_test=4,
+        samples_per_flight=4,
+        frame_stride=30,
+        supersample=1,
+        shard_size=16,
+        city_scale=0.5,
+    ),
+    "quick": Profile(
+        name="quick",
+        image_size=96,
+        n_standard=3000,
+        n_generalized_test=300,
+        n_flight_per_pitch=100,
+        n_pitch_per_bin=60,
+        n_height_train=1200,
+        n_height_test=300,
+        samples_per_flight=16,
+        shard_size=256,
+    ),
+    "paper": Profile(
+        name="paper",
+        image_size=224,
+        n_standard=24000,
+        n_generalized_test=2400,
+        n_flight_per_pitch=600,
+        n_pitch_per_bin=400,
+        n_height_train=8000,
+        n_height_test=2400,
+        samples_per_flight=24,
+        shard_size=256,
+    ),
+}
+
+
+def get_profile(name: str, size: int | None = None) -> Profile:
+    """The named profile, optionally rescaled to ``size`` standard pairs; ValueError if bad."""
+    if name not in PROFILES:
+        raise ValueError(f"unknown profile {name!r}; expected one of {sorted(PROFILES)}")
+    profile = PROFILES[name]
+    return profile if size is None else profile.with_size(size)

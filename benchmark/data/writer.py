@@ -1,0 +1,332 @@
+"""``simulate_dataset``: build the worlds, plan the flights, render the shards, write the manifest.
+
+Resumable and deterministic: the plan is a pure function of (profile, seed, generator version);
+each shard is rendered from its own sample seeds and written atomically, a rerun skips every
+complete shard, and the manifest (with sha256 of every file) is written last. Workers are forked
+processes that share the cities copy-on-write and use one thread each.
+"""
+
+from __future__ import annotations
+
+import inspect
+import io
+import multiprocessing as mp
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from benchmark.data.camera_effects import apply_camera_effects
+from benchmark.data.format import (
+    CONFIG,
+    FORMAT_VERSION,
+    MANIFEST,
+    DatasetError,
+    atomic_save_npy,
+    atomic_write_bytes,
+    canonical_json,
+    file_entry,
+    npy_complete,
+    read_json,
+    shard_name,
+)
+from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, Profile
+from benchmark.progress import Progress
+
+PLAN_VERSION = 1  # bump when benchmark.sim.flights / splits change what they produce
+
+
+class ConfigMismatchError(ValueError):
+    """The output directory holds a dataset (or a partial one) with another config."""
+
+
+def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
+    from benchmark.sim import GENERATOR_VERSION
+
+    return {
+        "format_version": FORMAT_VERSION,
+        "generator_version": str(GENERATOR_VERSION),
+        "plan_version": PLAN_VERSION,
+        "profile": profile.to_dict(),
+        "seed": int(seed),
+    }
+
+
+def check_output_dir(out: Path, config: dict[str, Any]) -> str:
+    """``'new'``, ``'resume'`` or ``'complete'``; ConfigMismatchError if ``out`` holds another.
+
+    Never modifies ``out``.
+    """
+    if not out.exists():
+        return "new"
+    if not out.is_dir():
+        raise ConfigMismatchError(f"--out {out} exists and is not a directory")
+    cfg_path = out / CONFIG
+    if not cfg_path.is_file():
+        if any(out.iterdir()):
+            raise ConfigMismatchError(
+                f"--out {out} is a non-empty directory without {CONFIG}; refusing to write into it"
+            )
+        return "new"
+    old = read_json(cfg_path, "dataset config")
+    if old != config:
+        diffs = _diff(old, config)
+        raise ConfigMismatchError(
+            f"--out {out} holds a dataset with a different config ({'; '.join(diffs[:4])}); "
+            f"choose another --out or the same profile/size/seed"
+        )
+    return "complete" if (out / MANIFEST).is_file() else "resume"
+
+
+def _diff(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for k in sorted(set(a) | set(b)):
+            out += _diff(a.get(k), b.get(k), f"{prefix}{k}.")
+        return out
+    return [] if a == b else [f"{prefix.rstrip('.')}: existing {a!r} != requested {b!r}"]
+
+
+def parquet_bytes(df: pd.DataFrame) -> bytes:
+    """Deterministic parquet bytes (no index, snappy, fixed row group)."""
+    buf = io.BytesIO()
+    table = pa.Table.from_pandas(df.reset_index(drop=True), preserve_index=False)
+    pq.write_table(table, buf, compression="snappy", row_group_size=1 << 20)
+    return buf.getvalue()
+
+
+def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tuple[str, str], Any]:
+    """All worlds of a dataset: ``{(style, "now"|"earlier"): City}``."""
+    from benchmark.sim import build_city, changed_city
+    from benchmark.sim.splits import city_seed
+
+    kwargs: dict[str, Any] = {"cache_dir": cache_dir}
+    if "scale" in inspect.signature(build_city).parameters:
+        kwargs["scale"] = profile.city_scale
+    cities = {}
+    for style in (*TRAIN_STYLES, GENERALIZED_STYLE, FLIGHT_STYLE):
+        cities[(style, "now")] = build_city(style, city_seed(seed, style), **kwargs)
+    now = cities[(FLIGHT_STYLE, "now")]
+    cities[(FLIGHT_STYLE, "earlier")] = changed_city(now, city_seed(seed, FLIGHT_STYLE, "earlier"))
+    return cities
+
+
+@dataclass
+class _Context:
+    """What a worker needs; set before the pool forks so children inherit it copy-on-write."""
+
+    root: Path
+    profile: Profile
+    seed: int
+    cities: dict[tuple[str, str], Any]
+    uav: pd.DataFrame
+    sat: pd.DataFrame
+
+
+_CTX: _Context | None = None
+
+
+def _worker_init() -> None:
+    os.environ.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):  # pragma: no cover - numba absent or threads already fixed
+        pass
+    import cv2
+    import torch
+
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def render_uav_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
+    """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects."""
+    from benchmark.sim import Camera, render_uav
+    from benchmark.sim.splits import sample_seed
+
+    p = ctx.profile
+    camera = Camera(p.image_size, p.image_size, p.fov_deg)
+    out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
+    for j, r in enumerate(rows.itertuples(index=False)):
+        img = render_uav(
+            ctx.cities[(r.city, "now")], np.array([r.E, r.N, r.U]), r.yaw, r.pitch, r.roll,
+            camera, supersample=p.supersample,
+        )  # fmt: skip
+        if r.camera_effects:
+            img = apply_camera_effects(
+                img, np.random.default_rng(sample_seed(ctx.seed, r.uav_index))
+            )
+        out[j] = img
+    return out
+
+
+def render_sat_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
+    """Render satellite images; uint8 ``(n, S, S, 3)``."""
+    from benchmark.sim import render_satellite
+
+    p = ctx.profile
+    out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
+    for j, r in enumerate(rows.itertuples(index=False)):
+        out[j] = render_satellite(
+            ctx.cities[(r.city, r.variant)], (r.E, r.N), height_m=r.height_m,
+            footprint_m=(r.footprint_E_m, r.footprint_N_m), size=p.image_size,
+        )  # fmt: skip
+    return out
+
+
+def _shard_rows(table: pd.DataFrame, k: int, size: int) -> pd.DataFrame:
+    return table.iloc[k * size : (k + 1) * size]
+
+
+def _shard_shape(n_rows: int, k: int, p: Profile) -> tuple[int, int, int, int]:
+    n = min(p.shard_size, n_rows - k * p.shard_size)
+    return (n, p.image_size, p.image_size, 3)
+
+
+def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
+    ctx = _CTX
+    assert ctx is not None, "worker context not set"
+    kind, k = task
+    table = ctx.uav if kind == "uav" else ctx.sat
+    rows = _shard_rows(table, k, ctx.profile.shard_size)
+    images = render_uav_rows(ctx, rows) if kind == "uav" else render_sat_rows(ctx, rows)
+    atomic_save_npy(ctx.root / shard_name(kind, k), images)
+    return kind, k, len(rows)
+
+
+def _remove_stale_temporaries(out: Path) -> None:
+    """Delete ``.name.tmp<pid>`` files left by a killed run (only those of dead processes)."""
+    for tmp in [*out.glob(".*.tmp*"), *out.glob("*/.*.tmp*")]:
+        pid = tmp.name.rsplit(".tmp", 1)[-1]
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            tmp.unlink(missing_ok=True)
+        except (ValueError, PermissionError):
+            pass
+
+
+def n_shards(n_rows: int, p: Profile) -> int:
+    return -(-n_rows // p.shard_size)
+
+
+def simulate_dataset(
+    out: Path,
+    profile: Profile,
+    seed: int = 0,
+    *,
+    workers: int = 1,
+    cache_dir: Path | None = None,
+    max_tasks: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Write (or resume, or confirm) the dataset of (profile, seed) at ``out``.
+
+    ``max_tasks`` stops after that many shards without writing the manifest (an interruption, for
+    tests and benchmarks). Returns timing statistics. Raises ConfigMismatchError before touching
+    ``out`` if it holds a different dataset.
+    """
+    global _CTX
+    out = Path(out)
+    config = dataset_config(profile, seed)
+    state = check_output_dir(out, config)
+    stats: dict[str, Any] = {"state": state}
+    if state == "complete":
+        return stats
+    out.mkdir(parents=True, exist_ok=True)
+    if state == "new":
+        atomic_write_bytes(out / CONFIG, canonical_json(config))
+    _remove_stale_temporaries(out)
+
+    t0 = time.perf_counter()
+    cities = build_cities(profile, seed, cache_dir)
+    stats["cities_s"] = time.perf_counter() - t0
+
+    from benchmark.sim.splits import make_plan
+
+    t0 = time.perf_counter()
+    plan = make_plan(profile, {s: c for (s, v), c in cities.items() if v == "now"}, seed)
+    stats["plan_s"] = time.perf_counter() - t0
+    tables = {"uav.parquet": plan.uav, "sat.parquet": plan.sat, "pairs.parquet": plan.pairs}
+    for name, df in tables.items():
+        data = parquet_bytes(df)
+        path = out / name
+        if path.is_file() and path.read_bytes() != data:
+            raise DatasetError(f"{path} differs from the plan this code computes; delete {out}")
+        if not path.is_file():
+            atomic_write_bytes(path, data)
+
+    tasks = [("sat", k) for k in range(n_shards(len(plan.sat), profile))]
+    tasks += [("uav", k) for k in range(n_shards(len(plan.uav), profile))]
+
+    def shape_of(kind: str, k: int) -> tuple[int, int, int, int]:
+        return _shard_shape(len(plan.uav if kind == "uav" else plan.sat), k, profile)
+
+    sizes = {t: shape_of(*t)[0] for t in tasks}
+    pending = [t for t in tasks if not npy_complete(out / shard_name(*t), shape_of(*t))]
+    todo = pending if max_tasks is None else pending[:max_tasks]
+    total = len(plan.uav) + len(plan.sat)
+    done = total - sum(sizes[t] for t in pending)
+
+    _CTX = _Context(out, profile, seed, cities, plan.uav, plan.sat)
+    t0 = time.perf_counter()
+    try:
+        with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
+            if workers <= 1 or len(todo) <= 1:
+                for task in todo:
+                    bar.update(_run_task(task)[2], postfix=f"{task[0]} shard {task[1]}")
+            else:
+                mpctx = mp.get_context("fork")
+                with mpctx.Pool(min(workers, len(todo)), initializer=_worker_init) as pool:
+                    for kind, k, n in pool.imap_unordered(_run_task, todo):
+                        bar.update(n, postfix=f"{kind} shard {k}")
+    finally:
+        _CTX = None
+    stats["render_s"] = time.perf_counter() - t0
+    stats["rendered_uav"] = sum(sizes[t] for t in todo if t[0] == "uav")
+    stats["rendered_sat"] = sum(sizes[t] for t in todo if t[0] == "sat")
+    if len(todo) < len(pending):
+        stats["state"] = "interrupted"
+        return stats
+    write_manifest(out, config, plan, {t: shape_of(*t) for t in tasks})
+    stats["state"] = "written"
+    return stats
+
+
+def write_manifest(
+    out: Path, config: dict[str, Any], plan: Any, shards: dict[tuple[str, int], tuple[int, ...]]
+) -> None:
+    files = {
+        name: file_entry(out, name) for name in ("uav.parquet", "sat.parquet", "pairs.parquet")
+    }
+    for (kind, k), shape in sorted(shards.items()):
+        files[shard_name(kind, k)] = file_entry(out, shard_name(kind, k), shape)
+    counts = plan.pairs.split.value_counts()
+    manifest = {
+        **config,
+        "image_size": config["profile"]["image_size"],
+        "shard_size": config["profile"]["shard_size"],
+        "counts": {
+            "uav_images": len(plan.uav),
+            "sat_images": len(plan.sat),
+            "pairs": len(plan.pairs),
+        },
+        "splits": {s: int(counts[s]) for s in plan.splits},
+        "units": {
+            "E, N, U, dE, dN, dU, sat_*": "metres, ENU navigation frame",
+            "yaw, pitch, roll, sat_*": "radians, R_b^n = Rz(yaw) Rx(pitch) Ry(roll)",
+            "R00..R22": "R_uav^sat = R_uav^n (R_sat^n)^T, row-major (paper Eq. 2)",
+            "dE, dN, dU": "UAV position minus satellite capture point",
+            "images": "uint8 (n, H, W, 3) RGB, .npy shards",
+        },
+        "files": files,
+    }
+    atomic_write_bytes(out / MANIFEST, canonical_json(manifest))

@@ -1,0 +1,240 @@
+"""The dataset plan: split definitions, leakage, labels (benchmark.sim.splits)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from benchmark.data.profiles import PROFILES
+from benchmark.geometry import euler_to_rotmat, relative_rotation
+from benchmark.sim.splits import (
+    LEAK_ANGLE_DEG,
+    LEAK_DIST_M,
+    R_COLUMNS,
+    city_seed,
+    make_plan,
+    relative_labels,
+    sample_seed,
+)
+
+
+class FlatCity:
+    def __init__(self, offset: float, centres: int = 3) -> None:
+        self.offset = offset
+        self.flight_centres = np.array([[400.0 * k, -250.0 * k] for k in range(centres)])
+
+    def ground_height(self, E, N):
+        return self.offset + 0.01 * np.asarray(E) + 0.0 * np.asarray(N)
+
+    def clearance(self, E, N):
+        return self.ground_height(E, N) + 25.0
+
+
+CITIES = {"oxford": FlatCity(10.0), "cambridge": FlatCity(3.0, 2), "london": FlatCity(30.0),
+          "industrial": FlatCity(50.0, 2)}  # fmt: skip
+
+
+def small_profile(**kw):
+    base = dataclasses.replace(
+        PROFILES["smoke"], n_standard=60, n_generalized_test=10, n_flight_per_pitch=5,
+        n_pitch_per_bin=4, n_height_train=20, n_height_test=8, samples_per_flight=5,
+    )  # fmt: skip
+    return dataclasses.replace(base, **kw)
+
+
+@pytest.fixture(scope="module")
+def plan():
+    return make_plan(small_profile(), CITIES, seed=7)
+
+
+def flights_of(plan, split):
+    return set(plan.pairs.loc[plan.pairs.split == split, "flight"])
+
+
+class TestMakePlan:
+    def test_split_names_and_counts(self, plan):
+        p = small_profile()
+        counts = plan.pairs.split.value_counts()
+        assert counts["standard/train"] == 48 and counts["standard/val"] == 6
+        assert counts["standard/test"] == 6 and counts["generalized/test"] == 10
+        for name in ("flight/pitch0", "flight/pitch-10", "flight/pitch-50"):
+            assert counts[name] == p.n_flight_per_pitch
+        for name in ("pitch0to-10/test", "pitch-10to-20/test", "pitch-40to-50/test"):
+            assert counts[name] == p.n_pitch_per_bin
+        for h in p.sat_heights_m:
+            # capped by the size of standard/test (6 pairs)
+            assert counts[f"height{h:g}/train"] == 20 and counts[f"height{h:g}/test"] == 6
+
+    def test_standard_splits_disjoint_by_flight(self, plan):
+        tr, va, te = (flights_of(plan, f"standard/{s}") for s in ("train", "val", "test"))
+        assert tr and va and te
+        assert not (tr & va) and not (tr & te) and not (va & te)
+        for name in plan.splits:
+            if name.startswith("pitch") or name.endswith("/test"):
+                assert not (flights_of(plan, name) & tr), name
+
+    def test_no_near_identical_frames_across_train_and_test(self, plan):
+        train = plan.pairs[plan.pairs.split == "standard/train"]
+        for name in ("standard/val", "standard/test", "pitch-20to-30/test"):
+            for r in plan.pairs[plan.pairs.split == name].itertuples():
+                same = train[train.city == r.city]
+                d = np.sqrt((same.E - r.E) ** 2 + (same.N - r.N) ** 2 + (same.U - r.U) ** 2)
+                dyaw = np.abs(np.angle(np.exp(1j * (same.yaw - r.yaw))))
+                dpitch = np.abs(same.pitch - r.pitch)
+                near = (d < LEAK_DIST_M) & (dyaw < math.radians(LEAK_ANGLE_DEG))
+                assert not np.any(near & (dpitch < math.radians(LEAK_ANGLE_DEG))), name
+
+    def test_cities_per_split(self, plan):
+        city = plan.pairs.groupby("split").city.agg(set)
+        assert city["standard/train"] == {"oxford", "cambridge"}
+        assert city["generalized/test"] == {"london"}
+        assert city["flight/pitch-10"] == {"industrial"}
+        for s in ("train", "val"):  # generalized train/val are the standard ones
+            a = plan.pairs[plan.pairs.split == f"standard/{s}"].uav_index.to_numpy()
+            b = plan.pairs[plan.pairs.split == f"generalized/{s}"].uav_index.to_numpy()
+            np.testing.assert_array_equal(a, b)
+
+    def test_flight_test_sets(self, plan):
+        for pitch in (0.0, -10.0, -50.0):
+            rows = plan.pairs[plan.pairs.split == f"flight/pitch{pitch:g}"]
+            np.testing.assert_allclose(rows.pitch, math.radians(pitch))
+            agl = rows.U - CITIES["industrial"].ground_height(rows.sat_E, rows.sat_N)
+            assert agl.between(70.0, 90.0).all()
+            sat = plan.sat.set_index("sat_index").loc[rows.sat_index]
+            assert (sat.variant == "earlier").all() and (sat.footprint_E_m == 2500.0).all()
+            uav = plan.uav.set_index("uav_index").loc[rows.uav_index]
+            assert uav.camera_effects.all()
+        assert not plan.uav[plan.uav.group.str.startswith("standard")].camera_effects.any()
+
+    def test_pitch_bins(self, plan):
+        for hi, lo in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50)):
+            rows = plan.pairs[plan.pairs.split == f"pitch{hi:g}to{lo:g}/test"]
+            deg = np.degrees(rows.pitch)
+            assert ((deg >= lo - 1e-9) & (deg <= hi + 1e-9)).all()
+
+    def test_height_sweep(self, plan):
+        std = {
+            s: set(plan.pairs.loc[plan.pairs.split == f"standard/{s}", "uav_index"])
+            for s in ("train", "test")
+        }
+        ref = None
+        for h in small_profile().sat_heights_m:
+            for part in ("train", "test"):
+                rows = plan.pairs[plan.pairs.split == f"height{h:g}/{part}"]
+                assert set(rows.uav_index) <= std[part]
+                ground = np.where(rows.city == "oxford", 10.0, 3.0) + 0.01 * rows.sat_E
+                np.testing.assert_allclose(rows.sat_U - ground, h)
+                sat = plan.sat.set_index("sat_index").loc[rows.sat_index]
+                np.testing.assert_allclose(sat.footprint_E_m, 2000.0 * h / 1000.0)
+                np.testing.assert_allclose(sat.footprint_N_m, 1000.0 * h / 1000.0)
+                if part == "train":  # every height uses the same UAV images
+                    ids = rows.uav_index.to_numpy()
+                    ref = ids if ref is None else ref
+                    np.testing.assert_array_equal(ids, ref)
+
+    def test_one_satellite_image_per_centre_and_height(self, plan):
+        key = ["city", "variant", "centre", "height_m", "footprint_E_m"]
+        assert not plan.sat.duplicated(key).any()
+        std = plan.pairs[plan.pairs.split == "standard/train"]
+        # 3 oxford + 2 cambridge centres -> 5 distinct satellite images at 1000 m
+        assert std.sat_index.nunique() == 5
+
+    def test_convention_translation_label(self, plan):
+        p = plan.pairs
+        for d, c in (("dE", "E"), ("dN", "N"), ("dU", "U")):
+            np.testing.assert_allclose(p[d], p[c] - p[f"sat_{c}"])
+        std = p[p.split == "standard/test"]
+        np.testing.assert_allclose(std.sat_height_m, 1000.0)
+        cen = CITIES["oxford"].flight_centres
+        ox = std[std.city == "oxford"]
+        np.testing.assert_allclose(ox[["sat_E", "sat_N"]].to_numpy(), cen[ox.centre.to_numpy()])
+
+    def test_rotation_label_matches_scipy(self, plan):
+        p = plan.pairs
+        # R_b^n = Rz(yaw) Rx(pitch) Ry(roll): intrinsic z-x'-y'' in scipy ("ZXY").
+        R_uav = Rotation.from_euler("ZXY", p[["yaw", "pitch", "roll"]].to_numpy()).as_matrix()
+        R_sat = Rotation.from_euler("ZXY", [0.0, -math.pi / 2, 0.0]).as_matrix()
+        expected = R_uav @ R_sat.T
+        got = p[R_COLUMNS].to_numpy().reshape(-1, 3, 3)
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+        np.testing.assert_allclose(
+            p[["sat_yaw", "sat_pitch", "sat_roll"]], [[0.0, -math.pi / 2, 0.0]] * len(p)
+        )
+
+    def test_rotation_label_matches_geometry_core(self, plan):
+        p = plan.pairs
+        t = torch.as_tensor(p[["yaw", "pitch", "roll"]].to_numpy())
+        zero = torch.tensor(0.0, dtype=torch.float64)
+        R_sat = euler_to_rotmat(zero, torch.tensor(-math.pi / 2, dtype=torch.float64), zero)
+        R = relative_rotation(
+            euler_to_rotmat(t[:, 0], t[:, 1], t[:, 2]), R_sat.expand(len(p), 3, 3)
+        )
+        np.testing.assert_allclose(p[R_COLUMNS].to_numpy().reshape(-1, 3, 3), R.numpy(), atol=1e-12)
+
+    def test_deterministic_and_seeded(self, plan):
+        again = make_plan(small_profile(), CITIES, seed=7)
+        assert (
+            again.pairs.equals(plan.pairs)
+            and again.uav.equals(plan.uav)
+            and again.sat.equals(plan.sat)
+        )
+        other = make_plan(small_profile(), CITIES, seed=8)
+        assert not np.allclose(other.uav.E.to_numpy(), plan.uav.E.to_numpy())
+
+    def test_uav_index_is_row_number(self, plan):
+        np.testing.assert_array_equal(plan.uav.uav_index, np.arange(len(plan.uav)))
+        np.testing.assert_array_equal(plan.sat.sat_index, np.arange(len(plan.sat)))
+
+
+class TestRelativeLabels:
+    def test_convention_level_uav_facing_north(self):
+        import pandas as pd
+
+        uav = pd.DataFrame(dict(E=[5.0], N=[-3.0], U=[100.0], yaw=[0.0], pitch=[0.0], roll=[0.0]))
+        sat = pd.DataFrame(
+            dict(E=[0.0], N=[0.0], U=[1000.0], yaw=[0.0], pitch=[-math.pi / 2], roll=[0.0])
+        )
+        lab = relative_labels(uav, sat)
+        # R_uav^sat = I Rx(-90)^T = Rx(+90): columns are the images of the axes under Rx(90 deg)
+        expected = Rotation.from_euler("x", 90, degrees=True).as_matrix()
+        np.testing.assert_allclose(lab[R_COLUMNS].to_numpy().reshape(3, 3), expected, atol=1e-15)
+        np.testing.assert_allclose(lab[["dE", "dN", "dU"]].to_numpy()[0], [5.0, -3.0, -900.0])
+
+
+class TestSeeds:
+    def test_sample_seeds_independent_of_order(self):
+        a = np.random.default_rng(sample_seed(1, 17)).random(4)
+        b = np.random.default_rng(sample_seed(1, 17)).random(4)
+        c = np.random.default_rng(sample_seed(1, 18)).random(4)
+        d = np.random.default_rng(sample_seed(2, 17)).random(4)
+        np.testing.assert_array_equal(a, b)
+        assert not np.allclose(a, c) and not np.allclose(a, d)
+
+    def test_city_seeds_differ_per_style_and_variant(self):
+        seeds = {city_seed(0, s, v) for s in ("oxford", "london") for v in ("now", "earlier")}
+        assert len(seeds) == 4 and all(0 <= s < 2**31 for s in seeds)
+        assert city_seed(0, "oxford") != city_seed(1, "oxford")
+
+
+class TestLeakIndex:
+    def test_detects_near_identical_pose_only(self):
+        from benchmark.sim.splits import _LeakIndex
+
+        d = {
+            k: np.array([v])
+            for k, v in dict(E=0.0, N=0.0, U=100.0, yaw=3.1, pitch=-0.3, roll=0.0).items()
+        }
+        idx = _LeakIndex()
+        idx.add("oxford", d)
+        assert idx.leaks("oxford", d) and not idx.leaks("london", d)
+        moved = dict(d, E=np.array([LEAK_DIST_M + 1.0]))
+        turned = dict(d, yaw=np.array([3.1 + math.radians(LEAK_ANGLE_DEG) + 0.01]))
+        wrapped = dict(d, yaw=np.array([3.1 - 2 * math.pi + 0.05]))  # same heading across +-pi
+        tilted = dict(d, pitch=np.array([-0.3 - math.radians(LEAK_ANGLE_DEG) - 0.01]))
+        assert not idx.leaks("oxford", moved) and not idx.leaks("oxford", turned)
+        assert idx.leaks("oxford", wrapped) and not idx.leaks("oxford", tilted)
