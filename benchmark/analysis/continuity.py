@@ -76,12 +76,18 @@ def paper_rotvec(q: torch.Tensor) -> torch.Tensor:
     return factor[..., None] * q[..., 1:]
 
 
-def sweep(pitch: float, roll: float, step_deg: float, attitude: str) -> pd.DataFrame:
-    """One row per heading in ``[-180, 180)`` deg; angles in radians in, table in degrees out."""
+def sweep(
+    pitch: float,
+    roll: float,
+    step_deg: float,
+    attitude: str,
+    headings_deg: np.ndarray | None = None,
+) -> pd.DataFrame:
+    """A row per heading in ``[-180, 180)`` deg (or per given heading); radians in, degrees out."""
     if not 0 < step_deg <= 10:
         raise ValueError(f"step must be in (0, 10] deg, got {step_deg}")
-    heading_deg = np.arange(-180.0, 180.0, step_deg)
-    heading = torch.from_numpy(np.radians(heading_deg))
+    heading_deg = np.arange(-180.0, 180.0, step_deg) if headings_deg is None else headings_deg
+    heading = torch.from_numpy(np.radians(np.asarray(heading_deg, dtype=np.float64)))
     R = euler_to_rotmat(
         heading, torch.tensor(pitch, dtype=torch.float64), torch.tensor(roll, dtype=torch.float64)
     )
@@ -133,6 +139,24 @@ def find_jumps(table: pd.DataFrame, ratio: float = 50.0) -> list[Jump]:
     return jumps
 
 
+def refine_jump(
+    pitch: float, roll: float, attitude: str, component: str, lo_deg: float, hi_deg: float
+) -> float:
+    """Locate a jump of ``component`` between two headings by bisection, to 1e-7 deg.
+
+    Keeps the half-interval across which the component changes most; a jump of finite size stays
+    in it while the smooth change shrinks with the interval.
+    """
+    for _ in range(40):
+        mid = 0.5 * (lo_deg + hi_deg)
+        values = sweep(pitch, roll, 1.0, attitude, np.array([lo_deg, mid, hi_deg]))[component]
+        a, b, c = values.to_numpy()
+        lo_deg, hi_deg = (lo_deg, mid) if abs(b - a) >= abs(c - b) else (mid, hi_deg)
+        if hi_deg - lo_deg < 1e-7:
+            break
+    return 0.5 * (lo_deg + hi_deg)
+
+
 def plot(table: pd.DataFrame, jumps: list[Jump], title: str, path: Path) -> None:
     import matplotlib
 
@@ -162,7 +186,9 @@ def plot(table: pd.DataFrame, jumps: list[Jump], title: str, path: Path) -> None
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pitch", type=float, default=-20.0, help="pitch theta, deg (paper: -20)")
     parser.add_argument("--roll", type=float, default=-10.0, help="roll gamma, deg (paper: -10)")
-    parser.add_argument("--step", type=float, default=0.01, help="heading step, deg")
+    parser.add_argument(
+        "--step", type=float, default=0.1, help="heading step of the table, deg (jumps are refined)"
+    )
     parser.add_argument(
         "--attitude",
         choices=("uav", "relative"),
@@ -194,8 +220,15 @@ def run(args: argparse.Namespace) -> int:
     title = f"{what} vs heading, pitch {args.pitch:g} deg, roll {args.roll:g} deg"
     plot(table, jumps, title, args.out / f"{stem}.png")
 
+    pitch, roll = math.radians(args.pitch), math.radians(args.roll)
+    biggest: dict[float, Jump] = {}  # one refinement per jump location, on its largest component
+    for j in jumps:
+        if j.representation.startswith("q") and j.size > biggest.get(j.heading_deg, j).size - 1e-12:
+            biggest[j.heading_deg] = j
+    half = args.step / 2
     quat_jumps = sorted(
-        {round(j.heading_deg, 3) for j in jumps if j.representation.startswith("q")}
+        round(refine_jump(pitch, roll, args.attitude, j.component, at - half, at + half), 4)
+        for at, j in biggest.items()
     )
     case = table["eq3_case"].to_numpy()
     changes = np.nonzero(case != np.roll(case, -1))[0]
@@ -213,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
         f"Eq. 6 closed form: |psi| = {threshold:.3f} deg (the paper reads the jump at -63.03 deg "
         "for pitch -20, roll -10)",
         f"Eq. 3 case changes (heading deg, case before->after): {boundaries}",
-        f"Measured quaternion jumps (heading deg): {quat_jumps}",
+        f"Measured quaternion jumps (heading deg, bisected to 1e-4): {quat_jumps}",
         "",
         "| representation | jumps at heading (deg) |",
         "|---|---|",

@@ -8,7 +8,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.analysis.continuity import eq6_threshold_deg, find_jumps, paper_rotvec, sweep
+from benchmark.analysis.continuity import (
+    eq6_threshold_deg,
+    find_jumps,
+    paper_rotvec,
+    refine_jump,
+    sweep,
+)
 from benchmark.cli import main
 
 
@@ -68,6 +74,14 @@ class TestSweep:
             sweep(0.0, 0.0, 0.0, "uav")
 
 
+class TestRefineJump:
+    def test_bisection_lands_on_eq6(self):
+        # The bisected quaternion jump equals the closed form to far better than the sampling step.
+        pitch, roll = math.radians(-20), math.radians(-10)
+        at = refine_jump(pitch, roll, "uav", "q0", -63.5, -62.5)
+        assert at == pytest.approx(-eq6_threshold_deg(pitch, roll), abs=1e-4)
+
+
 class TestPaperRotvec:
     def test_matches_axis_angle_for_positive_q0(self):
         angle, axis = 0.7, np.array([0.6, 0.0, 0.8])
@@ -90,7 +104,7 @@ class TestContinuityCommand:
             assert (tmp_path / name).stat().st_size > 0
         table = pd.read_csv(tmp_path / "continuity_uav.csv")
         assert len(table) == 720
-        assert "63.041" in capsys.readouterr().out
+        assert "63.041 deg" in capsys.readouterr().out
 
     def test_bad_angle_exits_2(self, tmp_path, capsys):
         assert main(["continuity", "--pitch", "120", "--out", str(tmp_path)]) == 2
