@@ -1,0 +1,109 @@
+"""Pd/Re-Net attitude head: a vMF lattice distribution per column of R (paper Sec. 2.2.2).
+
+Grid: the 4096-point equal-area spherical Fibonacci lattice (the paper's "64 x 64 points").
+
+Target (Eq. 10): for each column ``r*_j`` of ``R_uav^sat``, ``discrete_vmf(r*_j, kappa=10, grid)``,
+the vMF density at the lattice points normalised to sum 1.
+
+Prediction: logits ``(B, 3, n)`` from a bottleneck decoder; the predicted distribution is their
+softmax over the lattice, i.e. probabilities summing to 1 per column, exactly like the target.
+
+Decoding: the expectation of each column (Eq. 9, ``sum_k p_k x_k`` normalised), stacked as columns,
+then SVD orthogonalisation (``special_orthogonalize``, det +1).
+
+Loss (Eq. 15): ``L_dir (Eq. 13) + alpha * s * L_dis (Eq. 14)`` with alpha = 8e7, averaged over the
+batch. L_dir uses the Eq. 9 expectations before orthogonalisation (Algorithm 1, steps 3-4).
+
+Why alpha = 8e7 keeps DirectionNet's meaning: DirectionNet's maps live on a 64 x 64 equirectangular
+grid, normalised so that ``sum_ij q_ij sin(theta_i) = 1`` (``q = density * dtheta dphi``), and its
+distribution loss is the sin-weighted *mean* over the 4096 pixels, ``mean sin(theta) (q - q*)^2``,
+which equals ``(dOmega0 / 4096) * integral (f - f*)^2 dA`` for densities f (1/sr) and
+``dOmega0 = 2 pi^2 / 4096``. Our probabilities on an equal-area lattice are ``p = f * 4 pi / n``,
+so the plain Eq. 14 sum would be ``(4 pi / n) * integral (f - f*)^2 dA``. Multiplying it by
+``s = dOmega0 n / (4096 * 4 pi)`` (``pi / 8192 = 3.8e-4`` for n = 4096; ``distribution_loss_scale``)
+makes ``alpha * s * L_dis`` the same multiple of the same L2 distance between densities as in
+DirectionNet, so alpha = 8e7 weighs the dense supervision against the cosine term exactly as it
+does there. Equivalently: DirectionNet's grid with every sin weight replaced by its average 2/pi.
+(Per column, the plain sum with alpha = 8e7 would be ~2600x too strong.)
+
+Uncertainty: the spherical variance ``1 - |sum_k p_k x_k|`` averaged over the three columns, in
+[0, 1] (0 = point masses). ``log_prob``: the three column distributions are independent (as the
+paper assumes), so it is the sum of the three log densities (1/sr) at the lattice points nearest to
+the columns of R.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from benchmark.geometry import discrete_vmf, fibonacci_sphere, special_orthogonalize
+from benchmark.models import AttitudeHead, register_head
+from benchmark.models.heads import check_option
+from benchmark.models.spherical import (
+    LatticeDecoder,
+    directionnet_loss,
+    lattice_log_density,
+    resultant_length,
+)
+
+
+@register_head("pd_re_net")
+class PdReNet(AttitudeHead):
+    """Args: in_features; n_points (4096); kappa (10, > 0); alpha (8e7); hidden (256)."""
+
+    paper_name = "Pd/Re-Net"
+    is_probabilistic = True
+
+    def __init__(
+        self,
+        in_features: int,
+        n_points: int = 4096,
+        kappa: float = 10.0,
+        alpha: float = 8e7,
+        hidden: int = 256,
+    ) -> None:
+        super().__init__(in_features)
+        self.kappa = check_option(kappa, "kappa", "pd_re_net")
+        self.alpha = check_option(alpha, "alpha", "pd_re_net", inclusive=True)
+        if not isinstance(n_points, int) or n_points < 4:
+            raise ValueError(f"pd_re_net: n_points must be an int >= 4, got {n_points!r}")
+        self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
+        self.decoder = LatticeDecoder(in_features, 3, n_points, hidden)
+
+    def forward(self, features: Tensor) -> Tensor:
+        """(B, F) -> logits (B, 3, n): one row per column of R."""
+        self._check_features(features)
+        return self.decoder(features)
+
+    def distribution(self, raw: Tensor) -> Tensor:
+        """(B, 3, n) probabilities, each row summing to 1."""
+        return torch.softmax(raw, dim=-1)
+
+    def target_distribution(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 3, n): discrete vMF around each column (Eq. 10)."""
+        return discrete_vmf(R.transpose(-1, -2), self.kappa, self.grid.to(R.dtype))
+
+    def decode_distribution(self, p: Tensor) -> Tensor:
+        """(B, 3, n) -> (B, 3, 3): Eq. 9 expectation per column, then SVD orthogonalisation."""
+        resultant = p @ self.grid.to(p.dtype)  # (B, 3 columns, 3 coordinates)
+        return special_orthogonalize(resultant.transpose(-1, -2))
+
+    def decode(self, raw: Tensor) -> Tensor:
+        return self.decode_distribution(self.distribution(raw))
+
+    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
+        p = self.distribution(raw)
+        grid = self.grid.to(p.dtype)
+        columns = R_gt.transpose(-1, -2)
+        target = discrete_vmf(columns, self.kappa, grid)
+        return directionnet_loss(p, target, p @ grid, columns, self.alpha, 3).mean()
+
+    def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
+        """(B,) sum over the 3 columns of the log density (1/sr) at the nearest lattice point."""
+        log_p = torch.log_softmax(raw, dim=-1)
+        return lattice_log_density(log_p, R.transpose(-1, -2), self.grid).sum(-1)
+
+    def uncertainty(self, raw: Tensor) -> Tensor:
+        """(B,) mean spherical variance ``1 - |E x|`` of the three columns, in [0, 1]."""
+        return 1 - resultant_length(self.distribution(raw), self.grid).mean(-1)

@@ -1,0 +1,42 @@
+"""Re-Net-E: regress (yaw, pitch, roll) of ``R_uav^sat`` plainly (paper Table 1).
+
+Label: ``rotmat_to_euler`` (yaw, roll in (-pi, pi], pitch in [-pi/2, pi/2]); loss: squared error in
+radians *without* wrapping, so a label near yaw = +-pi is a discontinuity for the network. That is
+deliberate: it is the effect of the representation that the paper measures. Note that the relative
+rotation to a nadir satellite camera has pitch near +pi/2 for level flight (UAV pitch 0 -> relative
+pitch 90 deg), i.e. close to gimbal lock, where yaw and roll are ill-defined.
+Decoding: ``euler_to_rotmat`` (Eq. 1).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from benchmark.geometry import euler_to_rotmat, rotmat_to_euler
+from benchmark.models import AttitudeHead, mlp, register_head
+
+
+@register_head("re_net_e")
+class ReNetE(AttitudeHead):
+    """Args: in_features; hidden (1024)."""
+
+    paper_name = "Re-Net-E"
+
+    def __init__(self, in_features: int, hidden: int = 1024) -> None:
+        super().__init__(in_features)
+        self.net = mlp(in_features, hidden, 3)
+
+    def forward(self, features: Tensor) -> Tensor:
+        """(B, F) -> (B, 3) (yaw, pitch, roll) radians."""
+        self._check_features(features)
+        return self.net(features)
+
+    def decode(self, raw: Tensor) -> Tensor:
+        yaw, pitch, roll = raw.unbind(-1)
+        return euler_to_rotmat(yaw, pitch, roll)
+
+    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
+        yaw, pitch, roll = rotmat_to_euler(R_gt)
+        target = torch.stack([yaw, pitch, roll], dim=-1)
+        return ((raw - target) ** 2).sum(-1).mean()

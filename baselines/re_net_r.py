@@ -1,0 +1,35 @@
+"""Re-Net-R: regress the 9 entries of R, project with SVD (paper Sec. 3.3.1, Table 1).
+
+Loss: squared Euclidean (Frobenius) distance between the 9 raw numbers and ``R_uav^sat``, the
+plain regression the paper compares against. Decoding: ``special_orthogonalize`` (det +1), the
+closest rotation in Frobenius norm.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from benchmark.geometry import special_orthogonalize
+from benchmark.models import AttitudeHead, mlp, register_head
+
+
+@register_head("re_net_r")
+class ReNetR(AttitudeHead):
+    """Args: in_features; hidden (1024)."""
+
+    paper_name = "Re-Net-R"
+
+    def __init__(self, in_features: int, hidden: int = 1024) -> None:
+        super().__init__(in_features)
+        self.net = mlp(in_features, hidden, 9)
+
+    def forward(self, features: Tensor) -> Tensor:
+        """(B, F) -> (B, 3, 3) unconstrained matrices."""
+        self._check_features(features)
+        return self.net(features).view(-1, 3, 3)
+
+    def decode(self, raw: Tensor) -> Tensor:
+        return special_orthogonalize(raw)
+
+    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
+        return ((raw - R_gt) ** 2).sum(dim=(-1, -2)).mean()

@@ -1,0 +1,35 @@
+"""Re-Net-Rv: regress the rotation vector (paper Eq. 7, Table 1).
+
+Label: ``rotmat_to_rotvec(R_uav^sat)``, angle in [0, pi]; the vector flips to its antipode when the
+angle crosses pi, the discontinuity the paper discusses. Loss: squared Euclidean distance (rad^2).
+Decoding: Rodrigues (``rotvec_to_rotmat``), a rotation for any output.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from benchmark.geometry import rotmat_to_rotvec, rotvec_to_rotmat
+from benchmark.models import AttitudeHead, mlp, register_head
+
+
+@register_head("re_net_rv")
+class ReNetRv(AttitudeHead):
+    """Args: in_features; hidden (1024)."""
+
+    paper_name = "Re-Net-Rv"
+
+    def __init__(self, in_features: int, hidden: int = 1024) -> None:
+        super().__init__(in_features)
+        self.net = mlp(in_features, hidden, 3)
+
+    def forward(self, features: Tensor) -> Tensor:
+        """(B, F) -> (B, 3) rotation vectors (radians)."""
+        self._check_features(features)
+        return self.net(features)
+
+    def decode(self, raw: Tensor) -> Tensor:
+        return rotvec_to_rotmat(raw)
+
+    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
+        return ((raw - rotmat_to_rotvec(R_gt)) ** 2).sum(-1).mean()

@@ -1,0 +1,167 @@
+"""Name -> class registries for heads and encoders (timm style).
+
+Heads::
+
+    @register_head("re_net_r")
+    class ReNetR(AttitudeHead): ...
+
+    head = create_head("re_net_r", in_features=4096)
+    list_heads("attitude")  # ['pd_net_e', 'pd_net_q', ...]
+
+Every module of the ``baselines`` package is imported on the first registry lookup (so a new head is
+one new file there), and installed packages can add heads through the entry-point group
+``uavbench.heads`` (an entry point may name a module, which registers its heads on import, or a head
+class, which is registered under the entry point's name). Encoders work the same way with
+``register_encoder`` / ``create_encoder`` / ``list_encoders`` and the group ``uavbench.encoders``.
+
+The registries are plain dicts; discovery runs once per process and is idempotent.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import pkgutil
+import types
+import warnings
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from benchmark.models.heads import AttitudeHead, Head, TranslationHead
+
+HEAD_ENTRY_POINT_GROUP = "uavbench.heads"
+ENCODER_ENTRY_POINT_GROUP = "uavbench.encoders"
+_BUILTIN_ENCODER_MODULES = ("benchmark.models.googlenet",)
+
+_HEADS: dict[str, type[Head]] = {}
+_ENCODERS: dict[str, Callable[..., Any]] = {}
+_discovered = {"heads": False, "encoders": False}
+
+H = TypeVar("H", bound=type[Head])
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def head_kind(cls: type[Head]) -> str:
+    """``'attitude'`` or ``'translation'`` for a head class."""
+    if issubclass(cls, AttitudeHead):
+        return "attitude"
+    if issubclass(cls, TranslationHead):
+        return "translation"
+    raise TypeError(f"{cls.__name__} is neither an AttitudeHead nor a TranslationHead")
+
+
+def register_head(name: str) -> Callable[[H], H]:
+    """Class decorator: make a head constructible by ``create_head(name, ...)``.
+
+    The class must derive from ``AttitudeHead`` or ``TranslationHead``; it receives ``cls.name``.
+    Registering a different class under a taken name is an error (re-registering the same class,
+    e.g. after ``importlib.reload``, is allowed).
+    """
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"head name must be a Python identifier, got {name!r}")
+
+    def decorator(cls: H) -> H:
+        if not (isinstance(cls, type) and issubclass(cls, (AttitudeHead, TranslationHead))):
+            raise TypeError(
+                f"@register_head({name!r}) needs an AttitudeHead or TranslationHead subclass, "
+                f"got {cls!r}"
+            )
+        old = _HEADS.get(name)
+        if old is not None and old.__qualname__ != cls.__qualname__:
+            raise ValueError(
+                f"head name {name!r} is already registered by {old.__module__}.{old.__qualname__}"
+            )
+        cls.name = name
+        _HEADS[name] = cls
+        return cls
+
+    return decorator
+
+
+def register_encoder(name: str) -> Callable[[F], F]:
+    """Decorator for an encoder factory ``(variant, width, input_size, **kwargs) -> Encoder``."""
+
+    def decorator(factory: F) -> F:
+        old = _ENCODERS.get(name)
+        if old is not None and old.__qualname__ != factory.__qualname__:
+            raise ValueError(f"encoder name {name!r} is already registered by {old!r}")
+        _ENCODERS[name] = factory
+        return factory
+
+    return decorator
+
+
+def _load_entry_points(group: str, registry: dict[str, Any], register: Callable) -> None:
+    for ep in importlib.metadata.entry_points(group=group):
+        try:
+            obj = ep.load()
+        except Exception as err:  # a broken plug-in must not break the built-in heads
+            warnings.warn(
+                f"entry point {ep.name!r} ({ep.value}) in group {group!r} failed to load: {err}",
+                stacklevel=3,
+            )
+            continue
+        # A module registers its heads/encoders when imported; a class or factory is registered
+        # under the entry point's name unless it registered itself already.
+        if not isinstance(obj, types.ModuleType) and obj not in registry.values():
+            register(ep.name)(obj)
+
+
+def _discover_heads() -> None:
+    if _discovered["heads"]:
+        return
+    _discovered["heads"] = True
+    import baselines
+
+    for info in sorted(pkgutil.iter_modules(baselines.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        # A baseline that fails to import is a bug in this repository: let the error surface.
+        importlib.import_module(f"baselines.{info.name}")
+    _load_entry_points(HEAD_ENTRY_POINT_GROUP, _HEADS, register_head)
+
+
+def _discover_encoders() -> None:
+    if _discovered["encoders"]:
+        return
+    _discovered["encoders"] = True
+    for module in _BUILTIN_ENCODER_MODULES:
+        importlib.import_module(module)
+    _load_entry_points(ENCODER_ENTRY_POINT_GROUP, _ENCODERS, register_encoder)
+
+
+def list_heads(kind: str | None = None) -> list[str]:
+    """Sorted registered head names; ``kind`` = ``'attitude'`` / ``'translation'`` filters."""
+    if kind not in (None, "attitude", "translation"):
+        raise ValueError(f"kind must be None, 'attitude' or 'translation', got {kind!r}")
+    _discover_heads()
+    return sorted(n for n, c in _HEADS.items() if kind is None or head_kind(c) == kind)
+
+
+def get_head_class(name: str, kind: str | None = None) -> type[Head]:
+    """The class registered as ``name``; an unknown name raises ValueError listing the known."""
+    _discover_heads()
+    cls = _HEADS.get(name)
+    if cls is None or (kind is not None and head_kind(cls) != kind):
+        what = f"{kind} head" if kind else "head"
+        raise ValueError(f"unknown {what} {name!r}; known: {', '.join(list_heads(kind))}")
+    return cls
+
+
+def create_head(name: str, kind: str | None = None, **kwargs: Any) -> Head:
+    """Instantiate the head registered as ``name`` with ``kwargs`` (e.g. ``in_features=4096``)."""
+    return get_head_class(name, kind)(**kwargs)
+
+
+def list_encoders() -> list[str]:
+    _discover_encoders()
+    return sorted(_ENCODERS)
+
+
+def create_encoder(name: str, **kwargs: Any) -> Any:
+    """Build the encoder registered as ``name``; unknown names list the known ones."""
+    _discover_encoders()
+    factory = _ENCODERS.get(name)
+    if factory is None:
+        raise ValueError(f"unknown encoder {name!r}; known: {', '.join(sorted(_ENCODERS))}")
+    return factory(**kwargs)
