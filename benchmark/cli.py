@@ -22,11 +22,13 @@ from benchmark import __version__
 # subcommand -> module path. Order is the pipeline order shown in --help.
 COMMANDS: dict[str, str] = {
     "continuity": "benchmark.analysis.continuity",
+    "ui": "benchmark.tracking.ui",
 }
 
 # Loaded lazily, but --help needs the one-line descriptions without importing torch.
 COMMAND_HELP: dict[str, str] = {
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
+    "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
 }
 
 

@@ -1,0 +1,284 @@
+"""MLflow backend with a local fallback that loses nothing.
+
+Embedded default: the sqlite store ``sqlite:///<cwd>/mlflow.db`` (MLflow 3.x no longer accepts the
+plain file store) with artifacts under ``<cwd>/mlartifacts/<experiment>``; nothing to start.
+``tracking_uri`` (``--tracking-uri`` or ``MLFLOW_TRACKING_URI``) points at a server instead.
+
+Failure policy: if the server does not answer ``/health`` within ``health_timeout`` seconds at
+start, or any MLflow call fails later, the tracker switches for the rest of the process to a
+:class:`~benchmark.tracking.local.LocalTracker` under ``fallback_dir`` and emits ONE
+:class:`TrackingFallbackWarning`. Every run still open is handed over with its complete record
+(params, tags, all metrics logged so far, artifacts), tagged ``mlflow_run_id`` with its id on the
+server, so the local copy is self-contained. Runs that ended before the failure are on the server.
+
+mlflow is imported lazily (in the constructor), so importing this module costs nothing.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import urllib.error
+import urllib.request
+import warnings
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from benchmark.tracking.base import RUN_KEY_TAG, MetricPoint, Run, RunInfo, RunStatus, Tracker
+from benchmark.tracking.local import LocalTracker, _safe_dirname
+
+# MLflow's REST limits per log_batch request (mlflow.utils.validation).
+_MAX_METRICS, _MAX_PARAMS_TAGS, _MAX_ENTITIES = 1000, 100, 1000
+# A run_key goes into a search filter string: keep it to characters that need no quoting.
+_RUN_KEY_RE = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
+# Shorter retries than MLflow's defaults (7 retries, 120 s timeout: minutes before giving up) so a
+# dead server is noticed quickly; a user's own setting of these variables wins.
+_HTTP_ENV_DEFAULTS = {
+    "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "2",
+    "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
+    "MLFLOW_HTTP_REQUEST_TIMEOUT": "30",
+}
+
+
+class TrackingFallbackWarning(UserWarning):
+    """MLflow could not be used; results go to a local directory instead."""
+
+
+def default_tracking_uri(cwd: str | Path | None = None) -> str:
+    """``MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<cwd>/mlflow.db`` (absolute path)."""
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env:
+        return env
+    base = Path(cwd) if cwd is not None else Path.cwd()
+    return f"sqlite:///{(base / 'mlflow.db').resolve()}"
+
+
+def server_is_healthy(uri: str, timeout: float = 5.0) -> tuple[bool, str]:
+    """``GET <uri>/health`` with ``timeout`` seconds; ``(ok, reason)``. Never raises."""
+    url = uri.rstrip("/") + "/health"
+    try:
+        with urllib.request.urlopen(url, timeout=timeout) as resp:
+            body = resp.read(64).decode("utf-8", "replace").strip()
+            if resp.status == 200:
+                return True, body
+            return False, f"HTTP {resp.status} from {url}"
+    except (urllib.error.URLError, OSError, ValueError) as err:
+        reason = getattr(err, "reason", err)
+        return False, f"{url}: {reason}"
+
+
+class MlflowTracker(Tracker):
+    """One MLflow experiment per table/figure, a parent run per invocation, nested runs per
+    (variant, seed). See the module docstring for the store defaults and the fallback."""
+
+    def __init__(
+        self,
+        tracking_uri: str | None = None,
+        *,
+        artifact_root: str | Path | None = None,
+        fallback_dir: str | Path | None = None,
+        health_timeout: float = 5.0,
+    ) -> None:
+        self.uri = tracking_uri or default_tracking_uri()
+        self._is_http = self.uri.startswith(("http://", "https://"))
+        cwd = Path.cwd()
+        # Artifacts of a local store go next to the db; a server decides for itself.
+        self.artifact_root = (
+            None if self._is_http else Path(artifact_root or cwd / "mlartifacts").resolve()
+        )
+        self.fallback_dir = Path(fallback_dir or cwd / "tracking-fallback").resolve()
+        self._fallback: LocalTracker | None = None
+        self._open: list[Run] = []  # creation order: a parent is handed over before its children
+        self._experiment_ids: dict[str, str] = {}
+        self._client: Any = None
+        if self._is_http:
+            for key, value in _HTTP_ENV_DEFAULTS.items():
+                os.environ.setdefault(key, value)
+            ok, reason = server_is_healthy(self.uri, timeout=health_timeout)
+            if not ok:
+                self._switch_to_fallback(f"tracking server {self.uri} is unreachable ({reason})")
+                return
+        try:
+            from mlflow.tracking import MlflowClient
+
+            self._client = MlflowClient(tracking_uri=self.uri)
+            if not self._is_http:
+                self._client.search_experiments(max_results=1)  # creates/migrates the sqlite db
+        except Exception as err:  # any store error: fall back, never abort the work
+            self._switch_to_fallback(f"MLflow store {self.uri} cannot be opened ({err!r})")
+
+    # ------------------------------------------------------------------ state
+    @property
+    def using_fallback(self) -> bool:
+        """True once results go to ``fallback_dir`` instead of MLflow."""
+        return self._fallback is not None
+
+    def _switch_to_fallback(self, reason: str) -> None:
+        if self._fallback is not None:
+            return
+        self._fallback = LocalTracker(self.fallback_dir)
+        warnings.warn(
+            f"MLflow tracking disabled: {reason}. Results of this invocation are written to "
+            f"{self.fallback_dir} instead (run.json, metrics.csv and artifacts per run); "
+            "nothing is lost, and finished runs there are found again on the next invocation.",
+            TrackingFallbackWarning,
+            stacklevel=3,
+        )
+        for run in list(self._open):
+            self._hand_over(run, reason)
+
+    def _hand_over(self, run: Run, reason: str) -> None:
+        """Recreate ``run`` in the fallback with everything already sent (or being sent)."""
+        assert self._fallback is not None
+        if run.run_id:
+            run.tags["mlflow_run_id"] = run.run_id
+        run.tags["tracking_fallback"] = reason[:500]
+        run.run_id = self._fallback._create_run(run)
+        sent = run.metrics[: len(run.metrics) - run._unsent]  # the unsent buffer comes later
+        if sent:
+            self._fallback._log_batch(run, sent, {}, {})
+        for path, artifact_path in run.artifacts:
+            if path.exists():
+                self._fallback._log_artifact(run, path, artifact_path)
+        if run.status is not RunStatus.RUNNING:
+            self._fallback._end_run(run, run.status)
+
+    def _guard(self, what: str, call, *args) -> bool:
+        """Run an MLflow call; on failure switch to the fallback. The hand-over replays the full
+        record of every open run, so the failed call is not retried. True if MLflow took it."""
+        try:
+            call(*args)
+            return True
+        except Exception as err:
+            self._switch_to_fallback(f"MLflow call {what} failed ({err!r})")
+            return False
+
+    # ------------------------------------------------------------------ experiments
+    def _experiment_id(self, name: str) -> str:
+        if name in self._experiment_ids:
+            return self._experiment_ids[name]
+        exp = self._client.get_experiment_by_name(name)
+        if exp is None:
+            location = None
+            if self.artifact_root is not None:
+                location = (self.artifact_root / _safe_dirname(name)).as_uri()
+            try:
+                exp_id = self._client.create_experiment(name, artifact_location=location)
+            except Exception:
+                # Another process may have created it between the two calls.
+                exp = self._client.get_experiment_by_name(name)
+                if exp is None:
+                    raise
+                exp_id = exp.experiment_id
+        else:
+            exp_id = exp.experiment_id
+        self._experiment_ids[name] = exp_id
+        return exp_id
+
+    # ------------------------------------------------------------------ primitives
+    def _create_run(self, run: Run) -> str:
+        self._open.append(run)
+        if self._fallback is None:
+            from mlflow.utils.mlflow_tags import MLFLOW_PARENT_RUN_ID
+
+            tags = dict(run.tags)
+            if run.parent is not None:
+                tags[MLFLOW_PARENT_RUN_ID] = run.parent.run_id
+
+            def create() -> None:
+                exp_id = self._experiment_id(run.experiment)
+                created = self._client.create_run(exp_id, tags=tags, run_name=run.run_name)
+                run.run_id = created.info.run_id
+
+            self._guard("create_run", create)  # on failure the hand-over sets run.run_id
+            return run.run_id
+        return self._fallback._create_run(run)
+
+    def _log_batch(
+        self,
+        run: Run,
+        metrics: list[MetricPoint],
+        params: Mapping[str, str],
+        tags: Mapping[str, str],
+    ) -> None:
+        if self._fallback is not None:
+            self._fallback._log_batch(run, metrics, params, tags)
+            return
+        from mlflow.entities import Metric, Param, RunTag
+
+        m = [Metric(p.key, p.value, p.timestamp_ms, p.step) for p in metrics]
+        p = [Param(k, v) for k, v in params.items()]
+        t = [RunTag(k, v) for k, v in tags.items()]
+
+        def send() -> None:
+            # Chunk to MLflow's per-request limits; typically a single request.
+            while m or p or t:
+                cp, p[:] = p[:_MAX_PARAMS_TAGS], p[_MAX_PARAMS_TAGS:]
+                ct, t[:] = t[:_MAX_PARAMS_TAGS], t[_MAX_PARAMS_TAGS:]
+                room = min(_MAX_METRICS, _MAX_ENTITIES - len(cp) - len(ct))
+                cm, m[:] = m[:room], m[room:]
+                self._client.log_batch(run.run_id, metrics=cm, params=cp, tags=ct)
+
+        self._guard("log_batch", send)
+
+    def _log_artifact(self, run: Run, path: Path, artifact_path: str | None) -> None:
+        if self._fallback is not None:
+            self._fallback._log_artifact(run, path, artifact_path)
+            return
+        if path.is_dir():
+            dest = f"{artifact_path}/{path.name}" if artifact_path else path.name
+            self._guard("log_artifacts", self._client.log_artifacts, run.run_id, str(path), dest)
+        else:
+            self._guard(
+                "log_artifact", self._client.log_artifact, run.run_id, str(path), artifact_path
+            )
+
+    def _end_run(self, run: Run, status: RunStatus) -> None:
+        try:
+            if self._fallback is not None:
+                self._fallback._end_run(run, status)
+            else:
+                self._guard("set_terminated", self._client.set_terminated, run.run_id, status.value)
+        finally:
+            if run in self._open:
+                self._open.remove(run)
+
+    # ------------------------------------------------------------------ lookup
+    def find_finished_run(self, experiment: str, run_key: str) -> RunInfo | None:
+        """Search MLflow first, then runs that an earlier invocation wrote to the fallback."""
+        if not _RUN_KEY_RE.match(run_key):
+            raise ValueError(f"run_key {run_key!r} must match {_RUN_KEY_RE.pattern}")
+        if self._fallback is None:
+            found: list[RunInfo] = []
+
+            def search() -> None:
+                exp = self._client.get_experiment_by_name(experiment)
+                if exp is None:
+                    return
+                runs = self._client.search_runs(
+                    [exp.experiment_id],
+                    filter_string=f"tags.{RUN_KEY_TAG} = '{run_key}' "
+                    "and attributes.status = 'FINISHED'",
+                    order_by=["attributes.start_time DESC"],
+                    max_results=1,
+                )
+                found.extend(self._info(r, experiment) for r in runs)
+
+            if self._guard("search_runs", search) and found:
+                return found[0]
+        return LocalTracker(self.fallback_dir).find_finished_run(experiment, run_key)
+
+    @staticmethod
+    def _info(run: Any, experiment: str) -> RunInfo:
+        return RunInfo(
+            run_id=run.info.run_id,
+            experiment=experiment,
+            run_name=run.info.run_name or "",
+            status=run.info.status,
+            tags=dict(run.data.tags),
+            params=dict(run.data.params),
+            metrics=dict(run.data.metrics),
+            artifact_uri=run.info.artifact_uri or "",
+            backend="mlflow",
+        )
