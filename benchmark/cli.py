@@ -21,12 +21,18 @@ from benchmark import __version__
 
 # subcommand -> module path. Order is the pipeline order shown in --help.
 COMMANDS: dict[str, str] = {
+    "simulate": "benchmark.data.simulate",
+    "preview": "benchmark.data.preview",
+    "bench": "benchmark.bench",
     "continuity": "benchmark.analysis.continuity",
     "ui": "benchmark.tracking.ui",
 }
 
 # Loaded lazily, but --help needs the one-line descriptions without importing torch.
 COMMAND_HELP: dict[str, str] = {
+    "simulate": "render the UAV/satellite pair dataset (smoke/quick/paper; resumable, parallel)",
+    "preview": "write a contact sheet PNG of UAV/satellite pairs with their poses",
+    "bench": "performance benchmarks (bench simulate: pairs/s and city build time)",
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
 }

@@ -13,6 +13,7 @@ import io
 import multiprocessing as mp
 import os
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -157,9 +158,14 @@ def render_uav_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
     out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
     for j, r in enumerate(rows.itertuples(index=False)):
         img = render_uav(
-            ctx.cities[(r.city, "now")], np.array([r.E, r.N, r.U]), r.yaw, r.pitch, r.roll,
-            camera, supersample=p.supersample,
-        )  # fmt: skip
+            ctx.cities[(r.city, "now")],
+            np.array([r.E, r.N, r.U]),
+            r.yaw,
+            r.pitch,
+            r.roll,
+            camera,
+            supersample=p.supersample,
+        )
         if r.camera_effects:
             img = apply_camera_effects(
                 img, np.random.default_rng(sample_seed(ctx.seed, r.uav_index))
@@ -176,9 +182,12 @@ def render_sat_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
     out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
     for j, r in enumerate(rows.itertuples(index=False)):
         out[j] = render_satellite(
-            ctx.cities[(r.city, r.variant)], (r.E, r.N), height_m=r.height_m,
-            footprint_m=(r.footprint_E_m, r.footprint_N_m), size=p.image_size,
-        )  # fmt: skip
+            ctx.cities[(r.city, r.variant)],
+            (r.E, r.N),
+            height_m=r.height_m,
+            footprint_m=(r.footprint_E_m, r.footprint_N_m),
+            size=p.image_size,
+        )
     return out
 
 
@@ -214,6 +223,29 @@ def _remove_stale_temporaries(out: Path) -> None:
             pass
 
 
+def run_tasks(
+    ctx: _Context, tasks: list[tuple[str, int]], workers: int
+) -> Iterator[tuple[str, int, int]]:
+    """Render and write the shards ``tasks`` (``("uav"|"sat", k)``); yields ``(kind, k, n)``.
+
+    With ``workers > 1`` a forked pool renders shards in parallel (completion order); each worker
+    inherits ``ctx`` (the cities) copy-on-write and runs single-threaded.
+    """
+    global _CTX
+    _CTX = ctx
+    try:
+        if workers <= 1 or len(tasks) <= 1:
+            for task in tasks:
+                yield _run_task(task)
+        else:
+            with mp.get_context("fork").Pool(
+                min(workers, len(tasks)), initializer=_worker_init
+            ) as pool:
+                yield from pool.imap_unordered(_run_task, tasks)
+    finally:
+        _CTX = None
+
+
 def n_shards(n_rows: int, p: Profile) -> int:
     return -(-n_rows // p.shard_size)
 
@@ -234,7 +266,6 @@ def simulate_dataset(
     tests and benchmarks). Returns timing statistics. Raises ConfigMismatchError before touching
     ``out`` if it holds a different dataset.
     """
-    global _CTX
     out = Path(out)
     config = dataset_config(profile, seed)
     state = check_output_dir(out, config)
@@ -276,20 +307,11 @@ def simulate_dataset(
     total = len(plan.uav) + len(plan.sat)
     done = total - sum(sizes[t] for t in pending)
 
-    _CTX = _Context(out, profile, seed, cities, plan.uav, plan.sat)
+    ctx = _Context(out, profile, seed, cities, plan.uav, plan.sat)
     t0 = time.perf_counter()
-    try:
-        with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
-            if workers <= 1 or len(todo) <= 1:
-                for task in todo:
-                    bar.update(_run_task(task)[2], postfix=f"{task[0]} shard {task[1]}")
-            else:
-                mpctx = mp.get_context("fork")
-                with mpctx.Pool(min(workers, len(todo)), initializer=_worker_init) as pool:
-                    for kind, k, n in pool.imap_unordered(_run_task, todo):
-                        bar.update(n, postfix=f"{kind} shard {k}")
-    finally:
-        _CTX = None
+    with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
+        for kind, k, n in run_tasks(ctx, todo, workers):
+            bar.update(n, postfix=f"{kind} shard {k}")
     stats["render_s"] = time.perf_counter() - t0
     stats["rendered_uav"] = sum(sizes[t] for t in todo if t[0] == "uav")
     stats["rendered_sat"] = sum(sizes[t] for t in todo if t[0] == "sat")

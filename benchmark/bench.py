@@ -1,0 +1,38 @@
+"""``uavbench bench TARGET ...``: performance benchmarks that print measured rates and ratios.
+
+Speed targets are checked here, never by timed unit tests. ``TARGETS`` maps a target name to
+``"module:function"``; the function takes the remaining command-line arguments
+(``list[str]``) and returns the exit code. Modules are imported only when their target runs.
+To add a target (e.g. ``bench train``), add one line to ``TARGETS`` and ``TARGET_HELP``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+from benchmark.cli import UsageError
+
+TARGETS: dict[str, str] = {
+    "simulate": "benchmark.data.bench_simulate:main",
+}
+
+TARGET_HELP: dict[str, str] = {
+    "simulate": "pairs/s at 96 and 224 px with all workers, and the time to build a city",
+}
+
+HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.epilog = "targets:\n" + "\n".join(f"  {t:10s} {h}" for t, h in TARGET_HELP.items())
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("target", help=f"one of {sorted(TARGETS)}")
+    parser.add_argument("rest", nargs=argparse.REMAINDER, help="arguments of the target (--help)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.target not in TARGETS:
+        raise UsageError(f"unknown bench target {args.target!r}; expected one of {sorted(TARGETS)}")
+    module, func = TARGETS[args.target].split(":")
+    return int(getattr(importlib.import_module(module), func)(list(args.rest)) or 0)

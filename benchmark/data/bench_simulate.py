@@ -1,0 +1,154 @@
+"""``uavbench bench simulate``: measured simulator throughput against the issue's targets.
+
+Prints the time to build one city from scratch (and to load it from the cache), then for each
+image size the pairs per second of the real shard pipeline (render + camera model + .npy write)
+with all workers, on flights of the default flight spec. A pair costs one UAV render; the
+satellite image is rendered once per centre and height (a few dozen per dataset), so its time is
+printed separately rather than amortised. Targets (issue 3, 2 cores): >= 150 pairs/s at 96 px,
+>= 30 pairs/s at 224 px.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+TARGETS_PAIRS_PER_S = {96: 150.0, 224: 30.0}
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="uavbench bench simulate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    p.add_argument("--sizes", type=int, nargs="+", default=[96, 224])
+    p.add_argument(
+        "--pairs",
+        type=int,
+        default=None,
+        help="pairs rendered per size (default: 800 below 150 px, else 240)",
+    )
+    p.add_argument("--style", default="oxford", help="city style rendered (default: oxford)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--strict", action="store_true", help="exit 1 if a target is missed")
+    return p
+
+
+def bench_poses(city, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
+    """``n`` UAV poses on default-spec flights around the city's centres (no camera effects)."""
+    from benchmark.sim.flights import FlightSpec, generate_flight
+
+    spec = FlightSpec(samples=samples)
+    rows = []
+    for k in range(math.ceil(n / samples)):
+        centre = city.flight_centres[k % len(city.flight_centres)]
+        f = generate_flight(city, tuple(centre), spec, seed=seed, group=99, flight=k)
+        for i in range(samples):
+            rows.append(
+                dict(E=f.E[i], N=f.N[i], U=f.U[i], yaw=f.yaw[i], pitch=f.pitch[i], roll=f.roll[i])
+            )
+    df = pd.DataFrame(rows[:n])
+    df.insert(0, "uav_index", np.arange(len(df), dtype=np.int64))
+    df["city"] = getattr(city, "style", "bench")
+    df["camera_effects"] = False
+    return df
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    from benchmark.cli import UsageError
+    from benchmark.data.simulate import single_thread_env
+
+    if (
+        args.workers < 1
+        or any(s < 8 for s in args.sizes)
+        or (args.pairs is not None and args.pairs < 1)
+    ):
+        raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
+    single_thread_env()
+    from benchmark.data.profiles import PROFILES
+    from benchmark.data.writer import _Context, render_sat_rows, run_tasks
+    from benchmark.sim import build_city
+    from benchmark.sim.splits import city_seed
+
+    print(
+        f"uavbench bench simulate: {args.workers} workers, {os.cpu_count()} cores, "
+        f"style {args.style}"
+    )
+    with tempfile.TemporaryDirectory(prefix="uavbench-bench-") as tmp:
+        cache = Path(tmp) / "cities"
+        seed = city_seed(args.seed, args.style)
+        t0 = time.perf_counter()
+        city = build_city(args.style, seed, cache_dir=cache)
+        build_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        city = build_city(args.style, seed, cache_dir=cache)
+        load_s = time.perf_counter() - t0
+        print(
+            f"city build ({args.style}, from scratch): {build_s:.2f} s; "
+            f"load from cache: {load_s:.2f} s"
+        )
+
+        failed = False
+        for size in args.sizes:
+            n = args.pairs or (800 if size < 150 else 240)
+            base = PROFILES["paper" if size >= 150 else "quick"]
+            shard = max(8, math.ceil(n / (args.workers * 6)))
+            profile = dataclasses.replace(base, image_size=size, shard_size=shard)
+            poses = bench_poses(city, n, args.seed)
+            poses["city"] = args.style
+            sat_rows = pd.DataFrame(
+                [
+                    dict(
+                        city=args.style,
+                        variant="now",
+                        E=float(city.flight_centres[0][0]),
+                        N=float(city.flight_centres[0][1]),
+                        height_m=1000.0,
+                        footprint_E_m=2000.0,
+                        footprint_N_m=1000.0,
+                    )
+                ]
+            )
+            ctx = _Context(
+                Path(tmp) / f"out{size}",
+                profile,
+                args.seed,
+                {(args.style, "now"): city},
+                poses,
+                sat_rows,
+            )
+            # warm-up in the parent: JIT compilation is inherited by the forked workers
+            list(run_tasks(dataclasses.replace(ctx, uav=poses.iloc[:1]), [("uav", 0)], 1))
+            t0 = time.perf_counter()
+            render_sat_rows(ctx, sat_rows)
+            sat_s = time.perf_counter() - t0
+            tasks = [("uav", k) for k in range(math.ceil(n / shard))]
+            t0 = time.perf_counter()
+            done = sum(m for _, _, m in run_tasks(ctx, tasks, args.workers))
+            rate = done / (time.perf_counter() - t0)
+            target = TARGETS_PAIRS_PER_S.get(size)
+            verdict = ""
+            if target is not None:
+                ok = rate >= target
+                failed |= not ok
+                word = "OK" if ok else "BELOW TARGET"
+                verdict = f" (target >= {target:.0f}: {word}, ratio {rate / target:.2f})"
+            print(
+                f"{size:4d} px: {rate:7.1f} pairs/s over {done} pairs, "
+                f"supersample {profile.supersample}"
+                f"{verdict}; satellite image {1e3 * sat_s:.0f} ms"
+            )
+            sys.stdout.flush()
+    return 1 if failed and args.strict else 0

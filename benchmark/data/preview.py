@@ -1,0 +1,131 @@
+"""``uavbench preview DATASET``: a contact sheet PNG of UAV/satellite pairs with their poses.
+
+Each pair shows the UAV image and its satellite image; on the satellite image the UAV position
+(from the translation label) is a red dot and its camera heading (yaw) a red arrow, so a glance
+tells whether labels and imagery agree: the arrow should point at what the UAV image shows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.cli import UsageError
+
+HELP = "write a contact sheet PNG of UAV/satellite pairs with their poses"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", type=Path, help="dataset directory written by simulate")
+    parser.add_argument("--split", default="standard/train", help="split (default: standard/train)")
+    parser.add_argument("--n", type=int, default=8, help="number of pairs (default: 8)")
+    parser.add_argument(
+        "--out", type=Path, default=None, help="PNG path (default: DATASET/preview_<split>.png)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="which pairs: seed of the pick")
+
+
+def sat_pixel(
+    dE: float, dN: float, footprint: tuple[float, float], size: int
+) -> tuple[float, float]:
+    """Pixel ``(u, v)`` of a point ``(dE, dN)`` metres from the centre of a north-up satellite
+    image covering ``footprint = (E, N)`` metres, resized to ``size x size`` (pixel centres on
+    integers, v downwards = south)."""
+    u = (dE / footprint[0] + 0.5) * size - 0.5
+    v = (0.5 - dN / footprint[1]) * size - 0.5
+    return u, v
+
+
+def contact_sheet(ds, indices: list[int], out: Path, title: str) -> None:
+    """Render pairs ``indices`` of PairDataset ``ds`` to ``out`` (PNG), two pairs per row."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    per_row = 2
+    rows = math.ceil(len(indices) / per_row)
+    fig, axes = plt.subplots(
+        rows, 2 * per_row, figsize=(4 * per_row * 2 * 0.9, 4.3 * rows), squeeze=False
+    )
+    sats = ds.sat_table.set_index("sat_index")
+    for ax in axes.ravel():
+        ax.axis("off")
+    for slot, i in enumerate(indices):
+        r = ds.poses.iloc[i]
+        ax_u, ax_s = (
+            axes[slot // per_row, 2 * (slot % per_row)],
+            axes[slot // per_row, 2 * (slot % per_row) + 1],
+        )
+        ax_u.imshow(ds.uav_image(i), interpolation="nearest")
+        sat = ds.sat_images[int(r.sat_index)]
+        ax_s.imshow(sat, interpolation="nearest")
+        s = sats.loc[int(r.sat_index)]
+        size = sat.shape[0]
+        u, v = sat_pixel(r.dE, r.dN, (s.footprint_E_m, s.footprint_N_m), size)
+        # camera heading in (E, N): (-sin yaw, cos yaw); the image squashes E and N differently
+        dx = -math.sin(r.yaw) / s.footprint_E_m
+        dy = -math.cos(r.yaw) / s.footprint_N_m
+        norm = math.hypot(dx, dy)
+        arrow = 0.12 * size
+        ax_s.plot([u], [v], "o", color="red", ms=4)
+        ax_s.annotate(
+            "",
+            xy=(u + arrow * dx / norm, v + arrow * dy / norm),
+            xytext=(u, v),
+            arrowprops=dict(arrowstyle="->", color="red", lw=1.5),
+        )
+        ax_s.set_xlim(-0.5, size - 0.5)
+        ax_s.set_ylim(size - 0.5, -0.5)
+        ax_u.set_title(f"#{i} {r.city} c{r.centre} f{r.flight} fr{r.frame}", fontsize=8)
+        ax_s.set_title(f"sat {int(r.sat_index)} ({s.variant}, {s.height_m:.0f} m)", fontsize=8)
+        ax_u.text(
+            0.0,
+            -0.02,
+            f"E {r.E:.0f} N {r.N:.0f} U {r.U:.0f} m\n"
+            f"yaw {math.degrees(r.yaw):.1f} pitch {math.degrees(r.pitch):.1f} "
+            f"roll {math.degrees(r.roll):.1f} deg\n"
+            f"T = [{r.dE:.0f}, {r.dN:.0f}, {r.dU:.0f}] m",
+            transform=ax_u.transAxes,
+            va="top",
+            fontsize=7,
+            family="monospace",
+        )
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+
+
+def pick_indices(n_items: int, n: int, seed: int) -> list[int]:
+    """``n`` distinct items, spread over the split (sorted), deterministic in ``seed``."""
+    rng = np.random.default_rng(seed)
+    return sorted(rng.choice(n_items, size=min(n, n_items), replace=False).tolist())
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchmark.data.dataset import PairDataset, list_splits
+    from benchmark.data.format import DatasetError
+
+    if args.n < 1:
+        raise UsageError(f"--n must be >= 1, got {args.n}")
+    try:
+        splits = list_splits(args.dataset)
+        if args.split not in splits:
+            raise UsageError(f"unknown split {args.split!r}; {args.dataset} has {splits}")
+        ds = PairDataset(args.dataset, args.split, verify="size")
+    except DatasetError as err:
+        raise UsageError(str(err)) from err
+    out = args.out or args.dataset / f"preview_{args.split.replace('/', '_')}.png"
+    indices = pick_indices(len(ds), args.n, args.seed)
+    title = (
+        f"{args.dataset.name} [{args.split}] {len(ds)} pairs, "
+        f"{ds.manifest['image_size']} px; red: UAV position and heading"
+    )
+    contact_sheet(ds, indices, out, title)
+    print(f"wrote {out} ({len(indices)} pairs of {args.split})")
+    return 0
