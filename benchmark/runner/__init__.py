@@ -1,0 +1,1 @@
+"""Reproduction runner: table specs, jobs, training/evaluation orchestration and reports."""

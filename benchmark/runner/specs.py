@@ -1,0 +1,198 @@
+"""Table and figure specs: ``reports/configs/*.yaml``, one file per paper table or figure.
+
+Each file's first line cites what it reproduces (``# Paper Table 1: ...`` or ``# Paper Fig. 7:
+...``); the loader checks that. A spec names its variants (which heads and encoder variant), the
+split they train on and the splits they are evaluated on. Sweep specs (figures) repeat the variants
+for every ``sweep_values`` entry, substituting ``{x}`` in split names and variant fields.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+KINDS = ("table", "sweep", "cost")
+_FIRST_LINE = re.compile(r"^# Paper (Table|Fig\.) (\d+): .+")
+
+
+class SpecError(ValueError):
+    """A spec file is malformed; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class VariantSpec:
+    """One model of a table: heads, encoder variant and options (``kappa=None``: head default)."""
+
+    label: str
+    paper_model: str
+    attitude: str
+    translation: str = "regression"
+    encoder_variant: str = "/"
+    kappa: float | None = None
+
+
+@dataclass(frozen=True)
+class Job:
+    """One (table, variant, sweep value): train on ``train_split``, evaluate on ``eval_splits``."""
+
+    table: str
+    label: str
+    paper_model: str
+    x: str | None  # the sweep value as written in the spec (None for plain tables)
+    variant: VariantSpec
+    train_split: str
+    eval_splits: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    name: str
+    title: str
+    kind: str
+    source: Path
+    variants: tuple[VariantSpec, ...]
+    paper_table: int | None = None
+    paper_figure: int | None = None
+    paper_split: str | None = None
+    paper_splits: tuple[str, ...] = ()
+    train_split: str = "standard/train"
+    eval_splits: tuple[str, ...] = ()
+    metrics: tuple[str, ...] = ()
+    sweep: str | None = None
+    sweep_values: tuple[str, ...] = ()
+
+    def jobs(self) -> list[Job]:
+        """Concrete jobs; a sweep yields one per (value, variant). Cost specs train nothing."""
+        if self.kind == "cost":
+            return []
+        values: tuple[str | None, ...] = self.sweep_values if self.kind == "sweep" else (None,)
+        out = []
+        for x in values:
+            for v in self.variants:
+                out.append(
+                    Job(
+                        table=self.name,
+                        label=v.label,
+                        paper_model=v.paper_model,
+                        x=x,
+                        variant=_substitute_variant(v, x, self.source),
+                        train_split=_fill(self.train_split, x),
+                        eval_splits=tuple(_fill(s, x) for s in self.eval_splits),
+                    )
+                )
+        return out
+
+
+def _fill(text: str, x: str | None) -> str:
+    return text if x is None else text.replace("{x}", x)
+
+
+def _substitute_variant(v: VariantSpec, x: str | None, source: Path) -> VariantSpec:
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(v):
+        value = getattr(v, f.name)
+        if isinstance(value, str) and "{x}" in value:
+            if x is None:
+                raise SpecError(
+                    f"{source}: variant {v.label!r} field {f.name!r} uses {{x}} outside a sweep"
+                )
+            changes[f.name] = _fill(value, x)
+    if isinstance(changes.get("kappa"), str):
+        try:
+            changes["kappa"] = float(changes["kappa"])
+        except ValueError as err:
+            raise SpecError(f"{source}: kappa {changes['kappa']!r} is not a number") from err
+    return dataclasses.replace(v, **changes)
+
+
+def _variant_from(raw: Any, source: Path, index: int) -> VariantSpec:
+    where = f"{source}: variants[{index}]"
+    if not isinstance(raw, dict):
+        raise SpecError(f"{where} must be a mapping, got {type(raw).__name__}")
+    fields = {f.name for f in dataclasses.fields(VariantSpec)}
+    unknown = sorted(set(raw) - fields)
+    if unknown:
+        raise SpecError(f"{where}: unknown fields {unknown}; expected some of {sorted(fields)}")
+    for required in ("label", "paper_model", "attitude"):
+        if required not in raw:
+            raise SpecError(f"{where}: missing field {required!r}")
+    kappa = raw.get("kappa")
+    if kappa is not None and not isinstance(kappa, str):
+        if not isinstance(kappa, int | float) or kappa <= 0:
+            raise SpecError(f"{where}: kappa must be a number > 0, got {kappa!r}")
+        raw = {**raw, "kappa": float(kappa)}
+    return VariantSpec(**{k: (str(v) if k != "kappa" else v) for k, v in raw.items()})
+
+
+def load_spec(path: str | Path) -> TableSpec:
+    """Parse and validate one spec file; SpecError names the file and the field on any problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise SpecError(f"{path}: cannot read spec ({err.strerror})") from err
+    first = text.splitlines()[0] if text else ""
+    if not _FIRST_LINE.match(first):
+        raise SpecError(
+            f"{path}: the first line must cite the paper ('# Paper Table 1: ...'), got {first!r}"
+        )
+    try:
+        raw = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise SpecError(f"{path}: invalid YAML: {err}") from err
+    if not isinstance(raw, dict):
+        raise SpecError(f"{path}: expected a mapping at the top level")
+    fields = {f.name for f in dataclasses.fields(TableSpec)} - {"source"}
+    unknown = sorted(set(raw) - fields)
+    if unknown:
+        raise SpecError(f"{path}: unknown fields {unknown}; expected some of {sorted(fields)}")
+    for required in ("name", "title", "kind", "variants"):
+        if required not in raw:
+            raise SpecError(f"{path}: missing field {required!r}")
+    if raw["kind"] not in KINDS:
+        raise SpecError(f"{path}: kind must be one of {KINDS}, got {raw['kind']!r}")
+    if raw["name"] != path.stem:
+        raise SpecError(f"{path}: name {raw['name']!r} must equal the file name {path.stem!r}")
+    if not isinstance(raw["variants"], list) or not raw["variants"]:
+        raise SpecError(f"{path}: variants must be a non-empty list")
+    variants = tuple(_variant_from(v, path, i) for i, v in enumerate(raw["variants"]))
+    tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values")
+    values = {
+        k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "variants"
+    }
+    spec = TableSpec(source=path, variants=variants, **values)
+    if spec.kind == "sweep" and not (spec.sweep and spec.sweep_values):
+        raise SpecError(f"{path}: a sweep needs 'sweep' and 'sweep_values'")
+    if spec.kind != "cost" and not spec.eval_splits:
+        raise SpecError(f"{path}: eval_splits must list at least one split")
+    if spec.paper_splits and len(spec.paper_splits) != len(spec.eval_splits):
+        raise SpecError(f"{path}: paper_splits must have one entry per eval_splits entry")
+    spec.jobs()  # surfaces substitution errors now, not mid-run
+    return spec
+
+
+def default_spec_dir() -> Path:
+    """``reports/configs`` of the working tree this package was loaded from."""
+    return Path(__file__).resolve().parents[2] / "reports" / "configs"
+
+
+def load_specs(
+    directory: str | Path | None = None, only: list[str] | None = None
+) -> list[TableSpec]:
+    """All specs in ``directory`` (sorted by name), or just those named in ``only``."""
+    directory = Path(directory) if directory is not None else default_spec_dir()
+    paths = sorted(directory.glob("*.yaml"))
+    if not paths:
+        raise SpecError(f"{directory}: no *.yaml table specs found")
+    by_name = {p.stem: p for p in paths}
+    if only:
+        unknown = [n for n in only if n not in by_name]
+        if unknown:
+            raise SpecError(f"unknown table(s) {unknown}; known: {sorted(by_name)}")
+        paths = [by_name[n] for n in only]
+    return [load_spec(p) for p in paths]
