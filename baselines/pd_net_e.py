@@ -40,12 +40,12 @@ from benchmark.models.spherical import LatticeDecoder
 
 @register_head("pd_net_e")
 class PdNetE(AttitudeHead):
-    """Args: in_features; n_bins (128); kappa (10, > 0); hidden (256)."""
+    """Args: in_features; n_bins (128); kappa (10, > 0); hidden (160)."""
 
     paper_name = "Pd-Net-E"
     is_probabilistic = True
 
-    def __init__(self, in_features: int, n_bins: int = 128, kappa: float = 10.0, hidden: int = 256):
+    def __init__(self, in_features: int, n_bins: int = 128, kappa: float = 10.0, hidden: int = 160):
         super().__init__(in_features)
         self.kappa = check_option(kappa, "kappa", "pd_net_e")
         if not isinstance(n_bins, int) or n_bins < 4:

@@ -46,7 +46,7 @@ from benchmark.models.spherical import LatticeDecoder, directionnet_loss, result
 
 @register_head("pd_net_q")
 class PdNetQ(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (256), symmetric (True)."""
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), symmetric (True)."""
 
     paper_name = "Pd-Net-Q"
     is_probabilistic = True
@@ -57,7 +57,7 @@ class PdNetQ(AttitudeHead):
         n_points: int = 4096,
         kappa: float = 10.0,
         alpha: float = 8e7,
-        hidden: int = 256,
+        hidden: int = 160,
         symmetric: bool = True,
     ) -> None:
         super().__init__(in_features)

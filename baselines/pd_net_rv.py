@@ -46,7 +46,7 @@ def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
 
 @register_head("pd_net_rv")
 class PdNetRv(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (256), angle_weight (1)."""
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), angle_weight (1)."""
 
     paper_name = "Pd-Net-Rv"
     is_probabilistic = True
@@ -57,7 +57,7 @@ class PdNetRv(AttitudeHead):
         n_points: int = 4096,
         kappa: float = 10.0,
         alpha: float = 8e7,
-        hidden: int = 256,
+        hidden: int = 160,
         angle_weight: float = 1.0,
     ) -> None:
         super().__init__(in_features)

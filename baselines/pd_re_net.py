@@ -50,7 +50,7 @@ from benchmark.models.spherical import (
 
 @register_head("pd_re_net")
 class PdReNet(AttitudeHead):
-    """Args: in_features; n_points (4096); kappa (10, > 0); alpha (8e7); hidden (256)."""
+    """Args: in_features; n_points (4096); kappa (10, > 0); alpha (8e7); hidden (160)."""
 
     paper_name = "Pd/Re-Net"
     is_probabilistic = True
@@ -61,7 +61,7 @@ class PdReNet(AttitudeHead):
         n_points: int = 4096,
         kappa: float = 10.0,
         alpha: float = 8e7,
-        hidden: int = 256,
+        hidden: int = 160,
     ) -> None:
         super().__init__(in_features)
         self.kappa = check_option(kappa, "kappa", "pd_re_net")

@@ -29,7 +29,7 @@ _MIN_LENGTH = 1e-6  # metres; below this the direction is undefined and e_z is u
 
 @register_head("re_net_t")
 class ReNetT(TranslationHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (256), scale_weight (1)."""
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), scale_weight (1)."""
 
     paper_name = "Re-Net-T"
     is_probabilistic = True
@@ -40,7 +40,7 @@ class ReNetT(TranslationHead):
         n_points: int = 4096,
         kappa: float = 10.0,
         alpha: float = 8e7,
-        hidden: int = 256,
+        hidden: int = 160,
         scale_weight: float = 1.0,
     ) -> None:
         super().__init__(in_features)

@@ -25,6 +25,7 @@ COMMANDS: dict[str, str] = {
     "preview": "benchmark.data.preview",
     "bench": "benchmark.bench",
     "continuity": "benchmark.analysis.continuity",
+    "model-info": "benchmark.models.info",
     "ui": "benchmark.tracking.ui",
 }
 
@@ -34,6 +35,7 @@ COMMAND_HELP: dict[str, str] = {
     "preview": "write a contact sheet PNG of UAV/satellite pairs with their poses",
     "bench": "performance benchmarks (bench simulate: pairs/s and city build time)",
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
+    "model-info": "parameters, size, MFLOPs and CPU latency per pair of a model (Table 6)",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
 }
 

@@ -1,0 +1,190 @@
+"""``uavbench model-info``: parameters, size, FLOPs and CPU latency of a pair model (paper Table 6).
+
+FLOPs are counted by ``torch.utils.flop_counter.FlopCounterMode`` on one UAV/satellite pair at the
+given input size. It counts the matrix products and convolutions only (normalisation, activations,
+pooling and softmax are not counted, as in most published FLOP figures) and reports FLOPs = 2 x
+multiply-adds. "Inference" runs the model in eval mode (the fusion variants' auxiliary branches and
+heads are skipped, as at test time); "training forward" includes them. The dense share (``addmm``/
+``mm``) is printed separately: the paper's Table 6 figures (Re-Net 24.43, Pd/Re-Net with AGTFM 90.96
+MFLOPs) are far below any GoogLeNet at 224 px (~1.6 G multiply-adds per image), and of the order of
+the dense layers alone.
+
+Size is float32 parameters (4 bytes each) in MB = 10^6 bytes (MiB in brackets). Latency is the
+median wall time of one pair (batch 1, eval mode, no grad) over ``--repeats`` timed runs after
+``--warmup`` untimed ones, with ``--threads`` torch threads.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import time
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+from torch.utils.flop_counter import FlopCounterMode
+
+from benchmark.models.pair import PoseModel, create_model
+
+HELP = "parameters, size, MFLOPs and CPU latency per pair of a model (paper Table 6)"
+
+# Paper Table 6 (for reference in the printout).
+PAPER_TABLE6 = {"Re-Net": (65.60, 24.43), "Pd/Re-Net with AGTFM": (95.60, 90.96)}
+
+
+@dataclass
+class ModelInfo:
+    head: str
+    translation: str
+    encoder: str
+    variant: str
+    width: float
+    input_size: int
+    parameters: int
+    size_mb: float
+    size_mib: float
+    mflops_inference: float
+    mflops_dense_inference: float
+    mflops_training_forward: float
+    mflops_dense_training_forward: float
+    latency_ms: float
+    latency_repeats: int
+    threads: int
+
+
+def count_parameters(model: nn.Module) -> int:
+    return sum(p.numel() for p in model.parameters())
+
+
+def count_flops(model: PoseModel, input_size: int, training: bool = False) -> tuple[int, int]:
+    """``(total, dense)`` FLOPs (2 x multiply-adds) of one pair at ``input_size`` px."""
+    was_training = model.training
+    model.train(training)
+    dtype = next(model.parameters()).dtype
+    x = torch.rand(1, 3, input_size, input_size, dtype=dtype)
+    try:
+        with FlopCounterMode(display=False) as counter, torch.no_grad():
+            model(x, x.clone())
+    finally:
+        model.train(was_training)
+    ops = counter.get_flop_counts().get("Global", {})
+    dense = sum(v for k, v in ops.items() if str(k) in ("aten.addmm", "aten.mm", "aten.bmm"))
+    return int(counter.get_total_flops()), int(dense)
+
+
+def measure_latency(
+    model: PoseModel, input_size: int, repeats: int = 10, warmup: int = 3
+) -> list[float]:
+    """Wall times (seconds) of ``repeats`` batch-1 forward passes in eval mode."""
+    model.eval()
+    uav = torch.rand(1, 3, input_size, input_size)
+    sat = torch.rand(1, 3, input_size, input_size)
+    times = []
+    with torch.inference_mode():
+        for i in range(warmup + repeats):
+            start = time.perf_counter()
+            model.decode(model(uav, sat))
+            if i >= warmup:
+                times.append(time.perf_counter() - start)
+    return times
+
+
+def model_info(
+    head: str = "pd_re_net",
+    encoder: str = "googlenet",
+    variant: str = "a-f",
+    width: float = 1.0,
+    input_size: int = 224,
+    translation: str = "regression",
+    repeats: int = 10,
+    warmup: int = 3,
+) -> ModelInfo:
+    model = create_model(
+        encoder=encoder,
+        variant=variant,
+        width=width,
+        input_size=input_size,
+        attitude=head,
+        translation=translation,
+    )
+    n_params = count_parameters(model)
+    flops, dense = count_flops(model, input_size, training=False)
+    flops_train, dense_train = count_flops(model, input_size, training=True)
+    times = measure_latency(model, input_size, repeats, warmup)
+    return ModelInfo(
+        head=head,
+        translation=translation,
+        encoder=encoder,
+        variant=variant,
+        width=width,
+        input_size=input_size,
+        parameters=n_params,
+        size_mb=n_params * 4 / 1e6,
+        size_mib=n_params * 4 / 2**20,
+        mflops_inference=flops / 1e6,
+        mflops_dense_inference=dense / 1e6,
+        mflops_training_forward=flops_train / 1e6,
+        mflops_dense_training_forward=dense_train / 1e6,
+        latency_ms=1e3 * statistics.median(times),
+        latency_repeats=repeats,
+        threads=torch.get_num_threads(),
+    )
+
+
+def format_info(info: ModelInfo) -> str:
+    lines = [
+        f"model        {info.head} + {info.translation}, encoder {info.encoder} "
+        f"variant {info.variant!r}, width {info.width:g}, {info.input_size} px",
+        f"parameters   {info.parameters:,}",
+        f"size         {info.size_mb:.2f} MB float32 ({info.size_mib:.2f} MiB)",
+        f"MFLOPs/pair  {info.mflops_inference:.1f} inference "
+        f"(dense layers {info.mflops_dense_inference:.2f}), "
+        f"{info.mflops_training_forward:.1f} training forward "
+        f"(dense {info.mflops_dense_training_forward:.2f}); FLOPs = 2 x multiply-adds",
+        f"latency      {info.latency_ms:.1f} ms per pair (batch 1, CPU, {info.threads} thread(s), "
+        f"median of {info.latency_repeats})",
+        "paper Table 6: "
+        + "; ".join(f"{k} {mb:.2f} MB / {mf:.2f} MFLOPs" for k, (mb, mf) in PAPER_TABLE6.items()),
+    ]
+    return "\n".join(lines)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--head", default="pd_re_net", help="attitude head (default pd_re_net)")
+    parser.add_argument("--translation", default="regression", help="translation head")
+    parser.add_argument("--encoder", default="googlenet", help="encoder (default googlenet)")
+    parser.add_argument("--variant", default="a-f", help="'/', 'a', 'f' or 'a-f' (default a-f)")
+    parser.add_argument("--width", type=float, default=1.0, help="width multiplier (default 1.0)")
+    parser.add_argument("--size", type=int, default=224, help="input side in px (default 224)")
+    parser.add_argument("--repeats", type=int, default=10, help="timed runs (default 10)")
+    parser.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead")
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchmark.cli import UsageError
+
+    if args.repeats < 1 or args.warmup < 0 or args.threads < 1:
+        raise UsageError(
+            f"need --repeats >= 1, --warmup >= 0, --threads >= 1; got {args.repeats}, "
+            f"{args.warmup}, {args.threads}"
+        )
+    torch.set_num_threads(args.threads)
+    try:
+        info = model_info(
+            head=args.head,
+            encoder=args.encoder,
+            variant=args.variant,
+            width=args.width,
+            input_size=args.size,
+            translation=args.translation,
+            repeats=args.repeats,
+            warmup=args.warmup,
+        )
+    except ValueError as err:  # bad configuration: unknown head/encoder/variant, size, width
+        raise UsageError(str(err)) from None
+    print(json.dumps(asdict(info)) if args.json else format_info(info))
+    return 0
