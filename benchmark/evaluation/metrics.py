@@ -207,30 +207,33 @@ def spearman(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 
 
 def summarize(frame: pd.DataFrame) -> dict[str, float]:
-    """Scalar metrics of a :func:`predictions_frame`:
+    """Scalar metrics of a :func:`predictions_frame`, named as the runner's reports name them:
 
-    ``mean_<col>`` and ``median_<col>`` for every error column (mean absolute errors: the paper's
-    numbers), ``acc_<t>deg`` = fraction of samples with dphi <= t for t in 5, 10, 30, ``n``, and,
-    when the frame has them, ``mean_log_likelihood`` and ``spearman_uncertainty_dphi`` (with its
-    ``_pvalue``): positive when higher uncertainty goes with larger error, i.e. when the predicted
-    uncertainty is meaningful.
+    - ``<col>`` for every error column: the MEAN absolute error (the paper's numbers, e.g.
+      ``dpsi_deg``), and ``median_<col>``;
+    - ``acc5``, ``acc10``, ``acc30``: fraction of samples with dphi <= 5, 10, 30 deg;
+    - ``n``: number of samples;
+    - with a ``log_likelihood`` column, ``loglik`` (its mean); with an ``uncertainty`` column,
+      ``spearman_unc_err`` (Spearman rho between uncertainty and dphi; positive when higher
+      uncertainty goes with larger error, i.e. the uncertainty is meaningful) and its
+      ``spearman_unc_err_pvalue``.
     """
     if len(frame) == 0:
         raise ValueError("cannot summarize an empty predictions table")
     out: dict[str, float] = {"n": float(len(frame))}
     for col in ERROR_COLUMNS:
         values = frame[col].to_numpy(dtype=np.float64)
-        out[f"mean_{col}"] = float(values.mean())
+        out[col] = float(values.mean())
         out[f"median_{col}"] = float(np.median(values))
     dphi = frame["dphi_deg"].to_numpy(dtype=np.float64)
     for t in ACCURACY_THRESHOLDS_DEG:
-        out[f"acc_{t:g}deg"] = float((dphi <= t).mean())
+        out[f"acc{t:g}"] = float((dphi <= t).mean())
     if "log_likelihood" in frame:
-        out["mean_log_likelihood"] = float(frame["log_likelihood"].mean())
+        out["loglik"] = float(frame["log_likelihood"].mean())
     if "uncertainty" in frame:
         rho, p = spearman(frame["uncertainty"].to_numpy(), dphi)
-        out["spearman_uncertainty_dphi"] = rho
-        out["spearman_uncertainty_dphi_pvalue"] = p
+        out["spearman_unc_err"] = rho
+        out["spearman_unc_err_pvalue"] = p
     return out
 
 
