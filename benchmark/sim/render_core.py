@@ -1,0 +1,492 @@
+"""Numba kernels of the height-field ray caster (internal; use ``benchmark.sim.render``).
+
+The world is a 2.5D height field: every texel of the city grid is a flat-topped column of height
+``h`` (terrain + buildings + trees + cars, metres, absolute). A ray is marched through a max-mip
+pyramid (Tevs et al. 2008, "Maximum mipmaps for fast, accurate, and scalable dynamic height field
+rendering"): a cell of level k holds the maximum of its 2^k x 2^k texels, so a ray that stays above
+that maximum while crossing the cell skips it at once; otherwise the ray descends a level. The grid
+is
+mirror-tiled to infinity (texel index i maps to i mod 2W, reflected), so the world never ends and a
+pitch-0 camera sees a horizon; with dimensions divisible by 2^L the mirror maps aligned level-k
+cells
+onto aligned cells and one pyramid serves every copy.
+
+A hit on a texel top is coloured by the ortho texture (baked sun shading and shadows), sampled
+trilinearly from its mip pyramid at the level matching the pixel footprint (footprint
+``t * pixel_angle / sqrt(|cos incidence|)``), so distant ground does not shimmer. A hit on a texel's
+side is a wall: entering a building from outside gives a facade (palette colour + window grid +
+Lambert shading with the wall normal), other steps (terrain, gable steps, cars) reuse the texture.
+Windows fade to their mean colour when the pixel footprint approaches the window spacing (the
+procedural equivalent of a mip level). Fog: ``c = c e^{-t/V} + haze (1 - e^{-t/V})``.
+
+Grid coordinates: ``gx = (E - E0) / mpp`` and ``gy = (N - N0) / mpp``; texel ``[j, i]`` covers
+``gx in [i, i+1)``, ``gy in [j, j+1)`` (row 0 is the southern edge). Everything here is float64,
+serial and free of fastmath, so a frame is bit-identical across runs and machines with the same
+numba/LLVM.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# Indices into the float64 ``params`` vector handed to the kernels (built by render.py).
+P_MPP, P_E0, P_N0, P_GMAX = 0, 1, 2, 3
+P_SUN = 4  # 4, 5, 6: unit vector towards the sun (ENU)
+P_AMB, P_DIF = 7, 8
+P_HAZE = 9  # 9, 10, 11: haze / horizon colour (0..255)
+P_VIS = 12  # fog distance V in metres; <= 0 disables fog
+P_ZENITH = 13  # 13, 14, 15: sky colour at the zenith
+P_TMAX = 16  # rays longer than this return the haze colour
+P_GSCALE = 17  # texels per cell of the coarse ground (terrain) grid
+N_PARAMS = 18
+
+# Material codes in the ``mat`` grid (see world.py); >= MAT_BUILDING is a building whose facade
+# palette row is ``mat - MAT_BUILDING``.
+MAT_GROUND, MAT_WATER, MAT_TREE, MAT_SMALL, MAT_BUILDING = 0, 1, 2, 3, 16
+# Columns of the facade palette: wall rgb, window rgb, floor height, window spacing, window width
+# fraction, window height fraction.
+PAL_WALL, PAL_WIN, PAL_FLOOR, PAL_SPACING, PAL_WFRAC, PAL_HFRAC = 0, 3, 6, 7, 8, 9
+WALL_STEP_M = 2.5  # a step this high between two building texels is a facade, not a roof step
+MAX_ITER = 2048
+
+
+@njit(cache=True)
+def _mirror(i, n):
+    m = i % (2 * n)  # numba keeps Python's sign convention: m in [0, 2n)
+    if m >= n:
+        m = 2 * n - 1 - m
+    return m
+
+
+@njit(cache=True)
+def _height(hpyr, hoff, hdims, level, ci, cj):
+    hh = hdims[level, 0]
+    ww = hdims[level, 1]
+    return hpyr[hoff[level] + _mirror(cj, hh) * ww + _mirror(ci, ww)]
+
+
+@njit(cache=True)
+def _bilinear_rgb(tex, toff, tdims, level, gx, gy):
+    """Bilinear RGB of mip ``level`` at level-0 grid coordinates (mirror addressing)."""
+    s = float(1 << level)
+    hh = tdims[level, 0]
+    ww = tdims[level, 1]
+    x = gx / s - 0.5
+    y = gy / s - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = _mirror(int(x0), ww)
+    i1 = _mirror(int(x0) + 1, ww)
+    j0 = _mirror(int(y0), hh)
+    j1 = _mirror(int(y0) + 1, hh)
+    base = toff[level]
+    a = base + j0 * ww
+    b = base + j1 * ww
+    r = np.empty(3)
+    for c in range(3):
+        top = tex[a + i0, c] * (1.0 - fx) + tex[a + i1, c] * fx
+        bot = tex[b + i0, c] * (1.0 - fx) + tex[b + i1, c] * fx
+        r[c] = top * (1.0 - fy) + bot * fy
+    return r
+
+
+@njit(cache=True)
+def _trilinear_rgb(tex, toff, tdims, lod, gx, gy):
+    nlev = toff.shape[0]
+    if lod <= 0.0:
+        return _bilinear_rgb(tex, toff, tdims, 0, gx, gy)
+    if lod >= nlev - 1:
+        return _bilinear_rgb(tex, toff, tdims, nlev - 1, gx, gy)
+    l0 = math.floor(lod)
+    w = lod - l0
+    a = _bilinear_rgb(tex, toff, tdims, l0, gx, gy)
+    b = _bilinear_rgb(tex, toff, tdims, l0 + 1, gx, gy)
+    return a * (1.0 - w) + b * w
+
+
+@njit(cache=True)
+def ground_bilinear(ground, gscale, gx, gy):
+    """Terrain height (metres) at level-0 grid coordinates from the coarse ground grid."""
+    hh = ground.shape[0]
+    ww = ground.shape[1]
+    x = gx / gscale - 0.5
+    y = gy / gscale - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = _mirror(int(x0), ww)
+    i1 = _mirror(int(x0) + 1, ww)
+    j0 = _mirror(int(y0), hh)
+    j1 = _mirror(int(y0) + 1, hh)
+    top = ground[j0, i0] * (1.0 - fx) + ground[j0, i1] * fx
+    bot = ground[j1, i0] * (1.0 - fx) + ground[j1, i1] * fx
+    return top * (1.0 - fy) + bot * fy
+
+
+@njit(cache=True)
+def _sky(dz, params):
+    w = math.sqrt(max(dz, 0.0))
+    w = min(1.0, w * 1.6)
+    out = np.empty(3)
+    for c in range(3):
+        out[c] = params[P_HAZE + c] * (1.0 - w) + params[P_ZENITH + c] * w
+    return out
+
+
+@njit(cache=True)
+def _fog(col, t, params):
+    vis = params[P_VIS]
+    if vis <= 0.0:
+        return col
+    a = 1.0 - math.exp(-t / vis)
+    for c in range(3):
+        col[c] = col[c] * (1.0 - a) + params[P_HAZE + c] * a
+    return col
+
+
+@njit(cache=True)
+def _facade(
+    hx,
+    hy,
+    hz,
+    t,
+    dx,
+    dy,
+    dz,
+    axis,
+    ci,
+    cj,
+    pix_angle,
+    hpyr,
+    hoff,
+    hdims,
+    mat,
+    orient,
+    ground,
+    palette,
+    params,
+):
+    """Colour of a facade hit at metres-space point (hx, hy, hz) on texel (ci, cj)."""
+    hh = hdims[0, 0]
+    ww = hdims[0, 1]
+    mi = _mirror(ci, ww)
+    mj = _mirror(cj, hh)
+    m = mat[mj, mi]
+    row = m - MAT_BUILDING
+    # Outward normal estimate: minus the Sobel gradient of the height around the texel, in the
+    # mirrored copy's local frame. Mirroring flips axes, which the Sobel estimate handles for free
+    # because it is evaluated on the copy the ray is in (through _height with unmirrored indices).
+    gxs = 0.0
+    gys = 0.0
+    for oj in range(-1, 2):
+        for oi in range(-1, 2):
+            hv = _height(hpyr, hoff, hdims, 0, ci + oi, cj + oj)
+            wgt = 2.0 if (oi == 0 or oj == 0) else 1.0
+            gxs += oi * wgt * hv
+            gys += oj * wgt * hv
+    nx = -gxs
+    ny = -gys
+    # The crossed texel face: its outward normal points against the ray along the crossed axis.
+    fx = 0.0
+    fy = 0.0
+    if axis == 0:
+        fx = -1.0 if dx > 0 else 1.0
+    else:
+        fy = -1.0 if dy > 0 else 1.0
+    nrm = math.sqrt(nx * nx + ny * ny)
+    if nrm < 1e-6 or nx * fx + ny * fy <= 0.0:
+        nx, ny = fx, fy
+    else:
+        nx /= nrm
+        ny /= nrm
+    # Snap to the building's own wall directions (orient = wall angle mod 90 deg in the base tile;
+    # a mirrored copy reflects the angle).
+    theta = orient[mj, mi] * (0.5 * math.pi / 256.0)
+    # A reflection in x maps angle a to pi - a, in y to -a; modulo 90 deg both are -a.
+    if ((ci % (2 * ww)) >= ww) != ((cj % (2 * hh)) >= hh):
+        theta = -theta
+    best = -2.0
+    bx = nx
+    by = ny
+    for k in range(4):
+        a = theta + 0.5 * math.pi * k
+        cx_ = math.cos(a)
+        cy_ = math.sin(a)
+        d = cx_ * nx + cy_ * ny
+        if d > best:
+            best = d
+            bx = cx_
+            by = cy_
+    nx = bx
+    ny = by
+    # Along-wall coordinate (metres) and height above the terrain.
+    s = hx * (-ny) + hy * nx
+    mpp = params[P_MPP]
+    zg = hz - ground_bilinear(ground, params[P_GSCALE], hx / mpp, hy / mpp)
+    top = _height(hpyr, hoff, hdims, 0, ci, cj) - ground_bilinear(
+        ground, params[P_GSCALE], (ci + 0.5), (cj + 0.5)
+    )
+    wall = np.empty(3)
+    win = np.empty(3)
+    for c in range(3):
+        wall[c] = palette[row, PAL_WALL + c]
+        win[c] = palette[row, PAL_WIN + c]
+    floor_h = palette[row, PAL_FLOOR]
+    spacing = palette[row, PAL_SPACING]
+    wfrac = palette[row, PAL_WFRAC]
+    hfrac = palette[row, PAL_HFRAC]
+    cosi = abs(nx * dx * mpp + ny * dy * mpp)  # dx, dy are in grid units per metre
+    foot = t * pix_angle / max(cosi, 0.15)
+    # Window visibility fades out as the footprint approaches the window spacing.
+    vis = min(1.0, max(0.0, 1.5 - foot / (0.5 * min(spacing, floor_h))))
+    mean_frac = wfrac * hfrac
+    col = np.empty(3)
+    is_win = 0.0
+    if zg > 0.6 and zg < top - 0.9:
+        fz = (zg / floor_h) % 1.0
+        fs = (s / spacing) % 1.0
+        if abs(fz - 0.55) < 0.5 * hfrac and abs(fs - 0.5) < 0.5 * wfrac:
+            is_win = 1.0
+    for c in range(3):
+        mean = wall[c] * (1.0 - mean_frac) + win[c] * mean_frac
+        pat = win[c] if is_win > 0.5 else wall[c]
+        col[c] = pat * vis + mean * (1.0 - vis)
+    # Lambert with the horizontal wall normal; the sun vector is in ENU.
+    lam = nx * params[P_SUN] + ny * params[P_SUN + 1]
+    shade = params[P_AMB] + params[P_DIF] * max(lam, 0.0)
+    # A band of ambient occlusion at the wall foot.
+    if zg < 2.0:
+        shade *= 0.75 + 0.125 * max(zg, 0.0)
+    for c in range(3):
+        col[c] *= shade
+    return col
+
+
+@njit(cache=True)
+def trace(
+    ox,
+    oy,
+    oz,
+    dx,
+    dy,
+    dz,
+    pix_angle,
+    hpyr,
+    hoff,
+    hdims,
+    tex,
+    toff,
+    tdims,
+    mat,
+    orient,
+    ground,
+    palette,
+    params,
+):
+    """Colour (0..255, float64 ``(3,)``) seen along one ray.
+
+    ``(ox, oy)`` and ``(dx, dy)`` are in grid units (texels, and texels per metre of ray length),
+    ``oz``/``dz`` in metres; ``t`` is the ray length in metres (the direction is unit in metres).
+    """
+    L = hoff.shape[0] - 1
+    mpp = params[P_MPP]
+    gmax = params[P_GMAX]
+    tmax = params[P_TMAX]
+    t = 0.0
+    if oz > gmax:
+        if dz >= 0.0:
+            return _sky(dz, params)
+        t = (oz - gmax) / (-dz)
+    level = L
+    axis = -1
+    inf = 1e300
+    for _ in range(MAX_ITER):
+        if t > tmax:
+            break
+        px = ox + t * dx
+        py = oy + t * dy
+        s = float(1 << level)
+        ci = math.floor(px / s)
+        cj = math.floor(py / s)
+        if dx > 0.0:
+            tx = ((ci + 1) * s - ox) / dx
+        elif dx < 0.0:
+            tx = (ci * s - ox) / dx
+        else:
+            tx = inf
+        if dy > 0.0:
+            ty = ((cj + 1) * s - oy) / dy
+        elif dy < 0.0:
+            ty = (cj * s - oy) / dy
+        else:
+            ty = inf
+        texit = min(tx, ty)
+        h = _height(hpyr, hoff, hdims, level, ci, cj)
+        zin = oz + t * dz
+        zout = oz + texit * dz
+        if zin > h and zout > h:
+            axis = 0 if tx < ty else 1
+            t = texit + 1e-7
+            if dz >= 0.0 and zout > gmax:
+                return _sky(dz, params)
+            if level < L:
+                # Ascend only when the step also leaves the parent cell.
+                nci = math.floor((ox + t * dx) / s)
+                ncj = math.floor((oy + t * dy) / s)
+                if (nci >> 1) != (ci >> 1) or (ncj >> 1) != (cj >> 1):
+                    level += 1
+            continue
+        if level > 0:
+            if zin > h:
+                t = max(t, (oz - h) / (-dz))
+                axis = -1
+            level -= 1
+            continue
+        # Level 0: the ray meets this texel's column.
+        t_top = (oz - h) / (-dz) if dz < 0.0 else -inf
+        if zin > h - 1e-6 or axis < 0 or t_top >= t - 1e-6:
+            # Top face.
+            th = max(t, t_top)
+            hx = ox + th * dx
+            hy = oy + th * dy
+            lod = math.log2(max(th * pix_angle / math.sqrt(max(abs(dz), 0.02)) / mpp, 1e-6))
+            col = _trilinear_rgb(tex, toff, tdims, lod, hx, hy)
+            return _fog(col, th, params)
+        # Side face: which texel did the ray come from?
+        if axis == 0:
+            pi_ = ci - (1 if dx > 0 else -1)
+            pj_ = cj
+        else:
+            pi_ = ci
+            pj_ = cj - (1 if dy > 0 else -1)
+        hh0 = hdims[0, 0]
+        ww0 = hdims[0, 1]
+        m_here = mat[_mirror(cj, hh0), _mirror(ci, ww0)]
+        m_prev = mat[_mirror(pj_, hh0), _mirror(pi_, ww0)]
+        h_prev = _height(hpyr, hoff, hdims, 0, pi_, pj_)
+        hx = ox + t * dx
+        hy = oy + t * dy
+        if m_here >= MAT_BUILDING and (m_prev < MAT_BUILDING or h - h_prev > WALL_STEP_M):
+            col = _facade(
+                hx * mpp,
+                hy * mpp,
+                zin,
+                t,
+                dx,
+                dy,
+                dz,
+                axis,
+                ci,
+                cj,
+                pix_angle,
+                hpyr,
+                hoff,
+                hdims,
+                mat,
+                orient,
+                ground,
+                palette,
+                params,
+            )
+            return _fog(col, t, params)
+        # Terrain steps, trees, cars, gable steps: the texture of the texel, a little darker on
+        # vertical sides (trees are lit from above).
+        lod = math.log2(max(t * pix_angle / mpp, 1e-6))
+        col = _trilinear_rgb(tex, toff, tdims, lod, hx, hy)
+        if m_here == MAT_TREE:
+            for c in range(3):
+                col[c] *= 0.8
+        return _fog(col, t, params)
+    out = np.empty(3)
+    for c in range(3):
+        out[c] = params[P_HAZE + c]
+    return out
+
+
+@njit(cache=True)
+def render_image(
+    out,
+    R,
+    pos,
+    f,
+    cx,
+    cy,
+    ss,
+    hpyr,
+    hoff,
+    hdims,
+    tex,
+    toff,
+    tdims,
+    mat,
+    orient,
+    ground,
+    palette,
+    params,
+):
+    """Fill ``out`` (H, W, 3) uint8 by casting ``ss x ss`` rays per pixel (box filter).
+
+    ``R`` is ``R_b^n`` (3, 3); ``pos`` the ENU camera centre; ``f, cx, cy`` the pinhole intrinsics
+    (camera.py conventions). Rounding is half-up of the float mean, deterministic.
+    """
+    H = out.shape[0]
+    W = out.shape[1]
+    mpp = params[P_MPP]
+    ox = (pos[0] - params[P_E0]) / mpp
+    oy = (pos[1] - params[P_N0]) / mpp
+    oz = pos[2]
+    pix_angle = 1.0 / (f * ss)
+    inv = 1.0 / (ss * ss)
+    acc = np.empty(3)
+    for i in range(H):
+        for j in range(W):
+            acc[:] = 0.0
+            for a in range(ss):
+                for b in range(ss):
+                    u = j + (b + 0.5) / ss - 0.5
+                    v = i + (a + 0.5) / ss - 0.5
+                    bx = u - cx
+                    by = f
+                    bz = cy - v
+                    n = math.sqrt(bx * bx + by * by + bz * bz)
+                    bx /= n
+                    by /= n
+                    bz /= n
+                    ex = R[0, 0] * bx + R[0, 1] * by + R[0, 2] * bz
+                    ey = R[1, 0] * bx + R[1, 1] * by + R[1, 2] * bz
+                    ez = R[2, 0] * bx + R[2, 1] * by + R[2, 2] * bz
+                    col = trace(
+                        ox,
+                        oy,
+                        oz,
+                        ex / mpp,
+                        ey / mpp,
+                        ez,
+                        pix_angle,
+                        hpyr,
+                        hoff,
+                        hdims,
+                        tex,
+                        toff,
+                        tdims,
+                        mat,
+                        orient,
+                        ground,
+                        palette,
+                        params,
+                    )
+                    for c in range(3):
+                        acc[c] += col[c]
+            for c in range(3):
+                val = acc[c] * inv + 0.5
+                if val < 0.0:
+                    val = 0.0
+                if val > 255.0:
+                    val = 255.0
+                out[i, j, c] = np.uint8(int(val))
