@@ -127,7 +127,7 @@ class TestRenderUav:
         assert a.shape == (48, 48, 3) and a.dtype == np.uint8
         assert a.tobytes() == b.tobytes()
         other = build_city("oxford", 12, cache_dir=False, size_m=(512.0, 512.0))
-        c = render_uav(other, [*pos, 0, 0, 20.0], 0.4, -0.5, 0.05, cam)
+        c = render_uav(other, pos + np.array([0.0, 0.0, 20.0]), 0.4, -0.5, 0.05, cam)
         assert np.mean(np.abs(a.astype(int) - c.astype(int))) > 10.0
 
     @pytest.mark.parametrize(
