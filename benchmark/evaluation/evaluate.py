@@ -1,0 +1,147 @@
+"""Run a model over a split: per-sample predictions (CSV) and the metric summary.
+
+Heads are used only through the contract (``benchmark.models.heads``): ``decode`` for every head;
+``log_prob`` and ``uncertainty`` when the head declares ``is_probabilistic``. Nothing here knows
+which head it is running.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from benchmark.evaluation.metrics import predictions_frame, summarize, write_predictions_csv
+from benchmark.progress import Progress
+
+
+@dataclass
+class Predictions:
+    """Everything one pass produced. Rotations ``(N, 3, 3)`` are ``R_uav^sat``; translations
+    ``(N, 3)`` metres; ``log_likelihood`` / ``uncertainty`` ``(N,)`` or None (regression heads);
+    ``loss`` is the mean over samples of each term of ``PoseModel.loss`` (final level only)."""
+
+    index: torch.Tensor
+    R_hat: torch.Tensor
+    R_gt: torch.Tensor
+    T_hat: torch.Tensor
+    T_gt: torch.Tensor
+    log_likelihood: torch.Tensor | None
+    uncertainty: torch.Tensor | None
+    loss: dict[str, float]
+
+
+def make_loader(dataset: Dataset, batch_size: int, num_workers: int = 0) -> DataLoader:
+    """Sequential loader (evaluation order = dataset order, so outputs are reproducible)."""
+    return DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers)
+
+
+@torch.no_grad()
+def predict(
+    model: torch.nn.Module,
+    dataset: Dataset | DataLoader,
+    *,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    progress: bool = False,
+    desc: str = "eval",
+) -> Predictions:
+    """Predict every item of ``dataset`` (items as ``PairDataset`` gives them) in eval mode.
+
+    The model's train/eval mode is restored afterwards.
+    """
+    loader = dataset if isinstance(dataset, DataLoader) else make_loader(dataset, batch_size)
+    was_training = model.training
+    model.eval()
+    head = model.attitude_head
+    probabilistic = bool(getattr(head, "is_probabilistic", False))
+    parts: dict[str, list[torch.Tensor]] = {
+        k: [] for k in ("index", "R_hat", "R_gt", "T_hat", "T_gt", "log_likelihood", "uncertainty")
+    }
+    loss_sums: dict[str, float] = {}
+    count = 0
+    try:
+        with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
+            for batch in loader:
+                R_gt, T_gt = batch["R"], batch["T"]
+                sat_ids = batch["sat_id"] if shared_satellite else None
+                out = model(batch["uav"], batch["sat"], sat_ids)
+                R_hat, T_hat = model.decode(out)
+                n = R_gt.shape[0]
+                for key, value in model.loss(out, R_gt, T_gt).items():
+                    loss_sums[key] = loss_sums.get(key, 0.0) + float(value) * n
+                count += n
+                parts["index"].append(batch["index"])
+                parts["R_hat"].append(R_hat.double())
+                parts["R_gt"].append(R_gt.double())
+                parts["T_hat"].append(T_hat.double())
+                parts["T_gt"].append(T_gt.double())
+                if probabilistic:
+                    parts["log_likelihood"].append(head.log_prob(out.attitude, R_gt).double())
+                    parts["uncertainty"].append(head.uncertainty(out.attitude).double())
+                bar.update(1)
+    finally:
+        model.train(was_training)
+    if count == 0:
+        raise ValueError("predict: the dataset is empty")
+    cat = {k: torch.cat(v) if v else None for k, v in parts.items()}
+    return Predictions(
+        index=cat["index"],
+        R_hat=cat["R_hat"],
+        R_gt=cat["R_gt"],
+        T_hat=cat["T_hat"],
+        T_gt=cat["T_gt"],
+        log_likelihood=cat["log_likelihood"],
+        uncertainty=cat["uncertainty"],
+        loss={k: v / count for k, v in loss_sums.items()},
+    )
+
+
+def predictions_to_frame(
+    pred: Predictions, extra: Mapping[str, Sequence[Any]] | None = None
+) -> pd.DataFrame:
+    return predictions_frame(
+        pred.R_hat,
+        pred.R_gt,
+        pred.T_hat,
+        pred.T_gt,
+        index=pred.index,
+        log_likelihood=pred.log_likelihood,
+        uncertainty=pred.uncertainty,
+        extra=extra,
+    )
+
+
+def evaluate(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    *,
+    out_csv: str | Path | None = None,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    extra: Mapping[str, Sequence[Any]] | None = None,
+    progress: bool = False,
+    desc: str = "eval",
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Predict ``dataset``, write the per-sample CSV to ``out_csv`` (if given) and return
+    ``(summary, frame)``: the :func:`~benchmark.evaluation.metrics.summarize` metrics (plus the
+    mean losses as ``loss_<term>``) and the per-sample table."""
+    pred = predict(
+        model,
+        dataset,
+        batch_size=batch_size,
+        shared_satellite=shared_satellite,
+        progress=progress,
+        desc=desc,
+    )
+    frame = predictions_to_frame(pred, extra)
+    if out_csv is not None:
+        write_predictions_csv(frame, out_csv)
+    summary = summarize(frame)
+    summary.update({f"loss_{k}": v for k, v in pred.loss.items()})
+    return summary, frame

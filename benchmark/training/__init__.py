@@ -1,0 +1,53 @@
+"""Training: the train config, the deterministic resumable loop, and model/dataset building.
+
+``run_training(cfg, out_dir, on_epoch_end=...)`` is what a runner calls; this package never imports
+``benchmark.tracking`` (connect a tracker through ``on_epoch_end``).
+"""
+
+from benchmark.training.build import (
+    image_size_of,
+    load_trained_model,
+    model_factory,
+    open_datasets,
+    run_training,
+)
+from benchmark.training.config import (
+    DataConfig,
+    LossConfig,
+    ModelSection,
+    OptimConfig,
+    TrainConfig,
+    load_train_config,
+)
+from benchmark.training.loop import (
+    CHECKPOINT,
+    CheckpointMismatchError,
+    NonFiniteLossError,
+    TrainResult,
+    derive_seed,
+    load_checkpoint,
+    train,
+    translation_labels,
+)
+
+__all__ = [
+    "CHECKPOINT",
+    "CheckpointMismatchError",
+    "DataConfig",
+    "LossConfig",
+    "ModelSection",
+    "NonFiniteLossError",
+    "OptimConfig",
+    "TrainConfig",
+    "TrainResult",
+    "derive_seed",
+    "image_size_of",
+    "load_checkpoint",
+    "load_train_config",
+    "load_trained_model",
+    "model_factory",
+    "open_datasets",
+    "run_training",
+    "train",
+    "translation_labels",
+]

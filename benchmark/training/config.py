@@ -1,0 +1,147 @@
+"""The train configuration: frozen dataclasses, one section per concern.
+
+Defaults are the paper's settings (Sec. 3.3): SGD with momentum 0.9, learning rate 1e-3, batch 20;
+vMF concentration kappa = 10 and distribution-loss weight alpha = 8e7 (the heads' own defaults);
+auxiliary weights w1 = w2 = 0.3; the AGTFM encoder (``a-f``) at width 1.0. Override any field with
+``--set section.field=value`` (:func:`benchmark.config.apply_overrides`), or load a YAML file
+holding some of the fields (:func:`load_train_config`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from benchmark.config import ConfigError, apply_overrides, load_yaml
+
+
+def _positive(value: float, name: str, *, allow_zero: bool = False) -> None:
+    ok = math.isfinite(value) and (value >= 0 if allow_zero else value > 0)
+    if not ok:
+        op = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite number {op}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """Which pairs to train on. ``root`` is a directory written by ``uavbench simulate``."""
+
+    root: str = ""
+    train_split: str = "standard/train"
+    val_split: str | None = "standard/val"  # None: no validation pass
+    limit_train: int | None = None  # first N training pairs only (smoke runs)
+    limit_val: int | None = None
+    num_workers: int = 0  # DataLoader worker processes (0: load in the training process)
+    verify: Literal["sha256", "size"] = "size"  # dataset file check when opening
+
+    def __post_init__(self) -> None:
+        for name in ("limit_train", "limit_val"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"{name} must be >= 1 or None, got {value}")
+        if self.num_workers < 0:
+            raise ValueError(f"num_workers must be >= 0, got {self.num_workers}")
+
+
+@dataclass(frozen=True)
+class ModelSection:
+    """The fields of ``benchmark.models.ModelConfig`` that a run chooses.
+
+    ``input_size=None`` takes the dataset's image size.
+    """
+
+    encoder: str = "googlenet"
+    variant: str = "a-f"
+    width: float = 1.0
+    input_size: int | None = None
+    attitude: str = "pd_re_net"
+    translation: str = "regression"
+    channels_last: bool = True
+    shared_satellite: bool = True  # encode each distinct satellite image once per batch (exact)
+
+    def __post_init__(self) -> None:
+        _positive(self.width, "width")
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """SGD with momentum (the paper's SGDM, Sec. 3.3)."""
+
+    lr: float = 1e-3
+    momentum: float = 0.9
+    weight_decay: float = 0.0
+    batch_size: int = 20
+    epochs: int = 30
+    grad_clip: float | None = None  # max global gradient norm; None: no clipping
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+
+    def __post_init__(self) -> None:
+        _positive(self.lr, "lr")
+        _positive(self.momentum, "momentum", allow_zero=True)
+        _positive(self.weight_decay, "weight_decay", allow_zero=True)
+        if self.batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {self.batch_size}")
+        if self.epochs < 1:
+            raise ValueError(f"epochs must be >= 1, got {self.epochs}")
+        if self.grad_clip is not None:
+            _positive(self.grad_clip, "grad_clip")
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """Options of the attitude head's loss; ``None`` keeps the head's default (the paper's value:
+    kappa = 10, alpha = 8e7 for every distribution head). A value set for a head that has no such
+    option is an error, not silently ignored."""
+
+    kappa: float | None = None
+    alpha: float | None = None
+    aux_weight: float = 0.3  # w1 = w2 of Algorithm 1
+
+    def __post_init__(self) -> None:
+        if self.kappa is not None:
+            _positive(self.kappa, "kappa")
+        if self.alpha is not None:
+            _positive(self.alpha, "alpha", allow_zero=True)
+        _positive(self.aux_weight, "aux_weight", allow_zero=True)
+
+    def attitude_kwargs(self) -> dict[str, Any]:
+        return {k: v for k, v in (("kappa", self.kappa), ("alpha", self.alpha)) if v is not None}
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelSection = field(default_factory=ModelSection)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    seed: int = 0
+    threads: int | None = None  # torch.set_num_threads; None leaves torch's default
+    val_every: int = 1  # validate every N epochs (and always after the last); 0: never
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"threads must be >= 1 or None, got {self.threads}")
+        if self.val_every < 0:
+            raise ValueError(f"val_every must be >= 0, got {self.val_every}")
+
+
+def load_train_config(path: str | Path | None = None, overrides: list[str] = ()) -> TrainConfig:
+    """Defaults, then the YAML file (if any), then ``overrides`` (``["optim.lr=0.01", ...]``)."""
+    cfg = TrainConfig() if path is None else load_yaml(path, TrainConfig)
+    assert isinstance(cfg, TrainConfig)
+    return apply_overrides(cfg, list(overrides))
+
+
+__all__ = [
+    "ConfigError",
+    "DataConfig",
+    "LossConfig",
+    "ModelSection",
+    "OptimConfig",
+    "TrainConfig",
+    "load_train_config",
+]

@@ -1,0 +1,300 @@
+"""The deterministic, resumable training loop.
+
+Determinism: the model is initialised after ``torch.manual_seed(seed)``; epoch ``e`` shuffles with
+its own generator seeded from ``(seed, e)`` and reseeds the global torch RNG from ``(seed, e)``
+(dropout), so epoch ``e`` does the same work whether the process started at epoch 0 or resumed at
+``e``. With the same config, seed and thread count the final weights are bit-identical.
+
+Checkpoints: after every epoch ``<out>/checkpoint.pt`` is replaced atomically (temp file, fsync,
+rename) with the model and optimiser states, RNG states, the epoch count, the per-epoch history and
+the config. ``train`` on an ``out`` holding a checkpoint of the same config resumes from it; the
+history is replayed to ``on_epoch_end`` first, so a tracker attached to a resumed run still gets
+every epoch.
+
+Heads are used only through the contract (``PoseModel.loss`` / ``decode`` and, for the
+translation statistics, ``TranslationHead.fit_statistics``). This module never imports tracking:
+the caller passes ``on_epoch_end(epoch, metrics)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import random
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset, Subset
+
+from benchmark.config import config_hash, to_dict
+from benchmark.progress import Progress
+from benchmark.training.config import TrainConfig
+
+CHECKPOINT = "checkpoint.pt"
+CHECKPOINT_FORMAT = 1
+EpochCallback = Callable[[int, dict[str, float]], None]
+
+
+class NonFiniteLossError(RuntimeError):
+    """The loss became NaN or inf; training stopped (the caller marks its run FAILED)."""
+
+
+class CheckpointMismatchError(ValueError):
+    """A checkpoint in the output directory belongs to a different config."""
+
+
+@dataclass
+class TrainResult:
+    model: torch.nn.Module
+    history: list[dict[str, float]]  # one dict per epoch (epoch numbers from 1)
+    checkpoint: Path
+    resumed_from_epoch: int  # 0 for a fresh run
+    config_hash: str
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def derive_seed(*parts: int) -> int:
+    """A 63-bit seed from integers (a splitmix64-style mix; independent of PYTHONHASHSEED)."""
+    x = 0x9E3779B97F4A7C15
+    for p in parts:
+        x = (x ^ (int(p) & 0xFFFFFFFFFFFFFFFF)) * 0xBF58476D1CE4E5B9 & 0xFFFFFFFFFFFFFFFF
+        x ^= x >> 31
+    return x & 0x7FFFFFFFFFFFFFFF
+
+
+def epoch_permutation(n: int, seed: int, epoch: int) -> list[int]:
+    g = torch.Generator().manual_seed(derive_seed(seed, epoch, 1))
+    return torch.randperm(n, generator=g).tolist()
+
+
+def translation_labels(dataset: Dataset) -> torch.Tensor:
+    """``(N, 3)`` metres: all ``T`` labels of ``dataset`` without decoding images when possible
+    (``PairDataset`` keeps its labels in ``poses``; a ``Subset`` of one is indexed)."""
+    base, idx = dataset, None
+    if isinstance(dataset, Subset):
+        base, idx = dataset.dataset, list(dataset.indices)
+    poses = getattr(base, "poses", None)
+    if poses is not None and {"dE", "dN", "dU"} <= set(poses.columns):
+        T = torch.from_numpy(poses[["dE", "dN", "dU"]].to_numpy(np.float64))
+        return T if idx is None else T[idx]
+    return torch.stack(
+        [torch.as_tensor(dataset[i]["T"], dtype=torch.float64) for i in range(len(dataset))]
+    )
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            torch.save(obj, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _rng_state() -> dict[str, Any]:
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+    }
+
+
+def _set_rng_state(state: dict[str, Any]) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+def load_checkpoint(path: str | Path) -> dict[str, Any]:
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # truncated / foreign file: say which file
+        raise ValueError(f"cannot read checkpoint {path}: {err}") from err
+    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path} is not a uavbench checkpoint (format {CHECKPOINT_FORMAT})")
+    return ckpt
+
+
+def _lr_at(cfg: TrainConfig, epoch: int) -> float:
+    """Learning rate of (0-based) ``epoch``; cosine decays to 0 over ``optim.epochs``."""
+    if cfg.optim.lr_schedule == "cosine":
+        return cfg.optim.lr * 0.5 * (1 + math.cos(math.pi * epoch / cfg.optim.epochs))
+    return cfg.optim.lr
+
+
+def train(
+    cfg: TrainConfig,
+    model_factory: Callable[[], torch.nn.Module],
+    train_set: Dataset,
+    val_set: Dataset | None,
+    out_dir: str | Path,
+    *,
+    on_epoch_end: EpochCallback | None = None,
+    progress: bool = True,
+) -> TrainResult:
+    """Train ``model_factory()`` (a ``PoseModel``) on ``train_set`` per ``cfg``; resume if
+    ``out_dir`` holds a checkpoint of the same config. Raises :class:`NonFiniteLossError` if the
+    loss becomes non-finite (the last good checkpoint stays on disk)."""
+    from benchmark.evaluation.evaluate import predict
+
+    if cfg.threads is not None:
+        torch.set_num_threads(cfg.threads)
+    out_dir = Path(out_dir)
+    ckpt_path = out_dir / CHECKPOINT
+    chash = config_hash(cfg)
+    torch.manual_seed(derive_seed(cfg.seed, 0))
+    model = model_factory()
+    model.translation_head.fit_statistics(translation_labels(train_set))
+    params = [p for p in model.parameters() if p.requires_grad]
+    optimizer = torch.optim.SGD(
+        params, lr=cfg.optim.lr, momentum=cfg.optim.momentum, weight_decay=cfg.optim.weight_decay
+    )
+    history: list[dict[str, float]] = []
+    start_epoch = 0
+    if ckpt_path.exists():
+        ckpt = load_checkpoint(ckpt_path)
+        if ckpt["config_hash"] != chash:
+            raise CheckpointMismatchError(
+                f"{ckpt_path} was written by a different config (hash {ckpt['config_hash']}, "
+                f"this run {chash}); use another output directory or delete the checkpoint"
+            )
+        model.load_state_dict(ckpt["model"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        _set_rng_state(ckpt["rng"])
+        history = list(ckpt["history"])
+        start_epoch = int(ckpt["epoch"])
+    if on_epoch_end is not None:
+        for record in history:  # replay: a resumed run reports every epoch
+            on_epoch_end(int(record["epoch"]), dict(record))
+
+    n = len(train_set)
+    steps_per_epoch = math.ceil(n / cfg.optim.batch_size)
+    epochs = cfg.optim.epochs
+    with Progress(
+        epochs * steps_per_epoch,
+        f"train seed {cfg.seed}",
+        unit="batch",
+        initial=start_epoch * steps_per_epoch,
+        enabled=progress,
+    ) as bar:
+        for epoch in range(start_epoch, epochs):
+            record = _train_one_epoch(cfg, model, optimizer, train_set, epoch, bar)
+            last = epoch + 1 == epochs
+            if val_set is not None and cfg.val_every and ((epoch + 1) % cfg.val_every == 0 or last):
+                pred = predict(
+                    model,
+                    val_set,
+                    batch_size=max(cfg.optim.batch_size, 32),
+                    shared_satellite=cfg.model.shared_satellite,
+                )
+                record.update(_val_metrics(pred))
+            history.append(record)
+            _atomic_save(
+                {
+                    "format": CHECKPOINT_FORMAT,
+                    "config": to_dict(cfg),
+                    "config_hash": chash,
+                    "model_config": _model_config_dict(model),
+                    "epoch": epoch + 1,
+                    "model": model.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "rng": _rng_state(),
+                    "history": history,
+                },
+                ckpt_path,
+            )
+            if on_epoch_end is not None:
+                on_epoch_end(epoch + 1, dict(record))
+    return TrainResult(model, history, ckpt_path, start_epoch, chash)
+
+
+def _model_config_dict(model: torch.nn.Module) -> dict[str, Any] | None:
+    config = getattr(model, "config", None)
+    return config.to_dict() if config is not None and hasattr(config, "to_dict") else None
+
+
+def _train_one_epoch(
+    cfg: TrainConfig,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
+    train_set: Dataset,
+    epoch: int,
+    bar: Progress,
+) -> dict[str, float]:
+    torch.manual_seed(derive_seed(cfg.seed, epoch, 2))  # dropout etc.: a function of (seed, epoch)
+    lr = _lr_at(cfg, epoch)
+    for group in optimizer.param_groups:
+        group["lr"] = lr
+    loader = DataLoader(
+        train_set,
+        batch_size=cfg.optim.batch_size,
+        sampler=epoch_permutation(len(train_set), cfg.seed, epoch),
+        num_workers=cfg.data.num_workers,
+        generator=torch.Generator().manual_seed(derive_seed(cfg.seed, epoch, 3)),
+    )
+    model.train()
+    sums: dict[str, float] = {}
+    count, start = 0, time.perf_counter()
+    for step, batch in enumerate(loader):
+        sat_ids = batch["sat_id"] if cfg.model.shared_satellite else None
+        out = model(batch["uav"], batch["sat"], sat_ids)
+        losses = model.loss(out, batch["R"], batch["T"])
+        total = losses["total"]
+        if not bool(torch.isfinite(total)):
+            terms = ", ".join(f"{k}={float(v.detach()):.6g}" for k, v in losses.items())
+            raise NonFiniteLossError(
+                f"non-finite loss at epoch {epoch + 1}, step {step + 1} ({terms}); stopping. "
+                f"Try a lower optim.lr (now {lr:g}) or optim.grad_clip. The last good checkpoint "
+                "is kept."
+            )
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        if cfg.optim.grad_clip is not None:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+        optimizer.step()
+        b = batch["R"].shape[0]
+        for key, value in losses.items():
+            sums[key] = sums.get(key, 0.0) + float(value.detach()) * b
+        count += b
+        bar.update(1, postfix=f"epoch {epoch + 1} loss {float(total.detach()):.4g}")
+    elapsed = time.perf_counter() - start
+    record = {f"train_loss_{k}": v / count for k, v in sums.items()}
+    record.update(
+        {
+            "epoch": float(epoch + 1),
+            "lr": lr,
+            "epoch_time_s": elapsed,
+            "pairs_per_s": count / elapsed,
+        }
+    )
+    return record
+
+
+def _val_metrics(pred: Any) -> dict[str, float]:
+    from benchmark.geometry import geodesic_distance
+
+    err_deg = torch.rad2deg(geodesic_distance(pred.R_hat, pred.R_gt))
+    trans = (pred.T_hat - pred.T_gt).abs().mean(0)
+    out = {f"val_loss_{k}": v for k, v in pred.loss.items()}
+    out.update(
+        {
+            "val_dphi_deg": float(err_deg.mean()),
+            "val_median_dphi_deg": float(err_deg.median()),
+            "val_dE_m": float(trans[0]),
+            "val_dN_m": float(trans[1]),
+            "val_dU_m": float(trans[2]),
+        }
+    )
+    return out

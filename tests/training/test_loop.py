@@ -1,0 +1,140 @@
+"""Determinism, checkpoint/resume, non-finite loss and callbacks of the training loop."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tiny_pairs import TinyPairs, tiny_config
+
+from benchmark.config import ConfigError
+from benchmark.training import (
+    CHECKPOINT,
+    CheckpointMismatchError,
+    NonFiniteLossError,
+    derive_seed,
+    load_checkpoint,
+    load_trained_model,
+    model_factory,
+    train,
+    translation_labels,
+)
+
+TIMING = {"epoch_time_s", "pairs_per_s"}
+
+
+@pytest.fixture
+def tiny_data() -> tuple[TinyPairs, TinyPairs]:
+    return TinyPairs(12, seed=0), TinyPairs(6, seed=1)
+
+
+def run(cfg, data, out, **kwargs):
+    train_set, val_set = data
+    return train(cfg, model_factory(cfg, 32), train_set, val_set, out, progress=False, **kwargs)
+
+
+def same_state(a: torch.nn.Module, b: torch.nn.Module) -> bool:
+    sa, sb = a.state_dict(), b.state_dict()
+    return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
+
+
+def strip_timing(history):
+    return [{k: v for k, v in r.items() if k not in TIMING} for r in history]
+
+
+class TestTrain:
+    def test_same_seed_same_bytes_other_seed_differs(self, tiny_data, tmp_path):
+        cfg = tiny_config()
+        a = run(cfg, tiny_data, tmp_path / "a")
+        b = run(cfg, tiny_data, tmp_path / "b")
+        assert same_state(a.model, b.model)
+        assert strip_timing(a.history) == strip_timing(b.history)
+        c = run(tiny_config("seed=1"), tiny_data, tmp_path / "c")
+        assert not same_state(a.model, c.model)
+
+    def test_resume_after_kill_matches_uninterrupted(self, tiny_data, tmp_path):
+        cfg = tiny_config("optim.epochs=3")
+        full = run(cfg, tiny_data, tmp_path / "full")
+
+        def kill_after_first_epoch(epoch, metrics):
+            if epoch == 1:
+                raise KeyboardInterrupt
+
+        with pytest.raises(KeyboardInterrupt):
+            run(cfg, tiny_data, tmp_path / "resumed", on_epoch_end=kill_after_first_epoch)
+        assert load_checkpoint(tmp_path / "resumed" / CHECKPOINT)["epoch"] == 1
+        seen = []
+        resumed = run(
+            cfg, tiny_data, tmp_path / "resumed", on_epoch_end=lambda e, m: seen.append((e, m))
+        )
+        assert resumed.resumed_from_epoch == 1
+        assert same_state(full.model, resumed.model)
+        assert strip_timing(full.history) == strip_timing(resumed.history)
+        # The callback saw every epoch: the one before the kill replayed, then 2 and 3.
+        assert [e for e, _ in seen] == [1, 2, 3]
+        assert seen[0][1]["train_loss_total"] == full.history[0]["train_loss_total"]
+
+    def test_finished_run_is_not_retrained(self, tiny_data, tmp_path):
+        cfg = tiny_config("optim.epochs=1")
+        first = run(cfg, tiny_data, tmp_path / "o")
+        again = run(cfg, tiny_data, tmp_path / "o")
+        assert again.resumed_from_epoch == 1 and same_state(first.model, again.model)
+
+    def test_checkpoint_of_other_config_refused(self, tiny_data, tmp_path):
+        run(tiny_config("optim.epochs=1"), tiny_data, tmp_path / "o")
+        with pytest.raises(CheckpointMismatchError, match="different config"):
+            run(tiny_config("optim.epochs=1", "optim.lr=0.01"), tiny_data, tmp_path / "o")
+
+    def test_non_finite_loss_stops_with_message(self, tiny_data, tmp_path):
+        cfg = tiny_config("optim.lr=1e30", "optim.epochs=3")
+        with pytest.raises(NonFiniteLossError, match=r"non-finite loss at epoch \d+, step \d+"):
+            run(cfg, tiny_data, tmp_path / "o")
+
+    def test_history_and_checkpoint_contents(self, tiny_data, tmp_path):
+        cfg = tiny_config()
+        res = run(cfg, tiny_data, tmp_path / "o")
+        assert [r["epoch"] for r in res.history] == [1.0, 2.0]
+        first = res.history[0]
+        for key in ("train_loss_total", "train_loss_att", "train_loss_tran", "lr", "val_dphi_deg"):
+            assert math.isfinite(first[key]), key
+        # a-f has two auxiliary attitude heads, trained with w = 0.3 (Algorithm 1).
+        assert "train_loss_att_aux1" in first and "train_loss_att_aux2" in first
+        assert 0 <= first["val_dphi_deg"] <= 180
+        ckpt = load_checkpoint(res.checkpoint)
+        assert ckpt["epoch"] == 2 and ckpt["config"]["optim"]["batch_size"] == 4
+        model = load_trained_model(res.checkpoint)
+        assert same_state(model, res.model) and not model.training
+
+    def test_translation_statistics_from_training_labels(self, tiny_data, tmp_path):
+        res = run(tiny_config("optim.epochs=1"), tiny_data, tmp_path / "o")
+        T = tiny_data[0].T.double()
+        head = res.model.translation_head
+        torch.testing.assert_close(head.mean.double(), T.mean(0), rtol=1e-6, atol=1e-6)
+        torch.testing.assert_close(
+            head.std.double(), T.std(0, unbiased=False), rtol=1e-5, atol=1e-5
+        )
+
+    def test_loss_option_for_head_without_it(self, tiny_data, tmp_path):
+        cfg = tiny_config("model.attitude=re_net_r", "loss.kappa=5")
+        with pytest.raises(ConfigError, match="kappa"):
+            run(cfg, tiny_data, tmp_path / "o")
+
+    def test_input_size_mismatch(self):
+        with pytest.raises(ConfigError, match="input_size=64"):
+            model_factory(tiny_config("model.input_size=64"), 32)
+
+
+class TestTranslationLabels:
+    def test_subset_and_plain(self):
+        ds = TinyPairs(5)
+        torch.testing.assert_close(translation_labels(ds), ds.T.double())
+        sub = torch.utils.data.Subset(ds, [3, 1])
+        torch.testing.assert_close(translation_labels(sub), ds.T.double()[[3, 1]])
+
+
+class TestDeriveSeed:
+    def test_distinct_and_stable(self):
+        seeds = {derive_seed(s, e) for s in range(5) for e in range(50)}
+        assert len(seeds) == 250
+        assert derive_seed(1, 2) == derive_seed(1, 2) and 0 <= derive_seed(1, 2) < 2**63
