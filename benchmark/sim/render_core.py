@@ -55,6 +55,8 @@ MAX_ITER = 2048
 
 @njit(cache=True)
 def _mirror(i, n):
+    if i >= 0 and i < n:
+        return i
     m = i % (2 * n)  # numba keeps Python's sign convention: m in [0, 2n)
     if m >= n:
         m = 2 * n - 1 - m
@@ -87,12 +89,14 @@ def _bilinear_rgb(tex, toff, tdims, level, gx, gy):
     base = toff[level]
     a = base + j0 * ww
     b = base + j1 * ww
-    r = np.empty(3)
-    for c in range(3):
-        top = tex[a + i0, c] * (1.0 - fx) + tex[a + i1, c] * fx
-        bot = tex[b + i0, c] * (1.0 - fx) + tex[b + i1, c] * fx
-        r[c] = top * (1.0 - fy) + bot * fy
-    return r
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w01 = fx * (1.0 - fy)
+    w10 = (1.0 - fx) * fy
+    w11 = fx * fy
+    r = tex[a + i0, 0] * w00 + tex[a + i1, 0] * w01 + tex[b + i0, 0] * w10 + tex[b + i1, 0] * w11
+    g = tex[a + i0, 1] * w00 + tex[a + i1, 1] * w01 + tex[b + i0, 1] * w10 + tex[b + i1, 1] * w11
+    bl = tex[a + i0, 2] * w00 + tex[a + i1, 2] * w01 + tex[b + i0, 2] * w10 + tex[b + i1, 2] * w11
+    return r, g, bl
 
 
 @njit(cache=True)
@@ -104,9 +108,9 @@ def _trilinear_rgb(tex, toff, tdims, lod, gx, gy):
         return _bilinear_rgb(tex, toff, tdims, nlev - 1, gx, gy)
     l0 = math.floor(lod)
     w = lod - l0
-    a = _bilinear_rgb(tex, toff, tdims, l0, gx, gy)
-    b = _bilinear_rgb(tex, toff, tdims, l0 + 1, gx, gy)
-    return a * (1.0 - w) + b * w
+    a0, a1, a2 = _bilinear_rgb(tex, toff, tdims, l0, gx, gy)
+    b0, b1, b2 = _bilinear_rgb(tex, toff, tdims, l0 + 1, gx, gy)
+    return (a0 * (1.0 - w) + b0 * w, a1 * (1.0 - w) + b1 * w, a2 * (1.0 - w) + b2 * w)
 
 
 @njit(cache=True)
@@ -133,10 +137,11 @@ def ground_bilinear(ground, gscale, gx, gy):
 def _sky(dz, params):
     w = math.sqrt(max(dz, 0.0))
     w = min(1.0, w * 1.6)
-    out = np.empty(3)
-    for c in range(3):
-        out[c] = params[P_HAZE + c] * (1.0 - w) + params[P_ZENITH + c] * w
-    return out
+    return (
+        params[P_HAZE] * (1.0 - w) + params[P_ZENITH] * w,
+        params[P_HAZE + 1] * (1.0 - w) + params[P_ZENITH + 1] * w,
+        params[P_HAZE + 2] * (1.0 - w) + params[P_ZENITH + 2] * w,
+    )
 
 
 @njit(cache=True)
@@ -145,9 +150,11 @@ def _fog(col, t, params):
     if vis <= 0.0:
         return col
     a = 1.0 - math.exp(-t / vis)
-    for c in range(3):
-        col[c] = col[c] * (1.0 - a) + params[P_HAZE + c] * a
-    return col
+    return (
+        col[0] * (1.0 - a) + params[P_HAZE] * a,
+        col[1] * (1.0 - a) + params[P_HAZE + 1] * a,
+        col[2] * (1.0 - a) + params[P_HAZE + 2] * a,
+    )
 
 
 @njit(cache=True)
@@ -232,11 +239,6 @@ def _facade(
     top = _height(hpyr, hoff, hdims, 0, ci, cj) - ground_bilinear(
         ground, params[P_GSCALE], (ci + 0.5), (cj + 0.5)
     )
-    wall = np.empty(3)
-    win = np.empty(3)
-    for c in range(3):
-        wall[c] = palette[row, PAL_WALL + c]
-        win[c] = palette[row, PAL_WIN + c]
     floor_h = palette[row, PAL_FLOOR]
     spacing = palette[row, PAL_SPACING]
     wfrac = palette[row, PAL_WFRAC]
@@ -246,26 +248,33 @@ def _facade(
     # Window visibility fades out as the footprint approaches the window spacing.
     vis = min(1.0, max(0.0, 1.5 - foot / (0.5 * min(spacing, floor_h))))
     mean_frac = wfrac * hfrac
-    col = np.empty(3)
-    is_win = 0.0
+    is_win = False
     if zg > 0.6 and zg < top - 0.9:
         fz = (zg / floor_h) % 1.0
         fs = (s / spacing) % 1.0
-        if abs(fz - 0.55) < 0.5 * hfrac and abs(fs - 0.5) < 0.5 * wfrac:
-            is_win = 1.0
-    for c in range(3):
-        mean = wall[c] * (1.0 - mean_frac) + win[c] * mean_frac
-        pat = win[c] if is_win > 0.5 else wall[c]
-        col[c] = pat * vis + mean * (1.0 - vis)
-    # Lambert with the horizontal wall normal; the sun vector is in ENU.
+        is_win = abs(fz - 0.55) < 0.5 * hfrac and abs(fs - 0.5) < 0.5 * wfrac
+    # Lambert with the horizontal wall normal (the sun vector is ENU), and a band of ambient
+    # occlusion at the wall foot.
     lam = nx * params[P_SUN] + ny * params[P_SUN + 1]
     shade = params[P_AMB] + params[P_DIF] * max(lam, 0.0)
-    # A band of ambient occlusion at the wall foot.
     if zg < 2.0:
         shade *= 0.75 + 0.125 * max(zg, 0.0)
+    out0 = 0.0
+    out1 = 0.0
+    out2 = 0.0
     for c in range(3):
-        col[c] *= shade
-    return col
+        wall = palette[row, PAL_WALL + c]
+        win = palette[row, PAL_WIN + c]
+        mean = wall * (1.0 - mean_frac) + win * mean_frac
+        pat = win if is_win else wall
+        v = (pat * vis + mean * (1.0 - vis)) * shade
+        if c == 0:
+            out0 = v
+        elif c == 1:
+            out1 = v
+        else:
+            out2 = v
+    return (out0, out1, out2)
 
 
 @njit(cache=True)
@@ -400,13 +409,9 @@ def trace(
         lod = math.log2(max(t * pix_angle / mpp, 1e-6))
         col = _trilinear_rgb(tex, toff, tdims, lod, hx, hy)
         if m_here == MAT_TREE:
-            for c in range(3):
-                col[c] *= 0.8
+            col = (col[0] * 0.8, col[1] * 0.8, col[2] * 0.8)
         return _fog(col, t, params)
-    out = np.empty(3)
-    for c in range(3):
-        out[c] = params[P_HAZE + c]
-    return out
+    return (params[P_HAZE], params[P_HAZE + 1], params[P_HAZE + 2])
 
 
 @njit(cache=True)
@@ -443,10 +448,11 @@ def render_image(
     oz = pos[2]
     pix_angle = 1.0 / (f * ss)
     inv = 1.0 / (ss * ss)
-    acc = np.empty(3)
     for i in range(H):
         for j in range(W):
-            acc[:] = 0.0
+            acc0 = 0.0
+            acc1 = 0.0
+            acc2 = 0.0
             for a in range(ss):
                 for b in range(ss):
                     u = j + (b + 0.5) / ss - 0.5
@@ -481,10 +487,11 @@ def render_image(
                         palette,
                         params,
                     )
-                    for c in range(3):
-                        acc[c] += col[c]
+                    acc0 += col[0]
+                    acc1 += col[1]
+                    acc2 += col[2]
             for c in range(3):
-                val = acc[c] * inv + 0.5
+                val = (acc0 if c == 0 else (acc1 if c == 1 else acc2)) * inv + 0.5
                 if val < 0.0:
                     val = 0.0
                 if val > 255.0:
