@@ -41,6 +41,10 @@ H = TypeVar("H", bound=type[Head])
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+def _qualified(obj: Any) -> str:
+    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', repr(obj))}"
+
+
 def head_kind(cls: type[Head]) -> str:
     """``'attitude'`` or ``'translation'`` for a head class."""
     if issubclass(cls, AttitudeHead):
@@ -67,7 +71,7 @@ def register_head(name: str) -> Callable[[H], H]:
                 f"got {cls!r}"
             )
         old = _HEADS.get(name)
-        if old is not None and old.__qualname__ != cls.__qualname__:
+        if old is not None and _qualified(old) != _qualified(cls):
             raise ValueError(
                 f"head name {name!r} is already registered by {old.__module__}.{old.__qualname__}"
             )
@@ -83,7 +87,7 @@ def register_encoder(name: str) -> Callable[[F], F]:
 
     def decorator(factory: F) -> F:
         old = _ENCODERS.get(name)
-        if old is not None and old.__qualname__ != factory.__qualname__:
+        if old is not None and _qualified(old) != _qualified(factory):
             raise ValueError(f"encoder name {name!r} is already registered by {old!r}")
         _ENCODERS[name] = factory
         return factory
