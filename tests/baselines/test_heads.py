@@ -145,3 +145,19 @@ class TestProbabilisticTranslation:
         cos = torch.nn.functional.cosine_similarity(T_hat, T, dim=-1)
         assert torch.arccos(cos.clamp(-1, 1)).max() < math.radians(1.0)
         torch.testing.assert_close(T_hat.norm(dim=-1), T.norm(dim=-1))
+
+
+@pytest.mark.parametrize("name", ATTITUDE + TRANSLATION)
+class TestGradcheck:
+    def test_loss_gradcheck_float64(self, name):
+        torch.manual_seed(0)
+        head = create_head(name, in_features=3).double()
+        if name in TRANSLATION:
+            head.set_statistics(torch.tensor([5.0, -3.0, 80.0]), torch.tensor([50.0, 40.0, 10.0]))
+            label = torch.randn(2, 3, dtype=torch.float64) * 50
+        else:
+            label = rotations(2, seed=4)
+        x = torch.randn(2, 3, dtype=torch.float64, requires_grad=True)
+        assert torch.autograd.gradcheck(
+            lambda f: head.loss(head(f), label), (x,), eps=1e-6, atol=1e-5
+        )
