@@ -26,6 +26,7 @@ COMMANDS: dict[str, str] = {
     "bench": "benchmark.bench",
     "continuity": "benchmark.analysis.continuity",
     "model-info": "benchmark.models.info",
+    "train": "benchmark.training.command",
     "ui": "benchmark.tracking.ui",
 }
 
@@ -36,6 +37,7 @@ COMMAND_HELP: dict[str, str] = {
     "bench": "performance benchmarks (bench simulate: pairs/s and city build time)",
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
     "model-info": "parameters, size, MFLOPs and CPU latency per pair of a model (Table 6)",
+    "train": "train one variant from a config (--set a.b=value), evaluate it, track it in MLflow",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
 }
 

@@ -81,7 +81,7 @@ def translation_labels(dataset: Dataset) -> torch.Tensor:
         base, idx = dataset.dataset, list(dataset.indices)
     poses = getattr(base, "poses", None)
     if poses is not None and {"dE", "dN", "dU"} <= set(poses.columns):
-        T = torch.from_numpy(poses[["dE", "dN", "dU"]].to_numpy(np.float64))
+        T = torch.from_numpy(poses[["dE", "dN", "dU"]].to_numpy(np.float64, copy=True))
         return T if idx is None else T[idx]
     return torch.stack(
         [torch.as_tensor(dataset[i]["T"], dtype=torch.float64) for i in range(len(dataset))]
@@ -256,8 +256,8 @@ def _train_one_epoch(
             terms = ", ".join(f"{k}={float(v.detach()):.6g}" for k, v in losses.items())
             raise NonFiniteLossError(
                 f"non-finite loss at epoch {epoch + 1}, step {step + 1} ({terms}); stopping. "
-                f"Try a lower optim.lr (now {lr:g}) or optim.grad_clip. The last good checkpoint "
-                "is kept."
+                f"Try a lower optim.lr (now {lr:g}) or optim.grad_clip. The checkpoint of the last "
+                "finished epoch (if any) is kept."
             )
         optimizer.zero_grad(set_to_none=True)
         total.backward()

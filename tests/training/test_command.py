@@ -1,0 +1,102 @@
+"""``uavbench train``: argument errors (fast) and a full run on a smoke dataset (slow)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from benchmark.cli import main
+
+
+class TestTrainCommandErrors:
+    def test_no_dataset(self, capsys):
+        assert main(["train"]) == 2
+        assert "data.root" in capsys.readouterr().err
+
+    def test_bad_override(self, capsys):
+        assert main(["train", "--set", "optim.batch_size=many"]) == 2
+        assert "optim.batch_size='many': expected int" in capsys.readouterr().err
+
+    def test_unknown_key(self, capsys):
+        assert main(["train", "--set", "optim.learning_rate=1"]) == 2
+        assert "unknown config key 'optim.learning_rate'" in capsys.readouterr().err
+
+    def test_bad_yaml(self, tmp_path, capsys):
+        (tmp_path / "c.yaml").write_text("optim:\n  epochs: -1\n")
+        assert main(["train", "--config", str(tmp_path / "c.yaml")]) == 2
+        err = capsys.readouterr().err
+        assert "c.yaml" in err and "epochs must be >= 1" in err
+
+
+class TestImportDirection:
+    def test_training_and_evaluation_do_not_import_tracking(self):
+        code = (
+            "import sys, benchmark.training, benchmark.evaluation, benchmark.evaluation.evaluate\n"
+            "bad = [m for m in sys.modules if m.startswith(('benchmark.tracking', 'mlflow'))]\n"
+            "assert not bad, bad\n"
+        )
+        subprocess.run([sys.executable, "-c", code], check=True)
+
+
+@pytest.fixture(scope="module")
+def smoke_dataset(tmp_path_factory):
+    from benchmark.data.profiles import PROFILES
+    from benchmark.data.writer import simulate_dataset
+
+    root = tmp_path_factory.mktemp("smoke") / "ds"
+    cache = tmp_path_factory.mktemp("cities")
+    simulate_dataset(root, PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
+    return root
+
+
+@pytest.mark.slow
+class TestTrainCommandEndToEnd:
+    def test_train_track_resume_and_fail(self, smoke_dataset, tmp_path, monkeypatch):
+        from mlflow.tracking import MlflowClient
+
+        monkeypatch.chdir(tmp_path)
+        monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+        base = [
+            "train",
+            "--quiet",
+            "--set",
+            f"data.root={smoke_dataset}",
+            "--set",
+            "model.width=0.25",
+            "--set",
+            "optim.batch_size=4",
+            "--set",
+            "threads=1",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+        assert main([*base, "--set", "optim.epochs=2"]) == 0
+        pred = pd.read_csv(tmp_path / "out" / "predictions" / "standard_test.csv")
+        assert len(pred) > 0 and {"dpsi_deg", "dphi_deg", "uncertainty"} <= set(pred.columns)
+        history = json.loads((tmp_path / "out" / "history.json").read_text())
+        assert [h["epoch"] for h in history] == [1, 2]
+
+        client = MlflowClient(f"sqlite:///{tmp_path / 'mlflow.db'}")
+        exp = client.get_experiment_by_name("train")
+        (run,) = client.search_runs([exp.experiment_id])
+        assert run.info.status == "FINISHED"
+        assert (
+            run.data.params["optim.batch_size"] == "4" and run.data.params["loss.kappa"] == "None"
+        )
+        assert run.data.tags["head"] == "pd_re_net" and len(run.data.tags["run_key"]) == 16
+        steps = [m.step for m in client.get_metric_history(run.info.run_id, "train_loss_total")]
+        assert steps == [1, 2]
+        assert "standard/test/dphi_deg" in run.data.metrics
+
+        # The same config again: found in the store, not rerun.
+        assert main([*base, "--set", "optim.epochs=2"]) == 0
+        assert len(client.search_runs([exp.experiment_id])) == 1
+
+        # A diverging config: exit 1, run FAILED.
+        assert main([*base, "--set", "optim.lr=1e30", "--out", str(tmp_path / "bad")]) == 1
+        statuses = sorted(r.info.status for r in client.search_runs([exp.experiment_id]))
+        assert statuses == ["FAILED", "FINISHED"]
