@@ -20,6 +20,7 @@ from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_T
 from benchmark.sim.textures import hash01
 from benchmark.sim.world_styles import Style
 
+MAX_EAVE_M = 50.0  # flights are >= 70 m above ground: keep 20 m of clearance
 CAR_COLOURS = np.array(
     [
         (228, 228, 226),
@@ -63,6 +64,7 @@ class BlockPixels:
     bw: np.ndarray
     bh: np.ndarray
     key: np.ndarray  # int64 block key
+    district: np.ndarray  # [0, 1]: 1 = dense, tall district; 0 = green, low district
 
 
 def lerp(lo_hi: tuple[float, float], t: np.ndarray) -> np.ndarray:
@@ -144,7 +146,8 @@ def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
     gap = hp(5) < (0.04 if high else 0.07)
     if cv.change:
         gap = gap & ~(hash01(pkey, cv.change, 52) < 0.5)
-    eave = lerp(S.height_high if high else S.height_low, hp(6))
+    eave = lerp(S.height_high if high else S.height_low, hp(6)) * (0.8 + 0.4 * P.district)
+    eave = np.minimum(eave, MAX_EAVE_M)
     gable = (hp(7) < (S.gable_prob * (0.3 if high else 1.0))) & (D < 16.0)
     pitch = np.tan(np.radians(lerp((30.0, 45.0), hp(8))))
     ridge = pitch * (0.5 * D - np.abs(d - 0.5 * D))
@@ -168,10 +171,25 @@ def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
             + np.where(flat & unit, 2.2, 0.0)
             + np.where(flat & ((d < 0.7) | (np.abs(d - D) < 0.7)), 0.8, 0.0)
         )
+    # Rear extensions into the courtyard: narrower, 3-4 m, flat, on about half the parcels.
+    pc = (pidx - hb(3) + 0.5) * pw
+    ext_d = lerp((3.0, 7.0), hp(12))
+    ext = (
+        (d >= D)
+        & (d < D + ext_d)
+        & (np.abs(along - pc) < 0.3 * pw)
+        & (hp(13) < S.p_extension)
+        & ~gap
+        & (0.5 * np.minimum(P.bw, P.bh) > D + ext_d + 3.0)
+    )
+    ext_h = lerp((3.0, 4.2), hp(14))
+    roof = np.where(ext, ext_h, roof)
+    gable = gable & ~ext
+    inb = inb | ext
     inb = _buildings(S, cv, P, inb, pkey, eave, roof, gable, high)
-    ins = (d >= D) | gap
-    # Courtyards: gardens (terraces) or paved service yards (slabs).
-    paved = hash01(P.key, cv.seed, 9) < (0.6 if high else 0.2)
+    ins = ((d >= D) | gap) & ~inb
+    # Courtyards: gardens, or paved service yards.
+    paved = hash01(P.key, cv.seed, 9) < (S.paved_yard if high else 0.5 * S.paved_yard)
     yard = ins & paved
     g = cv.grain[P.idx]
     pav = np.asarray(S.pavement, np.float32)[None, :] * (0.92 + 0.05 * g[:, None])
@@ -245,7 +263,7 @@ def fill_warehouse(S: Style, cv: Canvas, P: BlockPixels) -> None:
     gable = hp(8) < S.gable_prob
     yr = y - front
     wr = W - front - back
-    roof = eave + np.where(gable, 0.12 * (0.5 * wr - np.abs(yr - 0.5 * wr)), 0.0)
+    roof = eave + np.where(gable, np.minimum(0.12 * (0.5 * wr - np.abs(yr - 0.5 * wr)), 3.0), 0.0)
     inb = _buildings(S, cv, P, inb, pkey, eave, roof, gable, True)
     sel = inb & sky
     cv.rgb[P.idx[sel]] = cv.rgb[P.idx[sel]] * 0.55 + np.float32(0.45 * 235.0)
@@ -285,7 +303,7 @@ def fill_parking(S: Style, cv: Canvas, P: BlockPixels) -> None:
     line = inside & stall_row & (a < 0.12 + 0.0 * a)
     cv.rgb[P.idx[line]] = np.float32(215.0)
     skey = (P.key * 131 + row) * 4099 + stall * 2 + (y < 5.0)
-    occ = hash01(skey, cv.seed, cv.change, 21) < 0.72
+    occ = hash01(skey, cv.seed, cv.change, 21) < lerp((0.3, 0.9), hash01(P.key, cv.seed, 23))
     car = inside & stall_row & occ & (np.abs(a - 1.25) < 0.9) & (b > 0.4) & (b < 4.7)
     ccol = pick(CAR_COLOURS, hash01(skey, cv.seed, cv.change, 22))
     glass = (b > 1.6) & (b < 2.4) | (b > 3.6) & (b < 4.1)
@@ -330,8 +348,14 @@ def fill_plaza(S: Style, cv: Canvas, P: BlockPixels) -> None:
     )
     cv.rgb[P.idx] = col
     cv.mat[P.idx] = MAT_GROUND
-    grid = (np.abs((P.lu % 12.0) - 6.0) < 0.6) & (np.abs((P.lv % 12.0) - 6.0) < 0.6)
-    cv.tree[P.idx] = np.where(grid, 0.9, 0.0).astype(np.float32)
+    edge = np.minimum(np.minimum(P.lu, P.lv), np.minimum(P.bw - P.lu, P.bh - P.lv))
+    cv.tree[P.idx] = np.where(edge < 8.0, 0.35, 0.02).astype(np.float32)
+    # A fountain / monument plinth in the middle.
+    r = np.hypot(P.lu - 0.5 * P.bw, P.lv - 0.5 * P.bh)
+    basin = r < 5.0
+    _set(cv, P.idx, basin & (r > 4.2), rgb=np.asarray((200, 196, 186), np.float32), struct=0.6)
+    _set(cv, P.idx, r <= 4.2, rgb=np.asarray(S.water, np.float32) * 1.3, mat=MAT_WATER, struct=0.3)
+    _set(cv, P.idx, r < 1.0, rgb=np.asarray((190, 186, 176), np.float32), mat=MAT_SMALL, struct=3.5)
 
 
 __all__ = [

@@ -163,23 +163,9 @@ def generate(
     bh = (vhi - vlo) - 0.5 * (wv[kv] + wv[kv + 1]) - 2 * sw
     inner = ~road & ~walk
     bkey = ku.astype(np.int64) * 100003 + kv
-    probs = np.array(
-        [
-            S.p_terrace,
-            S.p_detached,
-            S.p_slab,
-            S.p_warehouse,
-            S.p_park,
-            S.p_parking,
-            S.p_lawn,
-            S.p_plaza,
-        ]
-    )
-    cum = np.cumsum(probs / probs.sum())
-    btype = np.searchsorted(cum, hash01(bkey, seed, 7)).clip(0, len(probs) - 1)
-    if change:  # open land built on, or buildings cleared, by the earlier date
-        flip = hash01(bkey, change, 8) < 0.06
-        btype = np.where(flip & (btype >= 4), 3 if S.p_warehouse > 0 else 2, btype)
+    btable, dtable = _block_types(S, seed, change, ul, vl, ang)
+    btype = btable[ku, kv]
+    district = dtable[ku, kv]
     park_a = smooth_noise(rng("park_a"), shape, 60.0 / mpp)
     park_b = smooth_noise(rng("park_b"), shape, 90.0 / mpp)
     flat = np.flatnonzero(inner.ravel())
@@ -195,6 +181,7 @@ def generate(
             bw.ravel()[sel],
             bh.ravel()[sel],
             bkey.ravel()[sel],
+            district.ravel()[sel],
         )
         if name in ("terrace", "slab"):
             cb.fill_terrace(S, cv, P, high=name == "slab")
@@ -210,20 +197,22 @@ def generate(
             cb.fill_lawn(S, cv, P)
         else:
             cb.fill_plaza(S, cv, P)
-    del lu, lv, bw, bh, park_a, park_b
+    del lu, lv, bw, bh, park_a, park_b, district
 
     # River: water band, grassy banks with a towpath, major streets bridge it.
     if S.river_width > 0:
-        d = river_distance(rng("river"), E, N, 0.5 * H * mpp)
+        d, ang_r = river_distance(rng("river"), E, N, 0.5 * H * mpp, S.river_width)
         half = 0.5 * S.river_width
         valley = np.exp(-((d / (3.0 * S.river_width)) ** 2)).astype(np.float32)
         ground -= 3.0 * valley
         bank = (d < half + 14.0) & (d >= half)
-        bridge = (
-            (d < half + 14.0)
-            & road
-            & ((on_u & (wu[ku] >= S.road_major)) | (on_v & (wv[kv] >= S.road_major)))
-        )
+        # Bridges: every other major street of the family that crosses the river most squarely.
+        cross_u = abs(math.cos(ang + math.pi / 2 - ang_r)) < abs(math.cos(ang - ang_r))
+        if cross_u:
+            lines = on_u & (wu[ku] >= S.road_major) & (hash01(ku, seed, 61) < 0.5)
+        else:
+            lines = on_v & (wv[kv] >= S.road_major) & (hash01(kv, seed, 61) < 0.5)
+        bridge = (d < half + 14.0) & lines
         water = (d < half) & ~bridge
         grass = np.asarray(S.grass, np.float32)
         sel = bank & ~bridge
@@ -248,6 +237,62 @@ def generate(
     pal = facade_palette(S, rng("palette"))
     orient = np.where(mat >= MAT_BUILDING, orient, 0).astype(np.uint8)
     return Rasters(height.astype(np.float32), ground, rgb, mat, orient, pal)
+
+
+def _block_types(S: Style, seed: int, change: int, ul, vl, ang: float):
+    """Block type and district value per (ku, kv) grid cell.
+
+    The district value in [0, 1] is a smooth field (three random plane waves, ~1-2 km) evaluated
+    at the block centre: high = dense and tall (slabs, terraces), low = green (parks, lawns,
+    houses). It gives the city large-scale structure instead of i.i.d. blocks.
+    """
+    r = rng_for(S.name, seed, "district")
+    cu = 0.5 * (ul[:-1] + ul[1:])[:, None]
+    cvv = 0.5 * (vl[:-1] + vl[1:])[None, :]
+    E = cu * math.cos(ang) - cvv * math.sin(ang)
+    N = cu * math.sin(ang) + cvv * math.cos(ang)
+    acc = np.zeros(np.broadcast(E, N).shape)
+    for _ in range(3):
+        k = 2 * math.pi / r.uniform(1200.0, 2400.0)
+        a = r.uniform(0, 2 * math.pi)
+        acc += np.sin(k * (E * math.cos(a) + N * math.sin(a)) + r.uniform(0, 2 * math.pi))
+    dist = np.clip(0.5 + acc / 3.0, 0.0, 1.0)
+    base = np.array(
+        [
+            S.p_terrace,
+            S.p_detached,
+            S.p_slab,
+            S.p_warehouse,
+            S.p_park,
+            S.p_parking,
+            S.p_lawn,
+            S.p_plaza,
+        ]
+    )
+    # How each type responds to the district value (dense ... green).
+    gain = np.stack(
+        [
+            np.ones_like(dist),
+            1.5 - dist,
+            0.2 + 1.6 * dist,
+            np.ones_like(dist),
+            1.9 - 1.7 * dist,
+            np.ones_like(dist),
+            1.9 - 1.7 * dist,
+            0.3 + dist,
+        ],
+        axis=-1,
+    )
+    w = base * gain
+    cum = np.cumsum(w / w.sum(axis=-1, keepdims=True), axis=-1)
+    ku, kv = np.meshgrid(np.arange(len(ul) - 1), np.arange(len(vl) - 1), indexing="ij")
+    key = ku.astype(np.int64) * 100003 + kv
+    u = hash01(key, seed, 7)
+    btype = (u[..., None] > cum).sum(axis=-1).clip(0, len(base) - 1)
+    if change:  # open land built on by the later date is still open in the earlier image, etc.
+        flip = hash01(key, change, 8) < 0.06
+        btype = np.where(flip & (btype >= 4), 3 if S.p_warehouse > 0 else 2, btype)
+    return btype, dist
 
 
 def _markings(rgb, u, v, du, hu, dv, hv, on_u, on_v, w_u, w_v, S: Style) -> None:

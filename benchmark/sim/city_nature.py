@@ -37,9 +37,9 @@ def terrain(rng: np.random.Generator, shape: tuple[int, int], mpp: float, S: Sty
 
 
 def river_distance(
-    rng: np.random.Generator, E: np.ndarray, N: np.ndarray, half_n: float
-) -> np.ndarray:
-    """Distance (metres, float32) from each point to a meandering river centreline.
+    rng: np.random.Generator, E: np.ndarray, N: np.ndarray, half_n: float, width: float
+) -> tuple[np.ndarray, float]:
+    """Distance (metres, float32) to a meandering river centreline, and its mean direction.
 
     The river runs roughly east-west (within +-35 deg) and crosses the tile away from its centre,
     at 25-60 % of the half-height north or south, so the flight area sees it but is not all water.
@@ -48,13 +48,15 @@ def river_distance(
     side = 1.0 if rng.uniform() < 0.5 else -1.0
     off = side * rng.uniform(0.25, 0.6) * half_n
     a1, l1, p1 = rng.uniform(40, 120), rng.uniform(700, 1400), rng.uniform(0, 2 * math.pi)
-    a2, l2, p2 = rng.uniform(10, 40), rng.uniform(200, 400), rng.uniform(0, 2 * math.pi)
+    # Small wiggles only for narrow rivers (a wide river with tight bends looks like a lake chain).
+    a2 = rng.uniform(10, 40) * min(1.0, 30.0 / width)
+    l2, p2 = rng.uniform(200, 400), rng.uniform(0, 2 * math.pi)
     s = E * math.cos(ang) + N * math.sin(ang)
     c = -E * math.sin(ang) + N * math.cos(ang)
     k1, k2 = 2 * math.pi / l1, 2 * math.pi / l2
     centre = off + a1 * np.sin(k1 * s + p1) + a2 * np.sin(k2 * s + p2)
     slope = a1 * k1 * np.cos(k1 * s + p1) + a2 * k2 * np.cos(k2 * s + p2)
-    return (np.abs(c - centre) / np.sqrt(1.0 + slope * slope)).astype(np.float32)
+    return (np.abs(c - centre) / np.sqrt(1.0 + slope * slope)).astype(np.float32), ang
 
 
 @njit(cache=True)
