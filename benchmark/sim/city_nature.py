@@ -78,7 +78,7 @@ def _stamp_trees(cx, cy, rad, top, col, height, rgb, mat, tree_h, grain, mpp):
                 d2 = dx * dx + dy * dy
                 if d2 >= 1.0:
                     continue
-                z = top[k] * (0.55 + 0.45 * math.sqrt(1.0 - d2))
+                z = top[k] * (0.3 + 0.7 * math.sqrt(1.0 - d2))
                 if z > tree_h[j, i]:
                     tree_h[j, i] = z
                     g = grain[j, i]

@@ -409,7 +409,10 @@ def trace(
         lod = math.log2(max(t * pix_angle / mpp, 1e-6))
         col = _trilinear_rgb(tex, toff, tdims, lod, hx, hy)
         if m_here == MAT_TREE:
-            col = (col[0] * 0.8, col[1] * 0.8, col[2] * 0.8)
+            # Crown sides darken towards the shaded underside (no trunk geometry in 2.5D).
+            zg = ground_bilinear(ground, params[P_GSCALE], hx, hy)
+            k = 0.35 + 0.5 * min(1.0, max(0.0, (zin - zg) / max(h - zg, 0.5)))
+            col = (col[0] * k, col[1] * k, col[2] * k)
         return _fog(col, t, params)
     return (params[P_HAZE], params[P_HAZE + 1], params[P_HAZE + 2])
 
