@@ -66,7 +66,6 @@ class PdNetE(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> logits (B, 3, n_bins) for (yaw, pitch, roll)."""
-        self._check_features(features)
         return self.decoder(features)
 
     def _circle_angles(self, R: Tensor) -> Tensor:

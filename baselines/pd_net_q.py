@@ -71,7 +71,6 @@ class PdNetQ(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> logits (B, n) over the S^3 lattice."""
-        self._check_features(features)
         return self.decoder(features)[:, 0]
 
     def distribution(self, raw: Tensor) -> Tensor:

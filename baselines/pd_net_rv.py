@@ -71,7 +71,6 @@ class PdNetRv(AttitudeHead):
 
     def forward(self, features: Tensor) -> dict[str, Tensor]:
         """(B, F) -> {"logits": (B, n) axis logits, "angle": (B,) radians in (0, pi)}."""
-        self._check_features(features)
         out = self.net(features)
         return {"logits": out[:, :-1], "angle": math.pi * torch.sigmoid(out[:, -1])}
 

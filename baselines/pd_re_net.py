@@ -73,7 +73,6 @@ class PdReNet(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> logits (B, 3, n): one row per column of R."""
-        self._check_features(features)
         return self.decoder(features)
 
     def distribution(self, raw: Tensor) -> Tensor:

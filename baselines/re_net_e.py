@@ -29,7 +29,6 @@ class ReNetE(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> (B, 3) (yaw, pitch, roll) radians."""
-        self._check_features(features)
         return self.net(features)
 
     def decode(self, raw: Tensor) -> Tensor:

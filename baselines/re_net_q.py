@@ -31,7 +31,6 @@ class ReNetQ(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> (B, 4) unnormalised quaternions (w, x, y, z)."""
-        self._check_features(features)
         return self.net(features)
 
     def decode(self, raw: Tensor) -> Tensor:

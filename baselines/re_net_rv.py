@@ -25,7 +25,6 @@ class ReNetRv(AttitudeHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> (B, 3) rotation vectors (radians)."""
-        self._check_features(features)
         return self.net(features)
 
     def decode(self, raw: Tensor) -> Tensor:

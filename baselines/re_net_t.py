@@ -58,7 +58,6 @@ class ReNetT(TranslationHead):
 
     def forward(self, features: Tensor) -> dict[str, Tensor]:
         """(B, F) -> {"logits": (B, n) direction logits, "scale": (B,) length / rms, > 0}."""
-        self._check_features(features)
         out = self.net(features)
         return {"logits": out[:, :-1], "scale": functional.softplus(out[:, -1])}
 

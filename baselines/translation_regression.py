@@ -26,7 +26,6 @@ class TranslationRegression(TranslationHead):
 
     def forward(self, features: Tensor) -> Tensor:
         """(B, F) -> (B, 3) standardised translation."""
-        self._check_features(features)
         return self.net(features)
 
     def decode(self, raw: Tensor) -> Tensor:

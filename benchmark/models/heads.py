@@ -99,6 +99,12 @@ def nearest_grid_index(x: Tensor, grid: Tensor) -> Tensor:
     return (x @ grid.to(x.dtype).T).argmax(dim=-1)
 
 
+def _check_features_hook(head: Head, args: tuple) -> None:
+    if len(args) != 1:
+        raise TypeError(f"{type(head).__name__} takes one features tensor, got {len(args)} args")
+    head._check_features(args[0])
+
+
 class Head(nn.Module):
     """Common base: registry name, the paper's name and the probabilistic flag."""
 
@@ -109,15 +115,21 @@ class Head(nn.Module):
     def __init__(self, in_features: int) -> None:
         super().__init__()
         self.in_features = check_in_features(in_features, type(self).__name__)
+        # Every head checks its input shape, without each forward having to remember it.
+        self.register_forward_pre_hook(_check_features_hook)
 
     def forward(self, features: Tensor) -> Raw:  # (B, F) -> raw
         raise NotImplementedError
 
-    def _check_features(self, features: Tensor) -> None:
-        if features.dim() != 2 or features.shape[1] != self.in_features:
+    def _check_features(self, features: object) -> None:
+        if (
+            not isinstance(features, Tensor)
+            or features.dim() != 2
+            or features.shape[1] != self.in_features
+        ):
             raise ValueError(
                 f"{type(self).__name__}: features must have shape (B, {self.in_features}), "
-                f"got {tuple(features.shape)}"
+                f"got {tuple(getattr(features, 'shape', ())) or type(features).__name__}"
             )
 
     def _not_probabilistic(self, what: str) -> NotImplementedError:
