@@ -26,6 +26,7 @@ from benchmark.training.loop import (
     TrainResult,
     derive_seed,
     load_checkpoint,
+    make_optimizer,
     train,
     translation_labels,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "load_checkpoint",
     "load_train_config",
     "load_trained_model",
+    "make_optimizer",
     "model_factory",
     "open_datasets",
     "run_training",

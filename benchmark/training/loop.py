@@ -127,6 +127,18 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
+def make_optimizer(cfg: TrainConfig, model: torch.nn.Module) -> torch.optim.Optimizer:
+    params = [p for p in model.parameters() if p.requires_grad]
+    o = cfg.optim
+    if o.name == "sgd":
+        return torch.optim.SGD(params, lr=o.lr, momentum=o.momentum, weight_decay=o.weight_decay)
+    if o.name == "adam":
+        return torch.optim.Adam(params, lr=o.lr, weight_decay=o.weight_decay)
+    if o.name == "adamw":
+        return torch.optim.AdamW(params, lr=o.lr, weight_decay=o.weight_decay)
+    raise ValueError(f"optim.name={o.name!r}: expected 'sgd', 'adam' or 'adamw'")
+
+
 def _lr_at(cfg: TrainConfig, epoch: int) -> float:
     """Learning rate of (0-based) ``epoch``; cosine decays to 0 over ``optim.epochs``."""
     if cfg.optim.lr_schedule == "cosine":
@@ -157,10 +169,7 @@ def train(
     torch.manual_seed(derive_seed(cfg.seed, 0))
     model = model_factory()
     model.translation_head.fit_statistics(translation_labels(train_set))
-    params = [p for p in model.parameters() if p.requires_grad]
-    optimizer = torch.optim.SGD(
-        params, lr=cfg.optim.lr, momentum=cfg.optim.momentum, weight_decay=cfg.optim.weight_decay
-    )
+    optimizer = make_optimizer(cfg, model)
     history: list[dict[str, float]] = []
     start_epoch = 0
     if ckpt_path.exists():
