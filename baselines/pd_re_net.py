@@ -5,8 +5,11 @@ Grid: the 4096-point equal-area spherical Fibonacci lattice (the paper's "64 x 6
 Target (Eq. 10): for each column ``r*_j`` of ``R_uav^sat``, ``discrete_vmf(r*_j, kappa=10, grid)``,
 the vMF density at the lattice points normalised to sum 1.
 
-Prediction: logits ``(B, 3, n)`` from a bottleneck decoder; the predicted distribution is their
-softmax over the lattice, i.e. probabilities summing to 1 per column, exactly like the target.
+Prediction: logits ``(B, 3, n)`` from a dense decoder with a 160-wide bottleneck (the paper does
+not give its decoder; 160 puts the AGTFM model within 1 % of Table 6's 95.6 MB); the predicted
+distribution is their softmax over the lattice, i.e. probabilities summing to 1 per column, exactly
+like the target. (DirectionNet uses softplus and an area-weighted sum instead; either way Eq. 14
+compares probability vectors, so alpha's meaning below is unaffected.)
 
 Decoding: the expectation of each column (Eq. 9, ``sum_k p_k x_k`` normalised), stacked as columns,
 then SVD orthogonalisation (``special_orthogonalize``, det +1).
@@ -24,7 +27,8 @@ so the plain Eq. 14 sum would be ``(4 pi / n) * integral (f - f*)^2 dA``. Multip
 makes ``alpha * s * L_dis`` the same multiple of the same L2 distance between densities as in
 DirectionNet, so alpha = 8e7 weighs the dense supervision against the cosine term exactly as it
 does there. Equivalently: DirectionNet's grid with every sin weight replaced by its average 2/pi.
-(Per column, the plain sum with alpha = 8e7 would be ~2600x too strong.)
+(Per column, the plain sum with alpha = 8e7 would be ~2600x too strong.) DirectionNet's extra
+spread loss (beta = 0.1) is not part of the paper's Eq. 15 and is left out.
 
 Uncertainty: the spherical variance ``1 - |sum_k p_k x_k|`` averaged over the three columns, in
 [0, 1] (0 = point masses). ``log_prob``: the three column distributions are independent (as the

@@ -174,3 +174,25 @@ class TestConfiguration:
         torch.testing.assert_close(
             model.eval()(uav, sat, ids).attitude, clone.eval()(uav, sat, ids).attitude
         )
+
+
+class TestManualConstruction:
+    def test_aux_head_count_must_match_levels(self):
+        from benchmark.models import create_encoder, create_head
+
+        enc = create_encoder("googlenet", variant="a-f", width=0.25, input_size=32)
+        att = create_head("re_net_r", in_features=2 * enc.embedding_dims[-1])
+        tran = create_head("regression", in_features=2 * enc.embedding_dims[-1])
+        with pytest.raises(ValueError, match="2 auxiliary levels but 0"):
+            PoseModel(enc, att, tran)
+
+    def test_in_features_must_match_pair_embedding(self):
+        from benchmark.models import create_encoder, create_head
+
+        enc = create_encoder("googlenet", variant="/", width=0.25, input_size=32)
+        att = create_head("re_net_r", in_features=enc.embedding_dims[-1])  # forgot the 2x
+        tran = create_head("regression", in_features=2 * enc.embedding_dims[-1])
+        with pytest.raises(
+            ValueError, match="takes 512 features, the pair embedding has 2 \\* 512"
+        ):
+            PoseModel(enc, att, tran)
