@@ -108,30 +108,34 @@ def _load_entry_points(group: str, registry: dict[str, Any], register: Callable)
         # A module registers its heads/encoders when imported; a class or factory is registered
         # under the entry point's name unless it registered itself already.
         if not isinstance(obj, types.ModuleType) and obj not in registry.values():
-            register(ep.name)(obj)
+            try:
+                register(ep.name)(obj)
+            except (TypeError, ValueError) as err:
+                warnings.warn(f"entry point {ep.name!r} in group {group!r}: {err}", stacklevel=3)
 
 
 def _discover_heads() -> None:
     if _discovered["heads"]:
         return
-    _discovered["heads"] = True
     import baselines
 
     for info in sorted(pkgutil.iter_modules(baselines.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
-        # A baseline that fails to import is a bug in this repository: let the error surface.
+        # A baseline that fails to import is a bug in this repository: let the error surface
+        # (and again on the next lookup, since discovery is only marked done after success).
         importlib.import_module(f"baselines.{info.name}")
     _load_entry_points(HEAD_ENTRY_POINT_GROUP, _HEADS, register_head)
+    _discovered["heads"] = True
 
 
 def _discover_encoders() -> None:
     if _discovered["encoders"]:
         return
-    _discovered["encoders"] = True
     for module in _BUILTIN_ENCODER_MODULES:
         importlib.import_module(module)
     _load_entry_points(ENCODER_ENTRY_POINT_GROUP, _ENCODERS, register_encoder)
+    _discovered["encoders"] = True
 
 
 def list_heads(kind: str | None = None) -> list[str]:

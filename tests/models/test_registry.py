@@ -157,3 +157,15 @@ class TestEncoderRegistry:
     def test_unknown_encoder(self):
         with pytest.raises(ValueError, match=r"resnet.*googlenet"):
             create_encoder("resnet")
+
+
+class TestEntryPointErrors:
+    def test_entry_point_that_is_not_a_head_warns(self, clean_registry, monkeypatch):
+        ep = importlib.metadata.EntryPoint(
+            name="linear", value="torch.nn:Linear", group="uavbench.heads"
+        )
+        monkeypatch.setattr(importlib.metadata, "entry_points", lambda group=None, **_: [ep])
+        monkeypatch.setitem(clean_registry._discovered, "heads", False)
+        with pytest.warns(UserWarning, match="linear"):
+            names = list_heads()
+        assert "linear" not in names and "pd_re_net" in names
