@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import inspect
 import pkgutil
 import types
 import warnings
@@ -157,8 +158,21 @@ def get_head_class(name: str, kind: str | None = None) -> type[Head]:
 
 
 def create_head(name: str, kind: str | None = None, **kwargs: Any) -> Head:
-    """Instantiate the head registered as ``name`` with ``kwargs`` (e.g. ``in_features=4096``)."""
-    return get_head_class(name, kind)(**kwargs)
+    """Instantiate the head registered as ``name`` with ``kwargs`` (e.g. ``in_features=4096``).
+
+    An option the head does not take raises ``TypeError`` naming it and the accepted ones.
+    """
+    cls = get_head_class(name, kind)
+    params = inspect.signature(cls.__init__).parameters
+    if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+        unknown = sorted(set(kwargs) - set(params))
+        if unknown:
+            accepted = [p for p in params if p not in ("self", "in_features")]
+            raise TypeError(
+                f"head {name!r} does not take option(s) {', '.join(unknown)}; "
+                f"it takes: {', '.join(accepted) or 'none'}"
+            )
+    return cls(**kwargs)
 
 
 def list_encoders() -> list[str]:

@@ -169,3 +169,11 @@ class TestEntryPointErrors:
         with pytest.warns(UserWarning, match="linear"):
             names = list_heads()
         assert "linear" not in names and "pd_re_net" in names
+
+
+class TestHeadOptions:
+    def test_unknown_option_names_it_and_the_accepted_ones(self):
+        with pytest.raises(
+            TypeError, match=r"'re_net_r' does not take option.*kappa.*takes: hidden"
+        ):
+            create_head("re_net_r", in_features=8, kappa=10.0)
