@@ -4,7 +4,7 @@ Each ``fill_*`` function receives the texels of all blocks of its type as flat a
 (``BlockPixels``:
 local coordinates ``lu, lv`` in metres from the block's lower-left interior corner, block size
 ``bw, bh``, block key) and writes structure height above ground, albedo, material, tree
-probability and a parcel key into the ``Canvas``. Every random choice is a ``hash01`` of integer
+probability into the ``Canvas``. Every random choice is a ``hash01`` of integer
 keys
 (block, parcel, slot, ...), so a changed city (``Canvas.change != 0``) can re-draw cars, demolish or
 add a few buildings without reshuffling the rest.
@@ -49,7 +49,6 @@ class Canvas:
     rgb: np.ndarray  # float32 (H*W, 3) albedo
     mat: np.ndarray  # uint8 material codes (render_core.MAT_*)
     tree: np.ndarray  # float32 tree-candidate acceptance probability
-    parcel: np.ndarray  # int64 key of the building/parcel (facade palette, orientation)
     grain: np.ndarray  # float32 per-texel noise in [-1, 1]
     seed: int
     change: int  # 0 = the city as flown; != 0 = the same city at an earlier time
@@ -80,7 +79,7 @@ def _jitter(c: np.ndarray, t: np.ndarray, amount: float) -> np.ndarray:
     return c * (1.0 + amount * (t[:, None] - 0.5) * 2.0).astype(np.float32)
 
 
-def _set(cv: Canvas, idx, sel, *, struct=None, rgb=None, mat=None, tree=None, parcel=None):
+def _set(cv: Canvas, idx, sel, *, struct=None, rgb=None, mat=None, tree=None):
     ii = idx[sel]
     if struct is not None:
         cv.struct[ii] = struct[sel] if np.ndim(struct) else struct
@@ -90,8 +89,6 @@ def _set(cv: Canvas, idx, sel, *, struct=None, rgb=None, mat=None, tree=None, pa
         cv.mat[ii] = mat[sel] if np.ndim(mat) else mat
     if tree is not None:
         cv.tree[ii] = tree
-    if parcel is not None:
-        cv.parcel[ii] = parcel[sel]
 
 
 def _grass(S: Style, cv: Canvas, P: BlockPixels, sel, density: float):
@@ -126,7 +123,6 @@ def _buildings(S: Style, cv: Canvas, P: BlockPixels, inb, pkey, eave, roof, gabl
         rgb=col,
         mat=(MAT_BUILDING + row).astype(np.uint8),
         tree=0.0,
-        parcel=pkey,
     )
     return inb
 

@@ -68,12 +68,13 @@ def facade_palette(S: Style, rng: np.random.Generator) -> np.ndarray:
 def _grid_lines(rng, lo: float, hi: float, pitch: tuple[float, float]) -> np.ndarray:
     start = lo - pitch[1] - rng.uniform(0, pitch[1])
     n = int((hi - start) / pitch[0]) + 3
-    return start + np.concatenate([[0.0], np.cumsum(rng.uniform(*pitch, n))])
+    lines = start + np.concatenate([[0.0], np.cumsum(rng.uniform(*pitch, n))])
+    return lines.astype(np.float32)  # float32 keeps the per-texel temporaries small
 
 
 def _axis(coord, lines, widths):
     """Per texel: index of the line below, distance to the nearest line, that road's half width."""
-    k = np.clip(np.searchsorted(lines, coord, side="right") - 1, 0, len(lines) - 2)
+    k = np.clip(np.searchsorted(lines, coord, side="right") - 1, 0, len(lines) - 2).astype(np.int32)
     lo = lines[k]
     hi = lines[k + 1]
     dlo = coord - lo
@@ -122,6 +123,8 @@ def generate(
     off_u, off_v = r.integers(0, S.major_every, 2)
     wu = np.where((np.arange(len(ul)) + off_u) % S.major_every == 0, S.road_major, S.road_minor)
     wv = np.where((np.arange(len(vl)) + off_v) % S.major_every == 0, S.road_major, S.road_minor)
+    wu = wu.astype(np.float32)
+    wv = wv.astype(np.float32)
     ku, ulo, uhi, du, hu = _axis(u, ul, wu)
     kv, vlo, vhi, dv, hv = _axis(v, vl, wv)
     on_u = du < hu  # on a street running along v (constant u)
@@ -134,13 +137,11 @@ def generate(
     mat = np.zeros((H, W), np.uint8)
     struct = np.zeros((H, W), np.float32)
     tree = np.zeros((H, W), np.float32)
-    parcel = np.zeros((H, W), np.int64)
     cv = cb.Canvas(
         struct.reshape(-1),
         rgb.reshape(-1, 3),
         mat.reshape(-1),
         tree.reshape(-1),
-        parcel.reshape(-1),
         grain.reshape(-1),
         seed,
         change,
@@ -162,7 +163,7 @@ def generate(
     bw = (uhi - ulo) - 0.5 * (wu[ku] + wu[ku + 1]) - 2 * sw
     bh = (vhi - vlo) - 0.5 * (wv[kv] + wv[kv + 1]) - 2 * sw
     inner = ~road & ~walk
-    bkey = ku.astype(np.int64) * 100003 + kv
+    bkey = ku.astype(np.int64) * 100003 + kv.astype(np.int64)
     btable, dtable = _block_types(S, seed, change, ul, vl, ang)
     btype = btable[ku, kv]
     district = dtable[ku, kv]
@@ -170,8 +171,14 @@ def generate(
     park_b = smooth_noise(rng("park_b"), shape, 90.0 / mpp)
     flat = np.flatnonzero(inner.ravel())
     bt = btype.ravel()[flat]
-    for t, name in enumerate(BLOCK_TYPES):
-        sel = flat[bt == t]
+    # Texels are independent given their block keys, so each type is filled in chunks of 1M
+    # texels: same result, a fraction of the temporary memory.
+    jobs = [
+        (t, name, sel)
+        for t, name in enumerate(BLOCK_TYPES)
+        for sel in np.array_split(flat[bt == t], max(1, int(np.ceil(np.sum(bt == t) / 1e6))))
+    ]
+    for _t, name, sel in jobs:
         if sel.size == 0:
             continue
         P = cb.BlockPixels(
