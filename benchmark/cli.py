@@ -27,6 +27,7 @@ COMMANDS: dict[str, str] = {
     "continuity": "benchmark.analysis.continuity",
     "model-info": "benchmark.models.info",
     "train": "benchmark.training.command",
+    "evaluate": "benchmark.evaluation.command",
     "ui": "benchmark.tracking.ui",
 }
 
@@ -38,6 +39,7 @@ COMMAND_HELP: dict[str, str] = {
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
     "model-info": "parameters, size, MFLOPs and CPU latency per pair of a model (Table 6)",
     "train": "train one variant from a config (--set a.b=value), evaluate it, track it in MLflow",
+    "evaluate": "evaluate a trained checkpoint on dataset splits: per-sample CSV and metrics",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
 }
 

@@ -92,6 +92,18 @@ class TestTrainCommandEndToEnd:
         assert steps == [1, 2]
         assert "standard/test/dphi_deg" in run.data.metrics
 
+        # uavbench evaluate on the checkpoint reproduces the predictions byte for byte.
+        first = (tmp_path / "out" / "predictions" / "standard_test.csv").read_bytes()
+        ckpt = str(tmp_path / "out" / "checkpoint.pt")
+        assert (
+            main(["evaluate", "--quiet", "--checkpoint", ckpt, "--out", str(tmp_path / "ev")]) == 0
+        )
+        assert (tmp_path / "ev" / "standard_test.csv").read_bytes() == first
+        metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+        assert metrics["standard/test"]["dphi_deg"] == pytest.approx(
+            run.data.metrics["standard/test/dphi_deg"]
+        )
+
         # The same config again: found in the store, not rerun.
         assert main([*base, "--set", "optim.epochs=2"]) == 0
         assert len(client.search_runs([exp.experiment_id])) == 1

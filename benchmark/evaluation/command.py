@@ -1,0 +1,83 @@
+"""``uavbench evaluate``: a trained checkpoint over dataset splits -> predictions CSV + metrics.
+
+    uavbench evaluate --checkpoint runs/train-XXXX/checkpoint.pt --split standard/test \\
+        --split generalized/test
+
+The dataset defaults to the one the checkpoint was trained on (its config's ``data.root``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+HELP = "evaluate a trained checkpoint on dataset splits: per-sample CSV and the paper's metrics"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", type=Path, required=True, help="checkpoint.pt of a run")
+    parser.add_argument(
+        "--split", action="append", dest="splits", help="split to evaluate (repeatable)"
+    )
+    parser.add_argument("--data-root", type=Path, help="dataset directory (default: the run's)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="directory for <split>.csv and metrics.json (default: beside "
+        "the checkpoint, in predictions/)",
+    )
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchmark.cli import UsageError
+
+    if not args.checkpoint.is_file():
+        raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
+    if args.batch_size < 1:
+        raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
+    from benchmark.data import DatasetError, PairDataset, list_splits
+    from benchmark.evaluation.evaluate import evaluate
+    from benchmark.training.build import load_trained_model
+    from benchmark.training.loop import load_checkpoint
+
+    try:
+        ckpt = load_checkpoint(args.checkpoint)
+        model = load_trained_model(args.checkpoint)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    data_cfg = ckpt["config"]["data"]
+    root = args.data_root or Path(data_cfg["root"])
+    splits = args.splits or ["standard/test"]
+    try:
+        available = list_splits(root)
+    except (DatasetError, OSError) as err:
+        raise UsageError(f"dataset {root}: {err}") from None
+    for split in splits:
+        if split not in available:
+            raise UsageError(
+                f"--split {split!r} is not in {root}; available: {', '.join(available)}"
+            )
+    out = args.out or args.checkpoint.parent / "predictions"
+    shared = bool(ckpt["config"]["model"].get("shared_satellite", True))
+    results = {}
+    for split in splits:
+        dataset = PairDataset(root, split, verify=data_cfg.get("verify", "size"))
+        summary, _ = evaluate(
+            model,
+            dataset,
+            out_csv=out / (split.replace("/", "_") + ".csv"),
+            batch_size=args.batch_size,
+            shared_satellite=shared,
+            progress=not args.quiet,
+            desc=f"eval {split}",
+        )
+        results[split] = summary
+        keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
+        print(f"{split}: n={int(summary['n'])} " + ", ".join(f"{k}={summary[k]:.3f}" for k in keys))
+    (out / "metrics.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    print(f"predictions and metrics.json in {out}", file=sys.stderr)
+    return 0
