@@ -73,3 +73,19 @@ class TestModelInfoCommand:
     def test_bad_configuration_is_a_usage_error(self, flags, message, capsys):
         assert main(["model-info", "--width", "0.25", "--size", "32", *flags]) == 2
         assert message in capsys.readouterr().err
+
+
+class TestBenchModel:
+    def test_runs_and_prints_ratios(self, capsys):
+        from benchmark.models.bench_model import main as bench_main
+
+        args = ["--width", "0.25", "--size", "32", "--batch", "4", "--sats", "2", "--repeats", "1"]
+        assert bench_main(args) == 0
+        out = capsys.readouterr().out
+        assert "shared satellite" in out and "channels_last" in out and "pairs/s" in out
+
+    def test_bad_arguments(self):
+        from benchmark.models.bench_model import main as bench_main
+
+        with pytest.raises(SystemExit):
+            bench_main(["--sats", "5", "--batch", "4"])
