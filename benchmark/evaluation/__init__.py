@@ -13,12 +13,16 @@ from benchmark.evaluation.metrics import (
     summarize,
     write_predictions_csv,
 )
+from benchmark.evaluation.reference import constant_predictor, dataset_labels, mean_rotation
 
 __all__ = [
     "ACCURACY_THRESHOLDS_DEG",
     "ERROR_COLUMNS",
     "PoseErrors",
     "SeedInterval",
+    "constant_predictor",
+    "dataset_labels",
+    "mean_rotation",
     "pose_errors",
     "predictions_frame",
     "relative_to_uav_attitude",

@@ -9,7 +9,9 @@ from benchmark.training.build import (
     load_trained_model,
     model_factory,
     open_datasets,
+    predictions_csv_path,
     run_training,
+    train_and_evaluate,
 )
 from benchmark.training.config import (
     DataConfig,
@@ -49,7 +51,9 @@ __all__ = [
     "make_optimizer",
     "model_factory",
     "open_datasets",
+    "predictions_csv_path",
     "run_training",
     "train",
+    "train_and_evaluate",
     "translation_labels",
 ]

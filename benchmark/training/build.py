@@ -100,6 +100,48 @@ def run_training(
     )
 
 
+def predictions_csv_path(out_dir: str | Path, split: str) -> Path:
+    """``<out_dir>/predictions/<split with / replaced by _>.csv``."""
+    return Path(out_dir) / "predictions" / (split.replace("/", "_") + ".csv")
+
+
+def train_and_evaluate(
+    cfg: TrainConfig,
+    out_dir: str | Path,
+    eval_splits: list[str] | tuple[str, ...],
+    *,
+    on_epoch_end: EpochCallback | None = None,
+    progress: bool = True,
+    datasets: tuple[Dataset, Dataset | None] | None = None,
+) -> tuple[TrainResult, dict[str, dict[str, float]]]:
+    """Train (or resume, or reuse a finished checkpoint) into ``out_dir``, then evaluate every
+    split of ``cfg.data.root`` in ``eval_splits``. Writes ``history.json`` and
+    :func:`predictions_csv_path` per split; returns the result and ``{split: summary}``."""
+    import json
+
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.evaluate import evaluate
+
+    result = run_training(
+        cfg, out_dir, on_epoch_end=on_epoch_end, progress=progress, datasets=datasets
+    )
+    out_dir = Path(out_dir)
+    (out_dir / "history.json").write_text(json.dumps(result.history, indent=1) + "\n")
+    summaries = {}
+    for split in eval_splits:
+        summary, _ = evaluate(
+            result.model,
+            PairDataset(cfg.data.root, split, verify=cfg.data.verify),
+            out_csv=predictions_csv_path(out_dir, split),
+            batch_size=max(cfg.optim.batch_size, 32),
+            shared_satellite=cfg.model.shared_satellite,
+            progress=progress,
+            desc=f"eval {split}",
+        )
+        summaries[split] = summary
+    return result, summaries
+
+
 def load_trained_model(checkpoint: str | Path) -> torch.nn.Module:
     """Rebuild the ``PoseModel`` saved in a checkpoint (eval mode)."""
     from benchmark.models import ModelConfig, build_model

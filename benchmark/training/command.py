@@ -14,7 +14,6 @@ the last epoch's checkpoint.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -128,33 +127,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _train_and_evaluate(cfg, out: Path, eval_splits: list[str], tracked, *, quiet: bool) -> dict:
-    from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import evaluate
-    from benchmark.training.build import run_training
+    from benchmark.training.build import train_and_evaluate
 
-    result = run_training(
+    _, summaries = train_and_evaluate(
         cfg,
         out,
+        eval_splits,
         on_epoch_end=lambda epoch, m: tracked.log_metrics(m, step=epoch),
         progress=not quiet,
     )
-    (out / "history.json").write_text(json.dumps(result.history, indent=1) + "\n")
     tracked.log_artifact(out / "history.json")
-    summaries = {}
-    for split in eval_splits:
-        dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
-        csv = out / "predictions" / (split.replace("/", "_") + ".csv")
-        summary, _ = evaluate(
-            result.model,
-            dataset,
-            out_csv=csv,
-            batch_size=max(cfg.optim.batch_size, 32),
-            shared_satellite=cfg.model.shared_satellite,
-            progress=not quiet,
-            desc=f"eval {split}",
-        )
+    for split, summary in summaries.items():
         tracked.log_metrics({f"{split}/{k}": v for k, v in summary.items()}, step=cfg.optim.epochs)
-        summaries[split] = summary
     if eval_splits:
         tracked.log_artifact(out / "predictions")
     return summaries

@@ -230,3 +230,52 @@ class TestSeedInterval:
             seed_interval([])
         with pytest.raises(ValueError, match="confidence"):
             seed_interval([1.0, 2.0], confidence=95)
+
+
+class TestMeanRotation:
+    def test_symmetric_spread_gives_centre(self):
+        from benchmark.evaluation.reference import mean_rotation
+
+        centre = Rotation.from_euler("ZXY", [40.0, 60.0, 5.0], degrees=True)
+        offsets = Rotation.from_rotvec(
+            np.array([[0.3, 0, 0], [-0.3, 0, 0], [0, 0.2, 0], [0, -0.2, 0]])
+        )
+        R = torch.from_numpy((centre * offsets).as_matrix())
+        np.testing.assert_allclose(mean_rotation(R).numpy(), centre.as_matrix(), atol=1e-12)
+
+    def test_is_chordal_minimiser(self):
+        from benchmark.evaluation.reference import mean_rotation
+
+        R = torch.from_numpy(Rotation.random(20, random_state=3).as_matrix())
+        M = mean_rotation(R)
+        cost = lambda X: float(((R - X) ** 2).sum())  # noqa: E731
+        perturbed = Rotation.from_rotvec(np.random.default_rng(0).normal(0, 0.05, (50, 3)))
+        for P in perturbed.as_matrix():
+            assert cost(M) <= cost(torch.from_numpy(P) @ M) + 1e-12
+        assert torch.det(M) == pytest.approx(1.0)
+
+
+class TestConstantPredictor:
+    def test_against_closed_form(self):
+        from benchmark.evaluation.reference import constant_predictor
+
+        class Labels(torch.utils.data.Dataset):
+            def __init__(self, R, T):
+                self.R, self.T = R, T
+
+            def __len__(self):
+                return len(self.R)
+
+            def __getitem__(self, i):
+                return {"R": self.R[i], "T": self.T[i], "index": torch.tensor(i)}
+
+        # Training labels: UAV yaw +-10 deg around 0 -> mean attitude yaw 0 (pitch -20, roll 0).
+        train_R = relative(uav_rotations(np.array([[10.0, -20.0, 0.0], [-10.0, -20.0, 0.0]])))
+        train_T = torch.tensor([[0.0, 0.0, 100.0], [10.0, 0.0, 100.0]], dtype=torch.float64)
+        test_R = relative(uav_rotations(np.array([[30.0, -20.0, 0.0], [-90.0, -20.0, 0.0]])))
+        test_T = torch.tensor([[5.0, 1.0, 90.0], [0.0, 0.0, 100.0]], dtype=torch.float64)
+        summary, frame = constant_predictor(Labels(train_R, train_T), Labels(test_R, test_T))
+        np.testing.assert_allclose(frame["dpsi_deg"], [30.0, 90.0], atol=1e-9)
+        np.testing.assert_allclose(frame["dtheta_deg"], [0.0, 0.0], atol=1e-9)
+        assert summary["dE_m"] == pytest.approx(2.5) and summary["dU_m"] == pytest.approx(5.0)
+        assert summary["dN_m"] == pytest.approx(0.5)

@@ -54,6 +54,25 @@ def smoke_dataset(tmp_path_factory):
 
 
 @pytest.mark.slow
+class TestLabelsFromPairDataset:
+    def test_dataset_labels_match_items(self, smoke_dataset):
+        import torch
+
+        from benchmark.data import PairDataset
+        from benchmark.evaluation.reference import constant_predictor, dataset_labels
+
+        ds = PairDataset(smoke_dataset, "standard/train")
+        sub = torch.utils.data.Subset(ds, [3, 0, 5])
+        R, T, index = dataset_labels(sub)
+        items = [sub[i] for i in range(3)]
+        torch.testing.assert_close(R.float(), torch.stack([it["R"] for it in items]))
+        torch.testing.assert_close(T.float(), torch.stack([it["T"] for it in items]))
+        assert index.tolist() == [3, 0, 5]
+        summary, _ = constant_predictor(ds, PairDataset(smoke_dataset, "standard/test"))
+        assert 0 < summary["dphi_deg"] < 180
+
+
+@pytest.mark.slow
 class TestTrainCommandEndToEnd:
     def test_train_track_resume_and_fail(self, smoke_dataset, tmp_path, monkeypatch):
         from mlflow.tracking import MlflowClient
