@@ -134,3 +134,39 @@ class TestMlflowTrackerOnServer:
         )["runs"]
         assert [r["info"]["status"] for r in runs] == ["KILLED"]
         assert tracker.find_finished_run("fig7", "kk") is None
+
+
+@pytest.mark.slow
+class TestServerDiesMidRun:
+    def test_everything_lands_in_the_fallback(self, tmp_path, monkeypatch):
+        from benchmark.tracking.server import MlflowServer
+
+        # No retries: the dead server is noticed at once (a user's setting would win).
+        monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "0")
+        monkeypatch.setenv("MLFLOW_HTTP_REQUEST_TIMEOUT", "5")
+        server = MlflowServer(f"sqlite:///{tmp_path / 'db.sqlite'}", tmp_path / "art").start()
+        try:
+            tracker = MlflowTracker(server.url, fallback_dir=tmp_path / "fb")
+            (tmp_path / "table.md").write_text("| x |\n")
+            with pytest.warns(TrackingFallbackWarning, match="failed") as record:
+                with tracker.start_run("table3", "reproduce") as parent:
+                    with tracker.start_run(
+                        "table3", "v/s0", parent=parent, tags={"run_key": "z"}
+                    ) as r:
+                        r.log_params({"optim.lr": 0.001})
+                        r.log_metrics({"loss": 3.0}, 1)
+                        r.flush()
+                        first_id = r.run_id
+                        server.stop()  # the server dies mid-run
+                        r.log_metrics({"loss": 2.0}, 2)
+                        r.log_artifact(tmp_path / "table.md")
+        finally:
+            server.stop()
+        assert len(record) == 1 and tracker.using_fallback
+        found = tracker.find_finished_run("table3", "z")
+        assert found is not None and found.backend == "local"
+        assert found.tags["mlflow_run_id"] == first_id
+        assert found.params == {"optim.lr": "0.001"} and found.metrics == {"loss": 2.0}
+        run_dir = tmp_path / "fb" / "table3" / found.run_id
+        assert (run_dir / "artifacts" / "table.md").is_file()
+        assert (run_dir / "metrics.csv").read_text().count("loss") == 2
