@@ -29,6 +29,7 @@ COMMANDS: dict[str, str] = {
     "train": "benchmark.training.command",
     "evaluate": "benchmark.evaluation.command",
     "ui": "benchmark.tracking.ui",
+    "reproduce": "benchmark.runner.reproduce",
 }
 
 # Loaded lazily, but --help needs the one-line descriptions without importing torch.
@@ -41,6 +42,7 @@ COMMAND_HELP: dict[str, str] = {
     "train": "train one variant from a config (--set a.b=value), evaluate it, track it in MLflow",
     "evaluate": "evaluate a trained checkpoint on dataset splits: per-sample CSV and metrics",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
+    "reproduce": "reproduce the paper's tables and figures: simulate, train, evaluate, report",
 }
 
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
+from benchmark.evaluation.metrics import seed_interval
 from benchmark.runner.specs import TableSpec
 
 METRIC_LABELS: dict[str, str] = {
@@ -37,16 +37,14 @@ GROUP_KEYS = ["table", "label", "paper_model", "x", "split"]
 
 
 def interval95(values: np.ndarray) -> tuple[float, float, float]:
-    """``(mean, low, high)``: Student-t 95% interval of the mean; NaN bounds for < 2 values."""
+    """``(mean, low, high)`` over the finite values: Student-t 95% interval of the mean (NaN
+    bounds for one value, all NaN for none)."""
     values = np.asarray(values, dtype=float)
     values = values[np.isfinite(values)]
     if len(values) == 0:
         return math.nan, math.nan, math.nan
-    mean = float(values.mean())
-    if len(values) < 2:
-        return mean, math.nan, math.nan
-    half = float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1) / math.sqrt(len(values)))
-    return mean, mean - half, mean + half
+    interval = seed_interval(values, 0.95)
+    return interval.mean, interval.low, interval.high
 
 
 def summarize(results: pd.DataFrame, metrics: list[str]) -> pd.DataFrame:
@@ -93,7 +91,9 @@ def load_paper(path: str | Path) -> pd.DataFrame:
     return pd.read_csv(path)
 
 
-def markdown_table(spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame) -> str:
+def markdown_table(
+    spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame, extra_labels: list[str] = ()
+) -> str:
     """A Markdown table of one paper table: per metric, the paper's number and ours."""
     lines = [
         f"## {spec.title}",
@@ -108,12 +108,16 @@ def markdown_table(spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame) 
         label = METRIC_LABELS.get(m, m)
         header += [f"{label} paper", f"{label} ours"]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    rows = [(v.label, v.paper_model) for v in spec.variants] + [(x, "") for x in extra_labels]
     for split, paper_split in zip(spec.eval_splits, split_names, strict=True):
-        for v in spec.variants:
-            row = summary[(summary["label"] == v.label) & (summary["split"] == split)]
-            cells = ([f"`{split}`"] if multi else []) + [v.label]
+        for label, paper_model in rows:
+            if summary.empty:
+                row = summary
+            else:
+                row = summary[(summary["label"] == label) & (summary["split"] == split)]
+            cells = ([f"`{split}`"] if multi else []) + [label]
             for m in spec.metrics:
-                pv = paper_value(paper, spec.paper_table, paper_split, v.paper_model, m)
+                pv = paper_value(paper, spec.paper_table, paper_split, paper_model, m)
                 cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
                 if len(row) and m in row:
                     r = row.iloc[0]

@@ -1,0 +1,139 @@
+"""Log a reproduction to a tracker: one experiment per table or figure, a parent run per
+invocation in each, a nested run per (variant, sweep value, seed).
+
+Each nested run carries the flattened train config as params, the per-epoch training history as
+metrics (sent in batches), the evaluation summary of each split as ``<split>/<metric>``, the
+predictions CSVs and the config as artifacts, and the tags table, head, encoder, seed, git commit,
+dataset manifest hash and ``run_key``. :meth:`Logbook.finished` finds a job's finished run so a
+second invocation neither retrains nor logs it again.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from benchmark.config import flatten
+from benchmark.runner.plan import Unit, job_key
+from benchmark.runner.specs import Job
+from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
+
+
+def experiment_name(profile: str, table: str) -> str:
+    return f"uavbench-{profile}/{table}"
+
+
+def run_name(job: Job, seed: int) -> str:
+    x = f" [{job.x}]" if job.x is not None else ""
+    return f"{job.label}{x} seed {seed}"
+
+
+class Logbook:
+    def __init__(self, tracker: Tracker, profile: str, provenance: dict[str, str]) -> None:
+        self.tracker = tracker
+        self.profile = profile
+        self.provenance = provenance  # git commit, dataset manifest hash, ...
+        self.parents: dict[str, Run] = {}
+
+    def parent(self, table: str) -> Run:
+        """The invocation's parent run in the table's experiment (started on first use)."""
+        if table not in self.parents:
+            self.parents[table] = self.tracker.start_run(
+                experiment_name(self.profile, table),
+                f"reproduce {self.profile}",
+                tags={"table": table, "profile": self.profile, **self.provenance},
+            )
+        return self.parents[table]
+
+    def finished(self, job: Job, unit: Unit) -> dict[str, dict[str, float]] | None:
+        """Per-split metrics of this job's FINISHED run in the store, or None."""
+        info = self.tracker.find_finished_run(
+            experiment_name(self.profile, job.table), job_key(job, unit.key)
+        )
+        if info is None:
+            return None
+        out: dict[str, dict[str, float]] = {}
+        for key, value in info.metrics.items():
+            split, sep, metric = key.rpartition("/")
+            if sep and split in job.eval_splits:
+                out.setdefault(split, {})[metric] = float(value)
+        return out if set(out) == set(job.eval_splits) else None
+
+    def log_job(
+        self,
+        job: Job,
+        unit: Unit,
+        history: list[dict[str, float]],
+        metrics: dict[str, dict[str, float]],
+        artifacts: list[Path],
+        error: str = "",
+    ) -> None:
+        cfg = unit.cfg
+        tags: dict[str, Any] = {
+            "table": job.table,
+            "label": job.label,
+            "x": job.x if job.x is not None else "",
+            "head": cfg.model.attitude,
+            "translation_head": cfg.model.translation,
+            "encoder": f"{cfg.model.encoder} {cfg.model.variant} w{cfg.model.width:g}",
+            "seed": cfg.seed,
+            "unit": unit.key,
+            RUN_KEY_TAG: job_key(job, unit.key),
+            **self.provenance,
+        }
+        if error:
+            tags["error"] = error[:5000]
+        run = self.tracker.start_run(
+            experiment_name(self.profile, job.table),
+            run_name(job, cfg.seed),
+            parent=self.parent(job.table),
+            tags=tags,
+        )
+        with run:
+            params = {k: v for k, v in flatten(cfg).items() if k != "data.root"}
+            run.log_params({**params, "table": job.table, "label": job.label, "x": job.x})
+            for record in history:
+                epoch = int(record.get("epoch", 0))
+                values = {f"train/{k}": v for k, v in record.items() if k != "epoch" and _finite(v)}
+                run.log_metrics(values, step=epoch)
+            for split in job.eval_splits:
+                summary = metrics.get(split, {})
+                run.log_metrics({f"{split}/{k}": v for k, v in summary.items() if _finite(v)})
+            for path in artifacts:
+                if path.exists():
+                    run.log_artifact(path, "predictions" if path.suffix == ".csv" else None)
+            if error:
+                run.end(RunStatus.FAILED)
+
+    def log_cost(self, table: str, label: str, info: dict[str, Any]) -> None:
+        run = self.tracker.start_run(
+            experiment_name(self.profile, table),
+            f"{label} {info['input_size']}px w{info['width']:g}",
+            parent=self.parent(table),
+            tags={"table": table, "label": label, "head": info["head"], **self.provenance},
+        )
+        with run:
+            run.log_params({k: v for k, v in info.items() if not isinstance(v, float)})
+            run.log_metrics({k: v for k, v in info.items() if isinstance(v, float) and _finite(v)})
+
+    def log_table_outputs(self, table: str, paths: list[Path]) -> None:
+        parent = self.parent(table)
+        for path in paths:
+            if path.exists():
+                parent.log_artifact(path)
+
+    def close(self, status: RunStatus) -> None:
+        for run in self.parents.values():
+            run.end(status)
+        self.parents.clear()
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def write_config(unit: Unit, path: Path) -> Path:
+    path.write_text(json.dumps(flatten(unit.cfg), indent=2, default=str))
+    return path

@@ -1,0 +1,208 @@
+"""Write a reproduction's reports: raw CSV, one Markdown file per table/figure, figures, Table 6
+costs and the claim-by-claim summary ``README.md``."""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from benchmark.runner.claims import evaluate_claims, render_claims
+from benchmark.runner.execute import UnitResult
+from benchmark.runner.logbook import Logbook
+from benchmark.runner.plan import Unit
+from benchmark.runner.profiles import ReproProfile
+from benchmark.runner.report import (
+    extra_metrics_table,
+    load_paper,
+    markdown_table,
+    summarize,
+    sweep_figure,
+    sweep_table,
+)
+from benchmark.runner.specs import TableSpec, default_spec_dir
+
+CONSTANT_LABEL = "Constant (train mean)"
+REPORT_METRICS = [
+    "dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg",
+    "median_dphi_deg", "acc5", "acc10", "acc30", "loglik", "spearman_unc_err",
+]  # fmt: skip
+EXTRA_METRICS = ["median_dphi_deg", "acc10", "acc30", "loglik", "spearman_unc_err"]
+
+
+def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataFrame:
+    rows = []
+    for unit in units:
+        result = results.get(unit.key)
+        if result is None or not result.ok:
+            continue
+        for job in unit.jobs:
+            for split in job.eval_splits:
+                metrics = result.metrics.get(split)
+                if metrics is None:
+                    continue
+                rows.append(
+                    {"table": job.table, "label": job.label, "paper_model": job.paper_model,
+                     "x": job.x, "split": split, "seed": unit.cfg.seed, "unit": unit.key,
+                     "train_seconds": result.seconds, **metrics}
+                )  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def constant_baseline(data_root: Path, train_split: str, eval_split: str) -> dict[str, float]:
+    """Errors of predicting the training set's mean pose for every pair (no image is read).
+
+    The mean rotation is the chordal L2 mean (``special_orthogonalize`` of the mean matrix), the
+    mean translation the arithmetic mean.
+    """
+    from benchmark.data.dataset import PairDataset
+    from benchmark.evaluation.metrics import predictions_frame
+    from benchmark.evaluation.metrics import summarize as summarize_frame
+    from benchmark.geometry import special_orthogonalize
+
+    def labels(split: str) -> tuple[torch.Tensor, torch.Tensor]:
+        poses = PairDataset(data_root, split, verify="size").poses
+        columns = [f"R{i}{j}" for i in range(3) for j in range(3)]
+        R = torch.tensor(poses[columns].to_numpy(np.float64))
+        T = torch.tensor(poses[["dE", "dN", "dU"]].to_numpy(np.float64))
+        return R.reshape(-1, 3, 3), T
+
+    R_train, T_train = labels(train_split)
+    R_test, T_test = labels(eval_split)
+    R_mean = special_orthogonalize(R_train.mean(0)).expand_as(R_test)
+    T_mean = T_train.mean(0).expand_as(T_test)
+    return summarize_frame(predictions_frame(R_mean, R_test, T_mean, T_test))
+
+
+def cost_table(
+    spec: TableSpec, profile: ReproProfile, input_size: int, logbook: Logbook | None
+) -> str:
+    """Table 6: size, MFLOPs and latency at the paper's configuration and at the profile's."""
+    from benchmark.models.info import model_info
+    from benchmark.runner.report import paper_value
+
+    paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
+    configs = [("paper config", 224, 1.0), (f"{profile.name} profile", input_size, profile.width)]
+    lines = [
+        f"## {spec.title}", "",
+        "Size = float32 parameters (4 bytes each, 1 MB = 1e6 bytes); FLOPs counted with "
+        "`torch.utils.flop_counter` (2 per multiply-add) for one pair at batch 1 in inference "
+        "(no auxiliary heads); latency = median of 10 CPU forward passes at batch 1 "
+        f"({torch.get_num_threads()} threads) on this machine.", "",
+        "| model | config | params | size MB paper | size MB ours | MFLOPs paper | MFLOPs ours | "
+        "latency ms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for v in spec.variants:
+        for name, size, width in configs:
+            info = model_info(head=v.attitude, variant=v.encoder_variant, width=width,
+                              input_size=size, translation=v.translation, repeats=10)  # fmt: skip
+            record = dataclasses.asdict(info)
+            if logbook is not None:
+                logbook.log_cost(spec.name, v.label, record)
+            ps = paper_value(paper, spec.paper_table, None, v.paper_model, "size_MB")
+            pf = paper_value(paper, spec.paper_table, None, v.paper_model, "MFLOPs")
+            lines.append(
+                f"| {v.label} | {name} ({size} px, width {width:g}) | {info.parameters:,} | "
+                f"{ps:.2f} | {info.size_mb:.2f} | {pf:.2f} | {info.mflops_inference:.1f} | "
+                f"{info.latency_ms:.1f} |"
+            )
+    note = (
+        "The paper does not say how it counts MFLOPs. Two 224 px GoogLeNet passes cost about "
+        "3.2 G multiply-adds (6.3 GFLOPs) by any count, so its 24.43 and 90.96 MFLOPs cannot be "
+        "full forward passes; the sizes, in contrast, match ours within 1%."
+    )
+    lines += ["", note]
+    return "\n".join(lines) + "\n"
+
+
+def write_reports(
+    specs: list[TableSpec],
+    units: list[Unit],
+    results: dict[str, UnitResult],
+    profile: ReproProfile,
+    data_root: Path,
+    out: Path,
+    logbook: Logbook | None,
+    wall_seconds: float | None = None,
+) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
+    frame = results_frame(units, results)
+    baseline_rows = []
+    for spec in specs:
+        if spec.kind == "table":
+            for split in spec.eval_splits:
+                metrics = constant_baseline(data_root, spec.train_split, split)
+                row = {"table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None}
+                baseline_rows.append({**row, "split": split, "seed": 0, **metrics})
+    everything = pd.concat([frame, pd.DataFrame(baseline_rows)], ignore_index=True)
+    written = [out / "results.csv"]
+    everything.to_csv(written[0], index=False, float_format="%.6g")
+    metrics = [m for m in REPORT_METRICS if m in everything.columns]
+    summaries: dict[str, pd.DataFrame] = {}
+    input_size = _input_size(data_root)
+    for spec in specs:
+        part = everything[everything["table"] == spec.name] if len(everything) else everything
+        summary = summarize(part, metrics) if len(part) else pd.DataFrame()
+        summaries[spec.name] = summary
+        md_path = out / f"{spec.name}.md"
+        paths = [md_path]
+        if spec.kind == "table":
+            text = markdown_table(spec, summary, paper, extra_labels=[CONSTANT_LABEL])
+            text += extra_metrics_table(spec, summary, EXTRA_METRICS)
+        elif spec.kind == "sweep":
+            text = sweep_table(spec, summary)
+            if len(summary):
+                png = out / f"{spec.name}.png"
+                sweep_figure(spec, summary, png)
+                paths.append(png)
+                text += f"\n![{spec.name}]({png.name})\n"
+        else:
+            text = cost_table(spec, profile, input_size, logbook)
+        md_path.write_text(text)
+        written += paths
+        if logbook is not None:
+            logbook.log_table_outputs(spec.name, paths)
+    claims = evaluate_claims(summaries)
+    readme = out / "README.md"
+    readme.write_text(_readme(profile, specs, claims, wall_seconds))
+    written.append(readme)
+    return written
+
+
+def _input_size(data_root: Path) -> int:
+    from benchmark.data.format import read_manifest
+
+    return int(read_manifest(Path(data_root))["image_size"])
+
+
+def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, wall: float | None) -> str:
+    cpu = platform.processor() or platform.machine()
+    lines = [
+        f"# uavbench reproduction: profile `{profile.name}`",
+        "",
+        f"Written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.node()} "
+        f"({cpu}, {torch.get_num_threads()} torch threads in the main process, torch "
+        f"{torch.__version__})" + (f"; wall time {wall / 60:.1f} min." if wall else "."),
+        "",
+        f"Profile: width {profile.width:g} GoogLeNet, {profile.epochs} epochs, {profile.optimizer} "
+        f"lr {profile.lr:g} ({profile.lr_schedule}), batch {profile.batch_size}. Dataset profile "
+        f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery).",
+        "",
+        "## Claims of the paper, checked",
+        "",
+        render_claims(claims),
+        "",
+        "## Tables and figures",
+        "",
+    ]
+    lines += [f"- [{s.name}]({s.name}.md): {s.title}" for s in specs]
+    lines += ["", "Raw numbers: [results.csv](results.csv) (one row per table, model, sweep value, "
+              "split and seed)."]  # fmt: skip
+    return "\n".join(lines) + "\n"
