@@ -34,7 +34,7 @@ def _params(city: City, *, fog: bool) -> np.ndarray:
     p[rc.P_MPP] = city.metres_per_px
     p[rc.P_E0] = e0
     p[rc.P_N0] = n0
-    p[rc.P_GMAX] = float(city.hpyr[city.hoff[-1] :].max()) + 0.01
+    p[rc.P_GMAX] = city.height_range[1] + 0.01
     p[rc.P_SUN : rc.P_SUN + 3] = city.sun
     p[rc.P_AMB] = 0.55
     p[rc.P_DIF] = 0.6
@@ -43,6 +43,7 @@ def _params(city: City, *, fog: bool) -> np.ndarray:
     p[rc.P_ZENITH : rc.P_ZENITH + 3] = ZENITH
     p[rc.P_TMAX] = 5.0 * VISIBILITY_M if fog else 1e5
     p[rc.P_GSCALE] = 4.0
+    p[rc.P_GMIN] = city.height_range[0]
     return p
 
 

@@ -41,7 +41,8 @@ P_VIS = 12  # fog distance V in metres; <= 0 disables fog
 P_ZENITH = 13  # 13, 14, 15: sky colour at the zenith
 P_TMAX = 16  # rays longer than this return the haze colour
 P_GSCALE = 17  # texels per cell of the coarse ground (terrain) grid
-N_PARAMS = 18
+P_GMIN = 18  # lowest surface point (metres)
+N_PARAMS = 19
 
 # Material codes in the ``mat`` grid (see world.py); >= MAT_BUILDING is a building whose facade
 # palette row is ``mat - MAT_BUILDING``.
@@ -312,9 +313,18 @@ def trace(
         if dz >= 0.0:
             return _sky(dz, params)
         t = (oz - gmax) / (-dz)
+    # Start at the level whose cells match the horizontal run of the ray between the highest and
+    # the lowest surface point: steep rays skip the top levels they would only descend through
+    # (correct from any level; this only saves iterations).
     level = L
     axis = -1
     inf = 1e300
+    if dz < 0.0:
+        run = (gmax - params[P_GMIN]) / (-dz) * math.sqrt(dx * dx + dy * dy)
+        if run < 1.0:
+            level = 0
+        else:
+            level = min(L, int(math.log2(run)))
     for _ in range(MAX_ITER):
         if t > tmax:
             break

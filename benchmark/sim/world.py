@@ -34,7 +34,7 @@ from benchmark.sim.render_core import MAT_BUILDING, MAT_WATER
 from benchmark.sim.textures import bake_lighting, max_pyramid, mean_pyramid
 from benchmark.sim.world_styles import STYLES, get_style
 
-GENERATOR_VERSION = "4"
+GENERATOR_VERSION = "5"
 DEFAULT_SIZE_M = (3584.0, 2560.0)
 SAT_MARGIN_M = (1400.0, 700.0)  # half of the largest satellite footprint (1400 m sweep)
 GROUND_SCALE = 4  # texels per cell of the coarse terrain grid
@@ -98,6 +98,13 @@ class City:
     @property
     def shape(self) -> tuple[int, int]:
         return (int(self.height.shape[0]), int(self.height.shape[1]))
+
+    @property
+    def height_range(self) -> tuple[float, float]:
+        """``(min, max)`` of the surface height, metres (cached)."""
+        if "_hrange" not in self.__dict__:
+            self.__dict__["_hrange"] = (float(self.height.min()), float(self.height.max()))
+        return self.__dict__["_hrange"]
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
