@@ -1,11 +1,9 @@
 """Block programmes: what fills one street block (terraces, houses, slabs, warehouses, parks, ...).
 
 Each ``fill_*`` function receives the texels of all blocks of its type as flat arrays
-(``BlockPixels``:
-local coordinates ``lu, lv`` in metres from the block's lower-left interior corner, block size
-``bw, bh``, block key) and writes structure height above ground, albedo, material, tree
-probability into the ``Canvas``. Every random choice is a ``hash01`` of integer
-keys
+(``BlockPixels``: local coordinates ``lu, lv`` in metres from the block's lower-left interior
+corner, block size ``bw, bh``, block key) and writes structure height above ground, albedo,
+material, tree probability into the ``Canvas``. Every random choice is a ``hash01`` of integer keys
 (block, parcel, slot, ...), so a changed city (``Canvas.change != 0``) can re-draw cars, demolish or
 add a few buildings without reshuffling the rest.
 """

@@ -2,12 +2,11 @@
 
 The street network is a rotated grid with irregular spacings whose coordinates ``(u, v)`` are
 displaced by smooth noise (``warp_amp``): strongly warped for oxford (curved streets), nearly
-straight
-for cambridge/industrial. For every texel the generator finds the enclosing grid lines, hence its
-distance to the nearest street centreline (carriageway, kerb, pavement, markings, parked cars)
-and its
-block and local block coordinates, which the block programmes (city_blocks.py) turn into buildings,
-gardens, parks, lots. A river band (city_nature.py) overrides it; major streets bridge it.
+straight for cambridge/industrial. For every texel the generator finds the enclosing grid lines,
+hence its distance to the nearest street centreline (carriageway, kerb, pavement, markings, parked
+cars) and its block and local block coordinates, which the block programmes (city_blocks.py) turn
+into buildings, gardens, parks, lots. A river band (city_nature.py) overrides it; major streets
+bridge it.
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """UAV and satellite views of a ``City``: ``render_uav``, ``render_satellite``, ``satellite_pose``.
 
-Both are the same per-pixel ray caster (render_core.py) with the pinhole model of camera.py: the
-UAV camera looks along body +y with ``R_b^n = Rz(yaw) Rx(pitch) Ry(roll)``; the satellite camera is
-the paper's (Eq. 5): pitch -90 deg, heading 0, so it looks straight down with north at the top of
-the
+Both are the same per-pixel ray caster (render_core.py) with the pinhole model of camera.py: the UAV
+camera looks along body +y with ``R_b^n = Rz(yaw) Rx(pitch) Ry(roll)``; the satellite camera is the
+paper's (Eq. 5): pitch -90 deg, heading 0, so it looks straight down with north at the top of the
 image, placed ``height_m`` above the terrain at the centre. Its image covers ``footprint_m`` (E x N)
 at the centre's terrain height with square pixels (so a 2 km x 1 km footprint is a 2:1 image), is
 rendered at about 4x the output resolution (never finer than the texture) and then squashed to
