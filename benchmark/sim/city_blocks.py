@@ -125,6 +125,19 @@ def _buildings(S: Style, cv: Canvas, P: BlockPixels, inb, pkey, eave, roof, gabl
     return inb
 
 
+def _roof_details(S: Style, cv: Canvas, P: BlockPixels, roof, pkey, d, along, D, pw, chim):
+    """Solar panels on the street-side slope of some gabled roofs (fewer in the earlier city) and
+    brick-coloured chimney stacks."""
+    solar = hash01(pkey, cv.seed, 15) < S.solar_prob
+    if cv.change:
+        solar &= hash01(pkey, cv.change, 16) < 0.5  # many panels were installed later
+    panel = roof & solar & (d > 1.2) & (d < 0.5 * D - 1.0) & (np.abs(along) < 0.3 * pw)
+    grid = ((d % 1.7) < 0.15) | ((along % 1.1) < 0.12)
+    colour = np.where(grid[:, None], np.float32((70, 76, 90)), np.float32((34, 42, 66)))
+    _set(cv, P.idx, panel, rgb=colour)
+    _set(cv, P.idx, chim, rgb=np.asarray((128, 74, 58), np.float32))
+
+
 def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
     """Buildings round the block perimeter (terraces, or slabs when ``high``), gardens inside."""
     hb = lambda k: hash01(P.key, cv.seed, k)  # noqa: E731
@@ -180,7 +193,11 @@ def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
     roof = np.where(ext, ext_h, roof)
     gable = gable & ~ext
     inb = inb | ext
+    # Chimney stacks on the ridge at the parcel walls of gabled terraces.
+    chim = gable & inb & (np.abs(d - 0.5 * D) < 0.9) & ((along - (pc - 0.5 * pw)) < 1.6)
+    roof = np.where(chim, eave + pitch * 0.5 * D + 1.2, roof)
     inb = _buildings(S, cv, P, inb, pkey, eave, roof, gable, high)
+    _roof_details(S, cv, P, inb & gable & ~chim, pkey, d, along - pc, D, pw, chim & inb)
     ins = ((d >= D) | gap) & ~inb
     # Courtyards: gardens, or paved service yards.
     paved = hash01(P.key, cv.seed, 9) < (S.paved_yard if high else 0.5 * S.paved_yard)

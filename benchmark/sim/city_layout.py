@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmark.sim import city_blocks as cb
+from benchmark.sim import city_details as cd
 from benchmark.sim.city_nature import SEASON_GRASS, plant_trees, river_distance, terrain
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
 from benchmark.sim.textures import fine_grain, hash01, smooth_noise
@@ -153,8 +154,15 @@ def generate(
     pav = np.asarray(S.pavement, np.float32)
     rgb[walk] = pav * (1.0 + 0.04 * grain[walk][:, None])
     tree[walk] = S.tree_street
+    no_parking = np.zeros((H, W), bool)
+    if S.bus_lanes:
+        no_parking |= cd.bus_lanes(rgb, on_u & ~on_v, du, hu, dv, hv, wu[ku], S)
+        no_parking |= cd.bus_lanes(rgb, on_v & ~on_u, dv, hv, du, hu, wv[kv], S)
     _markings(rgb, u, v, du, hu, dv, hv, on_u, on_v, wu[ku], wv[kv], S)
-    _street_cars(cv, u, v, du, hu, dv, hv, on_u, on_v, ku, kv, seed, change)
+    _street_cars(
+        cv, u, v, du, hu, dv, hv, on_u & ~no_parking, on_v & ~no_parking, ku, kv, seed, change
+    )
+    del no_parking
 
     # Blocks.
     lu = u - ulo - 0.5 * wu[ku] - sw
@@ -200,10 +208,17 @@ def generate(
         elif name == "parking":
             cb.fill_parking(S, cv, P)
         elif name == "lawn":
-            cb.fill_lawn(S, cv, P)
+            cd.fill_lawn(S, cv, P)
         else:
-            cb.fill_plaza(S, cv, P)
+            cd.fill_plaza(S, cv, P)
     del lu, lv, bw, bh, park_a, park_b, district
+
+    rail = np.zeros((H, W), bool)
+    if S.railway:
+        major = (on_u & (wu[ku] >= S.road_major)) | (on_v & (wv[kv] >= S.road_major))
+        rail = cd.add_railway(rng("railway"), cv, E, N, major.ravel(), 0.5 * H * mpp, S)
+        rail = rail.reshape(H, W)
+        del major
 
     # River: water band, grassy banks with a towpath, major streets bridge it.
     if S.river_width > 0:
@@ -218,7 +233,7 @@ def generate(
             lines = on_u & (wu[ku] >= S.road_major) & (hash01(ku, seed, 61) < 0.5)
         else:
             lines = on_v & (wv[kv] >= S.road_major) & (hash01(kv, seed, 61) < 0.5)
-        bridge = (d < half + 14.0) & lines
+        bridge = (d < half + 14.0) & (lines | rail)
         water = (d < half) & ~bridge
         grass = np.asarray(S.grass, np.float32)
         sel = bank & ~bridge

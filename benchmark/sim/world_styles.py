@@ -64,6 +64,10 @@ class Style:
     paved_yard: float  # share of slab courtyards that are paved (the rest are gardens / quads)
     terrain_amp: float  # metres, peak-to-peak about twice this
     river_width: float  # 0 = no river
+    church_prob: float = 0.0  # share of plazas holding a church with a spire
+    solar_prob: float = 0.0  # share of gabled parcels with solar panels
+    railway: bool = False
+    bus_lanes: bool = False
 
 
 STYLE_TABLE: dict[str, Style] = {
@@ -109,6 +113,8 @@ STYLE_TABLE: dict[str, Style] = {
         paved_yard=0.15,
         terrain_amp=8.0,
         river_width=34.0,
+        church_prob=0.7,
+        solar_prob=0.06,
     ),
     "cambridge": Style(
         name="cambridge",
@@ -152,6 +158,8 @@ STYLE_TABLE: dict[str, Style] = {
         paved_yard=0.2,
         terrain_amp=3.0,
         river_width=24.0,
+        church_prob=0.5,
+        solar_prob=0.15,
     ),
     "london": Style(
         name="london",
@@ -204,6 +212,10 @@ STYLE_TABLE: dict[str, Style] = {
         paved_yard=0.6,
         terrain_amp=10.0,
         river_width=120.0,
+        church_prob=0.2,
+        solar_prob=0.04,
+        railway=True,
+        bus_lanes=True,
     ),
     "industrial": Style(
         name="industrial",
@@ -247,6 +259,7 @@ STYLE_TABLE: dict[str, Style] = {
         paved_yard=0.8,
         terrain_amp=4.0,
         river_width=0.0,
+        railway=True,
     ),
 }
 
