@@ -64,7 +64,8 @@ class TestTrain:
 
         with pytest.raises(KeyboardInterrupt):
             run(cfg, tiny_data, tmp_path / "resumed", on_epoch_end=kill_after_first_epoch)
-        assert load_checkpoint(tmp_path / "resumed" / CHECKPOINT)["epoch"] == 1
+        interrupted = load_checkpoint(tmp_path / "resumed" / CHECKPOINT)
+        assert interrupted["epoch"] == 1 and interrupted["optimizer"]["state"]  # momentum kept
         seen = []
         resumed = run(
             cfg, tiny_data, tmp_path / "resumed", on_epoch_end=lambda e, m: seen.append((e, m))
@@ -104,6 +105,7 @@ class TestTrain:
         assert 0 <= first["val_dphi_deg"] <= 180
         ckpt = load_checkpoint(res.checkpoint)
         assert ckpt["epoch"] == 2 and ckpt["config"]["optim"]["batch_size"] == 4
+        assert ckpt["optimizer"] is None  # finished: the optimiser state is dropped
         model = load_trained_model(res.checkpoint)
         assert same_state(model, res.model) and not model.training
 
