@@ -160,6 +160,15 @@ def trace(
             hy = oy + th * dy
             lod = math.log2(max(th * pix_angle / math.sqrt(max(abs(dz), 0.02)) / mpp, 1e-6))
             col = _trilinear_rgb(tex, toff, tdims, lod, hx, hy)
+            if mat[_mirror(cj, hdims[0, 0]), _mirror(ci, hdims[0, 1])] == MAT_WATER:
+                # Water reflects the sky, strongly at grazing angles (Schlick's Fresnel, n=1.33).
+                fr = 0.02 + 0.98 * (1.0 - abs(dz)) ** 5
+                sk = _sky(-dz, params)
+                col = (
+                    col[0] * (1.0 - fr) + sk[0] * fr,
+                    col[1] * (1.0 - fr) + sk[1] * fr,
+                    col[2] * (1.0 - fr) + sk[2] * fr,
+                )
             return _fog(col, th, params)
         # Side face: which texel did the ray come from?
         if axis == 0:
