@@ -14,6 +14,9 @@ the last epoch's checkpoint.
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import hashlib
+import json
 import sys
 from pathlib import Path
 
@@ -61,26 +64,14 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(
             "no dataset: pass --set data.root=DIR (a directory from uavbench simulate)"
         )
-    run_key = config_hash(cfg)
-    out = args.out or Path("runs") / f"train-{run_key}"
     eval_splits = args.eval_splits or ["standard/test"]
-
+    from benchmark.data import list_splits
     from benchmark.tracking import create_tracker, git_commit, manifest_sha256
 
-    tracker = create_tracker("null" if args.no_track else "mlflow", args.tracking_uri)
-    done = tracker.find_finished_run(args.experiment, run_key)
-    if done is not None and not args.force:
-        print(
-            f"already finished: run {done.run_id} ({done.backend}) has config {run_key}; "
-            "--force reruns"
-        )
-        return 0
     try:
         manifest = manifest_sha256(cfg.data.root)
     except FileNotFoundError as err:
         raise UsageError(f"data.root: {err}") from None
-    from benchmark.data import list_splits
-
     available = list_splits(cfg.data.root)
     wanted = {"data.train_split": cfg.data.train_split, "data.val_split": cfg.data.val_split}
     wanted.update({f"--eval-split {s}": s for s in eval_splits})
@@ -90,8 +81,23 @@ def run(args: argparse.Namespace) -> int:
                 f"{what}={split!r} is not a split of {cfg.data.root}; available: "
                 f"{', '.join(available)}"
             )
+    # The run's identity: config, evaluated splits and dataset content (not where it lives).
+    portable = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""))
+    identity = json.dumps([config_hash(portable), sorted(eval_splits), manifest])
+    run_key = hashlib.sha256(identity.encode()).hexdigest()[:16]
+    out = args.out or Path("runs") / f"train-{config_hash(cfg)}"
+
+    tracker = create_tracker("null" if args.no_track else "mlflow", args.tracking_uri)
+    done = tracker.find_finished_run(args.experiment, run_key)
+    if done is not None and not args.force:
+        print(
+            f"already finished: run {done.run_id} ({done.backend}) has this config, splits and "
+            "dataset; --force reruns"
+        )
+        return 0
     tags = {
         "run_key": run_key,
+        "config_hash": config_hash(cfg),
         "head": cfg.model.attitude,
         "translation_head": cfg.model.translation,
         "encoder": f"{cfg.model.encoder}:{cfg.model.variant}",
@@ -103,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
     variant = "plain" if cfg.model.variant == "/" else cfg.model.variant
     name = f"{cfg.model.attitude}/{variant}/seed{cfg.seed}"
     out.mkdir(parents=True, exist_ok=True)
-    save_yaml(cfg, out / "config.yaml", header=f"uavbench train config {run_key}")
+    save_yaml(cfg, out / "config.yaml", header=f"uavbench train config {config_hash(cfg)}")
     from benchmark.data import DatasetError
     from benchmark.training.loop import NonFiniteLossError
 
