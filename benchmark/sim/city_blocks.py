@@ -247,55 +247,6 @@ def fill_detached(S: Style, cv: Canvas, P: BlockPixels) -> None:
     _buildings(S, cv, P, inh, pkey, eave, roof, gable, False)
 
 
-def fill_warehouse(S: Style, cv: Canvas, P: BlockPixels) -> None:
-    """1-3 big flat-roofed sheds per block with concrete yards, trailers and trucks."""
-    hb = lambda k: hash01(P.key, cv.seed, k)  # noqa: E731
-    along_u = P.bw >= P.bh
-    L = np.where(along_u, P.bw, P.bh)
-    x = np.where(along_u, P.lu, P.lv)  # along the long side
-    y = np.where(along_u, P.lv, P.lu)
-    W = np.where(along_u, P.bh, P.bw)
-    n = 1 + (hb(1) * 3).astype(np.int64)
-    part = np.minimum(np.floor(x / (L / n)).astype(np.int64), n - 1)
-    x0 = part * (L / n)
-    xl = x - x0
-    pl = L / n
-    pkey = P.key * 1009 + part
-    hp = lambda k: hash01(pkey, cv.seed, k)  # noqa: E731
-    mx = lerp((5.0, 12.0), hp(2))
-    front = lerp((16.0, 30.0), hp(3))  # yard depth in front of the shed
-    back = lerp((4.0, 10.0), hp(4))
-    inb = (xl > mx) & (xl < pl - mx) & (y > front) & (y < W - back)
-    inb &= (pl - 2 * mx > 15.0) & (W - front - back > 15.0)
-    eave = lerp(S.height_high, hp(5))
-    # Skylight strips across the roof every 6-10 m; a few sheds have a low-pitch double roof.
-    sp = lerp((6.0, 10.0), hp(6))
-    sky = ((xl % sp) < 1.2) & (hp(7) < 0.6)
-    gable = hp(8) < S.gable_prob
-    yr = y - front
-    wr = W - front - back
-    roof = eave + np.where(gable, np.minimum(0.12 * (0.5 * wr - np.abs(yr - 0.5 * wr)), 3.0), 0.0)
-    inb = _buildings(S, cv, P, inb, pkey, eave, roof, gable, True)
-    sel = inb & sky
-    cv.rgb[P.idx[sel]] = cv.rgb[P.idx[sel]] * 0.55 + np.float32(0.45 * 235.0)
-    g = cv.grain[P.idx]
-    conc = np.asarray(S.pavement, np.float32)[None, :] * (0.9 + 0.05 * g[:, None])
-    yard = ~inb
-    _set(cv, P.idx, yard, rgb=conc, mat=MAT_GROUND, tree=0.0)
-    # Trailers (13.6 x 2.6 m) parked nose-in along the yard's front band, 4 m slots.
-    slot = np.floor(xl / 4.0).astype(np.int64)
-    sx = xl - (slot + 0.5) * 4.0
-    occ = hash01(pkey, slot, cv.seed, cv.change, 13) < 0.55
-    trailer = occ & (np.abs(sx) < 1.3) & (y > 2.0) & (y < 15.6) & (front > 17.0) & yard
-    trailer &= (xl > 2.0) & (xl < pl - 2.0)
-    tcol = pick(TRAILER_COLOURS, hash01(pkey, slot, cv.seed, cv.change, 14))
-    tcol = tcol * (1.0 - 0.25 * (np.abs(sx) > 1.0))[:, None]
-    _set(cv, P.idx, trailer, struct=3.9, rgb=tcol, mat=MAT_SMALL)
-    # Yard markings: painted bay lines.
-    bay = yard & ~trailer & (np.abs(sx) > 1.85) & (y > 1.0) & (y < 16.0) & (front > 17.0)
-    cv.rgb[P.idx[bay]] = np.float32(220.0)
-
-
 def fill_parking(S: Style, cv: Canvas, P: BlockPixels) -> None:
     """Asphalt lot with stall lines and cars: rows of 5 m stalls either side of 6 m aisles."""
     g = cv.grain[P.idx]
@@ -379,5 +330,4 @@ __all__ = [
     "fill_parking",
     "fill_plaza",
     "fill_terrace",
-    "fill_warehouse",
 ]

@@ -19,6 +19,7 @@ import numpy as np
 
 from benchmark.sim import city_blocks as cb
 from benchmark.sim import city_details as cd
+from benchmark.sim import city_industry as ci
 from benchmark.sim.city_nature import SEASON_GRASS, plant_trees, river_distance, terrain
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
 from benchmark.sim.textures import fine_grain, hash01, smooth_noise
@@ -202,7 +203,7 @@ def generate(
         elif name == "detached":
             cb.fill_detached(S, cv, P)
         elif name == "warehouse":
-            cb.fill_warehouse(S, cv, P)
+            ci.fill_warehouse(S, cv, P)
         elif name == "park":
             cb.fill_park(S, cv, P, park_a.ravel()[sel], park_b.ravel()[sel])
         elif name == "parking":
