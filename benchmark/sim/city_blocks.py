@@ -161,8 +161,12 @@ def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
     roof = eave + np.where(gable, ridge, 0.0)
     inb = (d < D) & ~gap & (P.bw > 8.0) & (P.bh > 8.0)
     if high:
-        # Parapets and rooftop plant on flat roofs.
+        # Some slabs carry a recessed upper block (podium + setback storeys).
         flat = inb & ~gable
+        setback = flat & (hp(17) < 0.35) & (d > 3.5) & (d < D - 3.5)
+        extra = np.minimum(lerp((6.0, 14.0), hp(18)), MAX_EAVE_M + 4.0 - eave)
+        roof = roof + np.where(setback, np.maximum(extra, 0.0), 0.0)
+        # Parapets and rooftop plant on flat roofs.
         cell = 9.0
         cu = np.floor(P.lu / cell)
         cvv = np.floor(P.lv / cell)
