@@ -15,10 +15,12 @@ from benchmark.cli import UsageError
 
 TARGETS: dict[str, str] = {
     "simulate": "benchmark.data.bench_simulate:main",
+    "train": "benchmark.training.bench:main",
 }
 
 TARGET_HELP: dict[str, str] = {
     "simulate": "pairs/s at 96 and 224 px with all workers, and the time to build a city",
+    "train": "training pairs/s (quick and paper model) and the ratio to a plain reference loop",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

@@ -95,6 +95,7 @@ class Progress:
         if not force and now - self._last_draw < self._log_every and self.count < self.total:
             return
         self._last_draw = now
+        self._drawn = (self.count, self.postfix)
         if self._tty:
             self.stream.write("\r" + self.line() + "\x1b[K")
         else:
@@ -104,7 +105,8 @@ class Progress:
     def close(self) -> None:
         if not self.enabled:
             return
-        self._draw(force=True)
+        if getattr(self, "_drawn", None) != (self.count, self.postfix):
+            self._draw(force=True)  # the final state, unless it is already on screen
         if self._tty:
             self.stream.write("\n")
             self.stream.flush()

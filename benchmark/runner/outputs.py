@@ -8,7 +8,6 @@ import platform
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import torch
 
@@ -55,28 +54,13 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
 
 
 def constant_baseline(data_root: Path, train_split: str, eval_split: str) -> dict[str, float]:
-    """Errors of predicting the training set's mean pose for every pair (no image is read).
-
-    The mean rotation is the chordal L2 mean (``special_orthogonalize`` of the mean matrix), the
-    mean translation the arithmetic mean.
-    """
+    """Errors of always predicting the training set's mean pose (no image is read)."""
     from benchmark.data.dataset import PairDataset
-    from benchmark.evaluation.metrics import predictions_frame
-    from benchmark.evaluation.metrics import summarize as summarize_frame
-    from benchmark.geometry import special_orthogonalize
+    from benchmark.evaluation.reference import constant_predictor
 
-    def labels(split: str) -> tuple[torch.Tensor, torch.Tensor]:
-        poses = PairDataset(data_root, split, verify="size").poses
-        columns = [f"R{i}{j}" for i in range(3) for j in range(3)]
-        R = torch.tensor(poses[columns].to_numpy(np.float64))
-        T = torch.tensor(poses[["dE", "dN", "dU"]].to_numpy(np.float64))
-        return R.reshape(-1, 3, 3), T
-
-    R_train, T_train = labels(train_split)
-    R_test, T_test = labels(eval_split)
-    R_mean = special_orthogonalize(R_train.mean(0)).expand_as(R_test)
-    T_mean = T_train.mean(0).expand_as(T_test)
-    return summarize_frame(predictions_frame(R_mean, R_test, T_mean, T_test))
+    train = PairDataset(data_root, train_split, verify="size")
+    summary, _ = constant_predictor(train, PairDataset(data_root, eval_split, verify="size"))
+    return summary
 
 
 def cost_table(
