@@ -50,6 +50,14 @@ class TestSharedSatellite:
         for a, b in zip(plain.aux_attitude, shared.aux_attitude, strict=True):
             assert_outputs_close(a, b, **tol)
 
+    def test_batchnorm_encoder_exact_in_eval_mode(self):
+        model = small_model(variant="a-f", encoder_kwargs={"norm": "batch"})
+        uav, sat, ids, _, _ = batch()
+        model.train()(uav, sat)  # move the running statistics away from their initial values
+        model.eval()
+        plain, shared = model(uav, sat), model(uav, sat, ids)
+        torch.testing.assert_close(plain.attitude, shared.attitude, rtol=1e-4, atol=1e-5)
+
     def test_encodes_each_satellite_once(self):
         model = small_model(variant="/").eval()
         seen = []
