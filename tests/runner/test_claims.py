@@ -1,0 +1,132 @@
+"""Claim checks on hand-made summaries: verdicts follow the numbers, noise is not a win."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+
+from benchmark.runner.claims import (
+    CONTRADICTED,
+    NOT_RUN,
+    PARTLY,
+    SUPPORTED,
+    evaluate_claims,
+    kappa_claim,
+    representation_claim,
+    translation_claim,
+)
+
+NAN = math.nan
+
+
+def summary(rows: list[tuple]) -> pd.DataFrame:
+    """rows: (label, split, x, {metric: (mean, lo, hi)})"""
+    out = []
+    for label, split, x, metrics in rows:
+        row = {"label": label, "split": split, "x": x}
+        for m, (mean, lo, hi) in metrics.items():
+            row |= {m: mean, f"{m}_lo": lo, f"{m}_hi": hi}
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def table(split: str, values: dict[str, float]) -> pd.DataFrame:
+    return summary([(k, split, None, {"dphi_deg": (v, NAN, NAN)}) for k, v in values.items()])
+
+
+HEADS = [
+    "Pd/Re-Net",
+    "Pd-Net-Rv",
+    "Pd-Net-E",
+    "Pd-Net-Q",
+    "Re-Net-R",
+    "Re-Net-Rv",
+    "Re-Net-E",
+    "Re-Net-Q",
+]
+
+
+class TestRepresentationClaim:
+    def test_supported_when_matrix_wins_everywhere(self):
+        values = dict(zip(HEADS, [5, 9, 9, 9, 6, 9, 9, 9], strict=True))
+        s = {"table1": table("standard/test", values), "table2": table("generalized/test", values)}
+        assert representation_claim(s).verdict == SUPPORTED
+
+    def test_contradicted_when_matrix_never_wins(self):
+        values = dict(zip(HEADS, [9, 5, 5, 5, 9, 5, 5, 5], strict=True))
+        assert (
+            representation_claim({"table1": table("standard/test", values)}).verdict == CONTRADICTED
+        )
+
+    def test_partly(self):
+        values = dict(zip(HEADS, [5, 9, 9, 9, 9, 5, 5, 5], strict=True))
+        assert representation_claim({"table1": table("standard/test", values)}).verdict == PARTLY
+
+    def test_not_run(self):
+        assert representation_claim({}).verdict == NOT_RUN
+
+
+class TestNoise:
+    def test_overlapping_intervals_do_not_count_as_a_win(self):
+        s = summary(
+            [
+                ("Pd/Re-Net", "standard/test", None, {"dphi_deg": (5.0, 3.0, 7.0)}),
+                ("Re-Net-R", "standard/test", None, {"dphi_deg": (6.0, 4.0, 8.0)}),
+            ]
+        )
+        claims = {c.source: c for c in evaluate_claims({"table1": s})}
+        assert claims["Tables 1-2, δθ δγ δψ δφ"].verdict == CONTRADICTED  # a tie within noise
+
+
+class TestTranslationClaim:
+    def test_distribution_clearly_better_contradicts(self):
+        rows = [
+            (
+                "Pd/Re-Net",
+                "standard/test",
+                None,
+                {m: (10.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
+            ),
+            (
+                "Re-Net-T",
+                "standard/test",
+                None,
+                {m: (5.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
+            ),
+        ]
+        assert translation_claim({"table3": summary(rows)}).verdict == CONTRADICTED
+
+    def test_similar_errors_support(self):
+        rows = [
+            (
+                "Pd/Re-Net",
+                "standard/test",
+                None,
+                {m: (10.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
+            ),
+            (
+                "Re-Net-T",
+                "standard/test",
+                None,
+                {m: (9.5, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
+            ),
+        ]
+        assert translation_claim({"table3": summary(rows)}).verdict == SUPPORTED
+
+
+class TestKappaClaim:
+    def test_best_kappa(self):
+        rows = [("Pd/Re-Net", "standard/test", x, {"dphi_deg": (v, NAN, NAN)}) for x, v in
+                (("1", 9), ("5", 7), ("10", 5), ("20", 6), ("50", 8))]  # fmt: skip
+        assert kappa_claim({"fig7": summary(rows)}).verdict == SUPPORTED
+        rows[0] = ("Pd/Re-Net", "standard/test", "1", {"dphi_deg": (1.0, NAN, NAN)})
+        claim = kappa_claim({"fig7": summary(rows)})
+        assert claim.verdict == CONTRADICTED and "best κ = 1" in claim.evidence
+
+
+class TestAllClaims:
+    def test_every_claim_reports_not_run_without_results(self):
+        claims = evaluate_claims({})
+        assert len(claims) == 10
+        assert {c.verdict for c in claims} == {NOT_RUN}

@@ -1,0 +1,86 @@
+"""Planning: shared models are trained once, keys are portable and stable."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from benchmark.runner.plan import job_key, plan_units, val_split_for
+from benchmark.runner.profiles import PROFILES
+from benchmark.runner.specs import load_specs
+
+SPLITS = (
+    ["standard/train", "standard/val", "standard/test", "generalized/test"]
+    + [f"flight/pitch{p}" for p in (0, -10, -50)]
+    + [f"height{h}/{part}" for h in (600, 800, 1000, 1200, 1400) for part in ("train", "test")]
+    + [f"pitch{a}to{b}/test" for a, b in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50))]
+)
+
+
+def plan(seeds=(0,), root="/data/a", only=None):
+    return plan_units(
+        load_specs(only=only), PROFILES["quick"], list(seeds), Path(root), SPLITS, "h"
+    )
+
+
+class TestPlanUnits:
+    def test_every_table_trains_26_models_per_seed(self):
+        # 8 attitude heads + Re-Net-T + 2 heads x 5 heights + 4 other kappas + 3 other encoders
+        assert len(plan()) == 26
+        assert len(plan(seeds=(0, 1, 2))) == 78
+
+    def test_pd_re_net_is_shared_across_tables(self):
+        units = plan()
+        shared = [
+            u for u in units if any(j.table == "table1" and j.label == "Pd/Re-Net" for j in u.jobs)
+        ]
+        assert len(shared) == 1
+        tables = {j.table for j in shared[0].jobs}
+        # kappa 10 of Fig. 7 and variant "/" of Fig. 9 are the same model as Table 1's
+        assert tables == {"table1", "table2", "table3", "table4", "fig6", "fig7", "fig9"}
+        assert shared[0].cfg.loss.kappa is None
+
+    def test_eval_splits_are_the_union(self):
+        unit = next(
+            u
+            for u in plan()
+            if u.cfg.model.attitude == "re_net_r" and u.cfg.data.train_split == "standard/train"
+        )
+        assert "generalized/test" in unit.eval_splits and "pitch0to-10/test" in unit.eval_splits
+        assert "flight/pitch0" in unit.eval_splits  # Re-Net of Table 5
+
+    def test_keys_do_not_depend_on_the_data_path(self):
+        assert [u.key for u in plan(root="/a")] == [u.key for u in plan(root="/elsewhere/b")]
+
+    def test_keys_depend_on_seed_and_dataset(self):
+        a = plan_units(
+            load_specs(only=["table1"]), PROFILES["quick"], [0], Path("/d"), SPLITS, "h1"
+        )
+        b = plan_units(
+            load_specs(only=["table1"]), PROFILES["quick"], [0], Path("/d"), SPLITS, "h2"
+        )
+        assert {u.key for u in a}.isdisjoint({u.key for u in b})
+        assert len({u.key for u in plan(seeds=(0, 1))}) == 52
+
+    def test_missing_split_is_reported(self):
+        with pytest.raises(ValueError, match="no split"):
+            plan_units(
+                load_specs(only=["fig5"]),
+                PROFILES["quick"],
+                [0],
+                Path("/d"),
+                ["standard/train"],
+                "h",
+            )
+
+    def test_job_keys_differ_per_table(self):
+        unit = plan()[0]
+        keys = {job_key(j, unit.key) for j in unit.jobs}
+        assert len(keys) == len(unit.jobs)
+
+
+class TestValSplitFor:
+    def test_only_when_present(self):
+        assert val_split_for("standard/train", SPLITS) == "standard/val"
+        assert val_split_for("height600/train", SPLITS) is None

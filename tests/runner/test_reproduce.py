@@ -1,0 +1,117 @@
+"""``uavbench reproduce`` end to end on the smoke profile: every table, idempotence, failures."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+
+import pandas as pd
+import pytest
+
+from benchmark.cli import main
+from benchmark.runner import profiles as profiles_module
+from benchmark.runner.specs import load_specs
+
+
+def reproduce(tmp_path, dataset, *extra: str) -> int:
+    out, workdir = str(tmp_path / "reports"), str(tmp_path / "runs")
+    return main([
+        "reproduce", "--profile", "smoke", "--data", str(dataset), "--out", out,
+        "--workdir", workdir, "--tracker", "local", "--quiet", *extra,
+    ])  # fmt: skip
+
+
+def run_statuses(tmp_path) -> list[dict]:
+    return [json.loads(p.read_text()) for p in (tmp_path / "tracking-local").rglob("run.json")]
+
+
+@pytest.fixture(scope="module")
+def full_run(tmp_path_factory, smoke_dataset):
+    """Every table and figure of the smoke profile, run once for this module."""
+    tmp = tmp_path_factory.mktemp("repro")
+    previous = os.getcwd()
+    os.chdir(tmp)  # the tracking store lives in the working directory
+    try:
+        code = reproduce(tmp, smoke_dataset, "--jobs", "1")
+    finally:
+        os.chdir(previous)
+    return tmp, code
+
+
+class TestReproduceSmoke:
+    def test_exit_code_and_every_report(self, full_run):
+        tmp, code = full_run
+        assert code == 0
+        reports = tmp / "reports"
+        for spec in load_specs():
+            text = (reports / f"{spec.name}.md").read_text()
+            assert "not run" not in text, spec.name
+            if spec.kind == "sweep":
+                assert (reports / f"{spec.name}.png").stat().st_size > 0
+        readme = (reports / "README.md").read_text()
+        assert readme.count("| **") == 10  # ten claims, each with a verdict
+
+    def test_results_cover_every_job_and_split(self, full_run):
+        tmp, _ = full_run
+        results = pd.read_csv(tmp / "reports" / "results.csv")
+        expected = {
+            (s.name, j.label, str(j.x), split)
+            for s in load_specs()
+            for j in s.jobs()
+            for split in j.eval_splits
+        }
+        got = {
+            (r.table, r.label, str(r.x) if pd.notna(r.x) else "None", r.split)
+            for r in results.itertuples()
+        }
+        assert expected <= got
+        trained = results[results.label != "Constant (train mean)"]
+        assert trained[["dphi_deg", "dE_m"]].notna().all().all()
+
+    def test_paper_numbers_beside_ours(self, full_run):
+        tmp, _ = full_run
+        table1 = (tmp / "reports" / "table1.md").read_text()
+        assert "| Pd/Re-Net | 1.34 |" in table1  # paper Table 1, dtheta of Pd/Re-Net
+        table6 = (tmp / "reports" / "table6.md").read_text()
+        assert "65.60" in table6 and "95.60" in table6
+
+    def test_tracked_runs(self, full_run):
+        tmp, _ = full_run
+        runs = run_statuses(tmp)
+        nested = [r for r in runs if r.get("parent_run_id")]
+        jobs = sum(len(s.jobs()) for s in load_specs())
+        assert sum(r["status"] == "FINISHED" for r in nested) >= jobs
+        tags = next(r["tags"] for r in nested if r["tags"].get("table") == "table1")
+        for key in (
+            "table",
+            "head",
+            "encoder",
+            "seed",
+            "git_commit",
+            "dataset_manifest",
+            "run_key",
+        ):
+            assert key in tags
+
+    def test_second_invocation_runs_nothing(self, full_run, smoke_dataset, capsys, monkeypatch):
+        tmp, _ = full_run
+        monkeypatch.chdir(tmp)
+        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        assert "26 training runs (26 already in the tracking store)" in capsys.readouterr().out
+
+
+class TestReproduceFailures:
+    def test_non_finite_loss_marks_run_failed(self, tmp_path, smoke_dataset, monkeypatch, capsys):
+        broken = dataclasses.replace(profiles_module.PROFILES["smoke"], lr=1e30, optimizer="sgd")
+        monkeypatch.setitem(profiles_module.PROFILES, "smoke", broken)
+        monkeypatch.chdir(tmp_path)
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "2") == 1
+        out = capsys.readouterr().out
+        assert "FAILED" in out and "non-finite" in out.lower()
+        statuses = [r["status"] for r in run_statuses(tmp_path)]
+        assert "FAILED" in statuses and "FINISHED" not in statuses
+
+    def test_unknown_table_exits_2(self, tmp_path, smoke_dataset, capsys):
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table42") == 2
+        assert "unknown table" in capsys.readouterr().err
