@@ -59,14 +59,7 @@ def _render(
     fog: bool,
 ) -> np.ndarray:
     out = np.empty((height, width, 3), np.uint8)
-    rc.render_image(
-        out,
-        np.ascontiguousarray(R),
-        pos,
-        float(f),
-        float(cx),
-        float(cy),
-        int(ss),
+    world = (
         city.hpyr,
         city.hoff,
         city.hdims,
@@ -78,6 +71,9 @@ def _render(
         city.ground,
         city.palette,
         _params(city, fog=fog),
+    )
+    rc.render_image(
+        out, np.ascontiguousarray(R), pos, float(f), float(cx), float(cy), int(ss), world
     )
     return out
 

@@ -288,3 +288,18 @@ class TestRenderSatellite:
             render_satellite(city, np.array([0.0, 0.0]), size=0)
         with pytest.raises(ValueError, match="footprint_m"):
             render_satellite(city, np.array([0.0, 0.0]), size=32, footprint_m=(-1.0, 5.0))
+
+
+class TestMirrorTiling:
+    def test_convention_mirrored_copy_renders_the_mirror_image(self, city):
+        # Beyond the eastern edge the world is the tile reflected in E = E_max: a camera reflected
+        # there (E -> 2 E_max - E, yaw -> -yaw, roll -> -roll) sees the left-right flipped image.
+        _, e_max, _, _ = city.extent
+        cam = Camera.square(64, 70.0)
+        e, n = e_max - 60.0, 15.0
+        u = float(city.ground_height(e, n)) + 70.0
+        yaw, pitch, roll = 1.1, -0.45, 0.07
+        a = render_uav(city, np.array([e, n, u]), yaw, pitch, roll, cam).astype(int)
+        b = render_uav(city, np.array([2 * e_max - e, n, u]), -yaw, pitch, -roll, cam).astype(int)
+        diff = np.abs(a - b[:, ::-1])
+        assert np.mean(diff) < 1.0 and np.percentile(diff, 99) <= 8
