@@ -17,7 +17,9 @@ import os
 import sys
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -65,6 +67,12 @@ def bench_poses(city, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
     return df
 
 
+def _bench_cities(style: str, seed: int, cache: Path) -> dict[tuple[str, str], Any]:
+    from benchmark.sim import build_city
+
+    return {(style, "now"): build_city(style, seed, cache_dir=cache)}
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     from benchmark.cli import UsageError
@@ -78,7 +86,7 @@ def main(argv: list[str]) -> int:
         raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
     single_thread_env()
     from benchmark.data.profiles import PROFILES
-    from benchmark.data.writer import _Context, render_sat_rows, run_tasks
+    from benchmark.data.writer import RenderPool, _Context, render_sat_rows
     from benchmark.sim import build_city
     from benchmark.sim.splits import city_seed
 
@@ -129,15 +137,18 @@ def main(argv: list[str]) -> int:
                 poses,
                 sat_rows,
             )
-            # warm-up in the parent: JIT compilation is inherited by the forked workers
-            list(run_tasks(dataclasses.replace(ctx, uav=poses.iloc[:1]), [("uav", 0)], 1))
             t0 = time.perf_counter()
-            render_sat_rows(ctx, sat_rows)
+            render_sat_rows(ctx, sat_rows)  # also compiles/loads the renderer in this process
             sat_s = time.perf_counter() - t0
             tasks = [("uav", k) for k in range(math.ceil(n / shard))]
-            t0 = time.perf_counter()
-            done = sum(m for _, _, m in run_tasks(ctx, tasks, args.workers))
-            rate = done / (time.perf_counter() - t0)
+            factory = partial(_bench_cities, args.style, seed, cache)
+            with RenderPool(ctx, args.workers, factory) as pool:
+                t0 = time.perf_counter()
+                pool.warm_up()  # worker start-up (imports, city load) is not rendering
+                startup_s = time.perf_counter() - t0
+                t0 = time.perf_counter()
+                done = sum(m for _, _, m in pool.imap(tasks))
+                rate = done / (time.perf_counter() - t0)
             target = TARGETS_PAIRS_PER_S.get(size)
             verdict = ""
             if target is not None:
@@ -148,7 +159,8 @@ def main(argv: list[str]) -> int:
             print(
                 f"{size:4d} px: {rate:7.1f} pairs/s over {done} pairs, "
                 f"supersample {profile.supersample}"
-                f"{verdict}; satellite image {1e3 * sat_s:.0f} ms"
+                f"{verdict}; satellite image {1e3 * sat_s:.0f} ms; "
+                f"worker start-up {startup_s:.1f} s (not counted)"
             )
             sys.stdout.flush()
     return 1 if failed and args.strict else 0

@@ -30,7 +30,7 @@ class CameraEffects:
     read_noise_dn: tuple[float, float] = (1.0, 4.0)  # std in 0-255 units
     shot_noise: tuple[float, float] = (0.02, 0.12)  # variance per DN of signal
     vignetting: tuple[float, float] = (0.0, 0.25)  # relative darkening at the corners
-    jpeg_quality: tuple[int, int] = (55, 90)
+    jpeg_quality: tuple[int, int] | None = (55, 90)  # None: no JPEG coding
 
 
 def _motion_kernel(length: float, angle: float) -> np.ndarray:
@@ -92,6 +92,8 @@ def apply_camera_effects(
     img = 255.0 * img ** np.float32(rng.uniform(*fx.gamma))
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
+    if fx.jpeg_quality is None:
+        return out
     quality = int(rng.integers(fx.jpeg_quality[0], fx.jpeg_quality[1] + 1))
     ok, buf = cv2.imencode(".jpg", out[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:  # pragma: no cover - cv2 always encodes a valid uint8 image

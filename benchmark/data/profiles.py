@@ -43,7 +43,8 @@ class Profile:
     fov_deg: float = 60.0  # horizontal field of view of the UAV camera
     supersample: int = 2
     shard_size: int = 256  # UAV images per .npy shard
-    city_scale: float = 1.0  # passed to build_city when the world builder supports it
+    city_size_m: tuple[float, float] | None = None  # build_city size_m; None: its default tile
+    city_metres_per_px: float = 1.0
 
     def __post_init__(self) -> None:
         if self.image_size < 8:
@@ -108,7 +109,8 @@ PROFILES: dict[str, Profile] = {
         frame_stride=30,
         supersample=1,
         shard_size=16,
-        city_scale=0.5,
+        city_size_m=(1024.0, 768.0),
+        city_metres_per_px=2.0,
     ),
     "quick": Profile(
         name="quick",

@@ -20,11 +20,6 @@ from benchmark.data.profiles import PROFILES, get_profile
 HELP = "render the UAV/satellite pair dataset (profiles smoke/quick/paper; resumable, parallel)"
 
 
-def default_city_cache() -> Path:
-    env = os.environ.get("UAVBENCH_CITY_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "uavbench" / "cities"
-
-
 def default_out(profile: str, size: int | None, seed: int) -> Path:
     name = profile + (f"-n{size}" if size is not None else "") + (f"-s{seed}" if seed else "")
     return Path("data") / name
@@ -69,8 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--city-cache",
         type=Path,
         default=None,
-        help="where built cities are cached (default: $UAVBENCH_CITY_CACHE or "
-        "~/.cache/uavbench/cities)",
+        help="where built cities are cached (default: $UAVBENCH_CACHE or ~/.cache/uavbench/cities)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -96,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
             profile,
             args.seed,
             workers=args.workers,
-            cache_dir=args.city_cache or default_city_cache(),
+            cache_dir=args.city_cache,
             progress=not args.quiet,
         )
     except ConfigMismatchError as err:

@@ -8,13 +8,15 @@ processes that share the cities copy-on-write and use one thread each.
 
 from __future__ import annotations
 
-import inspect
+import dataclasses
 import io
+import json
 import multiprocessing as mp
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -50,13 +52,14 @@ class ConfigMismatchError(ValueError):
 def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
     from benchmark.sim import GENERATOR_VERSION
 
-    return {
+    config = {
         "format_version": FORMAT_VERSION,
         "generator_version": str(GENERATOR_VERSION),
         "plan_version": PLAN_VERSION,
         "profile": profile.to_dict(),
         "seed": int(seed),
     }
+    return json.loads(canonical_json(config))  # tuples -> lists, as read back from config.json
 
 
 def check_output_dir(out: Path, config: dict[str, Any]) -> str:
@@ -79,7 +82,7 @@ def check_output_dir(out: Path, config: dict[str, Any]) -> str:
     if old != config:
         diffs = _diff(old, config)
         raise ConfigMismatchError(
-            f"--out {out} holds a dataset with a different config ({'; '.join(diffs[:4])}); "
+            f"--out {out} holds a dataset with a different config ({'; '.join(diffs[:8])}); "
             f"choose another --out or the same profile/size/seed"
         )
     return "complete" if (out / MANIFEST).is_file() else "resume"
@@ -107,20 +110,21 @@ def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tu
     from benchmark.sim import build_city, changed_city
     from benchmark.sim.splits import city_seed
 
-    kwargs: dict[str, Any] = {"cache_dir": cache_dir}
-    if "scale" in inspect.signature(build_city).parameters:
-        kwargs["scale"] = profile.city_scale
+    kwargs: dict[str, Any] = {"cache_dir": cache_dir, "metres_per_px": profile.city_metres_per_px}
+    if profile.city_size_m is not None:
+        kwargs["size_m"] = tuple(profile.city_size_m)
     cities = {}
     for style in (*TRAIN_STYLES, GENERALIZED_STYLE, FLIGHT_STYLE):
         cities[(style, "now")] = build_city(style, city_seed(seed, style), **kwargs)
     now = cities[(FLIGHT_STYLE, "now")]
-    cities[(FLIGHT_STYLE, "earlier")] = changed_city(now, city_seed(seed, FLIGHT_STYLE, "earlier"))
+    change = city_seed(seed, FLIGHT_STYLE, "earlier")
+    cities[(FLIGHT_STYLE, "earlier")] = changed_city(now, change, cache_dir=cache_dir)
     return cities
 
 
 @dataclass
 class _Context:
-    """What a worker needs; set before the pool forks so children inherit it copy-on-write."""
+    """What rendering needs. ``cities`` is rebuilt in each worker by ``city_factory``."""
 
     root: Path
     profile: Profile
@@ -133,19 +137,27 @@ class _Context:
 _CTX: _Context | None = None
 
 
-def _worker_init() -> None:
+def _single_thread() -> None:
+    """One thread per worker for numba/OpenMP/BLAS/cv2/torch: parallelism comes from processes."""
     os.environ.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    try:
-        import numba
-
-        numba.set_num_threads(1)
-    except (ImportError, ValueError):  # pragma: no cover - numba absent or threads already fixed
-        pass
     import cv2
     import torch
 
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+
+
+def _worker_init(
+    root: Path,
+    profile: Profile,
+    seed: int,
+    city_factory: Callable[[], dict[tuple[str, str], Any]],
+    uav: pd.DataFrame,
+    sat: pd.DataFrame,
+) -> None:
+    global _CTX
+    _single_thread()  # before the factory imports numba (it reads NUMBA_NUM_THREADS once)
+    _CTX = _Context(root, profile, seed, city_factory(), uav, sat)
 
 
 def render_uav_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
@@ -204,6 +216,11 @@ def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
     ctx = _CTX
     assert ctx is not None, "worker context not set"
     kind, k = task
+    if kind == "warmup":  # one tiny frame: loads the renderer's compiled code in this process
+        tiny = dataclasses.replace(ctx, profile=dataclasses.replace(ctx.profile, image_size=8))
+        render_uav_rows(tiny, ctx.uav.iloc[:1])
+        time.sleep(0.05)  # let the other workers take the remaining warm-up tasks
+        return kind, os.getpid(), 0
     table = ctx.uav if kind == "uav" else ctx.sat
     rows = _shard_rows(table, k, ctx.profile.shard_size)
     images = render_uav_rows(ctx, rows) if kind == "uav" else render_sat_rows(ctx, rows)
@@ -223,27 +240,61 @@ def _remove_stale_temporaries(out: Path) -> None:
             pass
 
 
-def run_tasks(
-    ctx: _Context, tasks: list[tuple[str, int]], workers: int
-) -> Iterator[tuple[str, int, int]]:
-    """Render and write the shards ``tasks`` (``("uav"|"sat", k)``); yields ``(kind, k, n)``.
+class RenderPool:
+    """Worker processes that render shards of one ``_Context`` (``with RenderPool(...) as p``).
 
-    With ``workers > 1`` a forked pool renders shards in parallel (completion order); each worker
-    inherits ``ctx`` (the cities) copy-on-write and runs single-threaded.
+    With ``workers > 1`` and a picklable ``city_factory`` (returning ``ctx.cities``, normally by
+    loading them from the city cache, which memory-maps them) the workers are *spawned*, not
+    forked: a forked child deadlocks in OpenCV's or OpenMP's thread pool when the parent used it
+    before forking. Otherwise the shards are rendered in this process.
     """
-    global _CTX
-    _CTX = ctx
-    try:
-        if workers <= 1 or len(tasks) <= 1:
+
+    def __init__(
+        self,
+        ctx: _Context,
+        workers: int,
+        city_factory: Callable[[], dict[tuple[str, str], Any]] | None = None,
+    ) -> None:
+        self.ctx = ctx
+        self.workers = workers if city_factory is not None else 1
+        self._factory = city_factory
+        self._pool: Any = None
+
+    def __enter__(self) -> RenderPool:
+        if self.workers > 1:
+            c = self.ctx
+            initargs = (c.root, c.profile, c.seed, self._factory, c.uav, c.sat)
+            self._pool = mp.get_context("spawn").Pool(
+                self.workers, initializer=_worker_init, initargs=initargs
+            )
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
+
+    def imap(self, tasks: list[tuple[str, int]]) -> Iterator[tuple[str, int, int]]:
+        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields ``(kind, k, n)`` as done."""
+        global _CTX
+        if self._pool is not None:
+            yield from self._pool.imap_unordered(_run_task, tasks)
+            return
+        _CTX = self.ctx
+        try:
             for task in tasks:
                 yield _run_task(task)
-        else:
-            with mp.get_context("fork").Pool(
-                min(workers, len(tasks)), initializer=_worker_init
-            ) as pool:
-                yield from pool.imap_unordered(_run_task, tasks)
-    finally:
-        _CTX = None
+        finally:
+            _CTX = None
+
+    def warm_up(self) -> None:
+        """Wait until every worker has loaded the cities and the compiled renderer."""
+        seen: set[int] = set()
+        for _ in range(200):  # a worker still starting takes no task; ask again until all answer
+            seen |= {pid for _, pid, _ in self.imap([("warmup", k) for k in range(self.workers)])}
+            if len(seen) >= self.workers:
+                return
 
 
 def n_shards(n_rows: int, p: Profile) -> int:
@@ -310,8 +361,10 @@ def simulate_dataset(
     ctx = _Context(out, profile, seed, cities, plan.uav, plan.sat)
     t0 = time.perf_counter()
     with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
-        for kind, k, n in run_tasks(ctx, todo, workers):
-            bar.update(n, postfix=f"{kind} shard {k}")
+        factory = partial(build_cities, profile, seed, cache_dir)
+        with RenderPool(ctx, min(workers, len(todo)), factory) as pool:
+            for kind, k, n in pool.imap(todo):
+                bar.update(n, postfix=f"{kind} shard {k}")
     stats["render_s"] = time.perf_counter() - t0
     stats["rendered_uav"] = sum(sizes[t] for t in todo if t[0] == "uav")
     stats["rendered_sat"] = sum(sizes[t] for t in todo if t[0] == "sat")

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from benchmark.geometry import SAT_R_N, euler_to_rotmat, relative_rotation
 from benchmark.sim.flights import FlightSpec, generate_flight
+from benchmark.sim.render import satellite_pose
 
 LEAK_DIST_M = 10.0
 LEAK_ANGLE_DEG = 10.0
@@ -182,10 +183,12 @@ def _flights_for_group(
 
 
 def sat_position(city: Any, centre: np.ndarray, height_m: float) -> tuple[float, float, float]:
-    """Satellite capture point: ``height_m`` above the ground at the flight centre (paper 3.1)."""
-    E, N = float(centre[0]), float(centre[1])
-    ground = float(np.asarray(city.ground_height(np.array([E]), np.array([N]))).ravel()[0])
-    return E, N, ground + float(height_m)
+    """Satellite capture point: ``height_m`` above the ground at the flight centre (paper 3.1),
+    exactly where ``benchmark.sim.render_satellite`` puts its camera."""
+    pos, attitude = satellite_pose(city, np.asarray(centre, np.float64), height_m=float(height_m))
+    if not np.allclose(attitude, SAT_ATTITUDE):
+        raise RuntimeError(f"satellite_pose attitude {attitude} differs from Eq. 5 {SAT_ATTITUDE}")
+    return float(pos[0]), float(pos[1]), float(pos[2])
 
 
 def relative_labels(uav: pd.DataFrame, sat: pd.DataFrame) -> pd.DataFrame:

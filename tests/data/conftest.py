@@ -1,0 +1,27 @@
+"""A smoke dataset rendered once per test session (real worlds and renderer, tiny images)."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def city_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("cities")
+
+
+@pytest.fixture(scope="session")
+def smoke_root(tmp_path_factory, city_cache):
+    from benchmark.data.profiles import PROFILES
+    from benchmark.data.writer import simulate_dataset
+
+    root = tmp_path_factory.mktemp("smoke") / "ds"
+    stats = simulate_dataset(
+        root, PROFILES["smoke"], 0, workers=1, cache_dir=city_cache, progress=False
+    )
+    assert stats["state"] == "written"
+    return root

@@ -1,0 +1,203 @@
+"""The dataset on disk: writer, manifest, resume, PairDataset round trip, corruption reports."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import pickle
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+from torch.utils.data import DataLoader
+
+from benchmark.data import DatasetError, PairDataset, list_splits
+from benchmark.data.profiles import PROFILES
+from benchmark.data.writer import ConfigMismatchError, simulate_dataset
+
+SMOKE = PROFILES["smoke"]
+
+
+def all_files(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()
+    }
+
+
+def copy_dataset(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+class TestSimulateDataset:
+    def test_layout_counts_and_checksums(self, smoke_root):
+        manifest = json.loads((smoke_root / "manifest.json").read_text())
+        assert manifest["seed"] == 0 and manifest["profile"]["name"] == "smoke"
+        for rel, entry in manifest["files"].items():
+            data = (smoke_root / rel).read_bytes()
+            assert len(data) == entry["bytes"]
+            assert hashlib.sha256(data).hexdigest() == entry["sha256"], rel
+        uav = pd.read_parquet(smoke_root / "uav.parquet")
+        sat = pd.read_parquet(smoke_root / "sat.parquet")
+        assert manifest["counts"]["uav_images"] == len(uav)
+        assert manifest["counts"]["sat_images"] == len(sat)
+        shards = sorted(smoke_root.glob("uav/shard_*.npy"))
+        images = np.concatenate([np.load(p) for p in shards])
+        assert images.shape == (len(uav), SMOKE.image_size, SMOKE.image_size, 3)
+        assert images.dtype == np.uint8
+        assert images.std() > 5.0  # rendered content, not a blank
+        # satellite images are stored once per (city, variant, centre, height), not per pair
+        pairs = pd.read_parquet(smoke_root / "pairs.parquet")
+        assert len(sat) < len(pairs)
+        assert not sat.duplicated(["city", "variant", "centre", "height_m"]).any()
+
+    def test_workers_give_identical_bytes(self, smoke_root, tmp_path, city_cache):
+        out = tmp_path / "ds2"
+        simulate_dataset(out, SMOKE, 0, workers=2, cache_dir=city_cache, progress=False)
+        assert all_files(out) == all_files(smoke_root)
+
+    def test_resume_after_interruption_is_identical(self, smoke_root, tmp_path, city_cache):
+        out = tmp_path / "ds"
+        stats = simulate_dataset(
+            out, SMOKE, 0, workers=1, cache_dir=city_cache, progress=False, max_tasks=2
+        )
+        assert stats["state"] == "interrupted"
+        assert not (out / "manifest.json").exists()
+        with pytest.raises(DatasetError, match=r"manifest\.json"):
+            PairDataset(out, "standard/train")
+        (out / "uav").mkdir(exist_ok=True)
+        (out / "uav" / ".shard_00002.npy.tmp999999999").write_bytes(b"partial")  # a killed write
+        stats = simulate_dataset(out, SMOKE, 0, workers=2, cache_dir=city_cache, progress=False)
+        assert stats["state"] == "written"
+        assert stats["rendered_uav"] + stats["rendered_sat"] < sum(
+            json.loads((smoke_root / "manifest.json").read_text())["counts"][k]
+            for k in ("uav_images", "sat_images")
+        )
+        assert all_files(out) == all_files(smoke_root)
+
+    def test_finished_dataset_is_confirmed_not_rewritten(self, smoke_root, city_cache):
+        before = {p: p.stat().st_mtime_ns for p in smoke_root.rglob("*") if p.is_file()}
+        stats = simulate_dataset(smoke_root, SMOKE, 0, cache_dir=city_cache, progress=False)
+        assert stats["state"] == "complete"
+        assert before == {p: p.stat().st_mtime_ns for p in smoke_root.rglob("*") if p.is_file()}
+
+    def test_other_config_refused_untouched(self, smoke_root, city_cache):
+        before = all_files(smoke_root)
+        with pytest.raises(ConfigMismatchError, match="seed"):
+            simulate_dataset(smoke_root, SMOKE, 1, cache_dir=city_cache, progress=False)
+        with pytest.raises(ConfigMismatchError, match="n_standard: existing 24 != requested 30"):
+            simulate_dataset(smoke_root, SMOKE.with_size(30), 0, cache_dir=city_cache)
+        assert all_files(smoke_root) == before
+
+    def test_foreign_directory_refused(self, tmp_path, city_cache):
+        (tmp_path / "notes.txt").write_text("mine")
+        with pytest.raises(ConfigMismatchError, match="non-empty"):
+            simulate_dataset(tmp_path, SMOKE, 0, cache_dir=city_cache)
+        assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+    @pytest.mark.slow
+    def test_other_seed_other_images(self, smoke_root, tmp_path, city_cache):
+        out = tmp_path / "s1"
+        simulate_dataset(out, SMOKE, 1, workers=2, cache_dir=city_cache, progress=False)
+        a = np.load(smoke_root / "uav" / "shard_00000.npy")
+        b = np.load(out / "uav" / "shard_00000.npy")
+        assert a.shape == b.shape and np.mean(a != b) > 0.5
+
+
+class TestPairDataset:
+    def test_item_contract(self, smoke_root):
+        ds = PairDataset(smoke_root, "standard/train")
+        n = SMOKE.image_size
+        item = ds[3]
+        assert item["uav"].shape == (3, n, n) and item["uav"].dtype == torch.float32
+        assert item["sat"].shape == (3, n, n) and item["sat"].dtype == torch.float32
+        assert 0.0 <= float(item["uav"].min()) and float(item["uav"].max()) <= 1.0
+        assert item["sat_id"].dtype == torch.int64 and item["index"].dtype == torch.int64
+        assert item["R"].shape == (3, 3) and item["R"].dtype == torch.float32
+        assert item["T"].shape == (3,) and item["uav_euler"].shape == (3,)
+        assert int(item["index"]) == 3
+
+    def test_round_trip_matches_files(self, smoke_root):
+        ds = PairDataset(smoke_root, "standard/test")
+        uav = np.concatenate([np.load(p) for p in sorted(smoke_root.glob("uav/shard_*.npy"))])
+        sat = np.concatenate([np.load(p) for p in sorted(smoke_root.glob("sat/shard_*.npy"))])
+        for i in range(len(ds)):
+            item, row = ds[i], ds.poses.iloc[i]
+            expected = torch.from_numpy(uav[row.uav_index]).permute(2, 0, 1).float() / 255
+            torch.testing.assert_close(item["uav"], expected, rtol=0, atol=1e-7)
+            torch.testing.assert_close(
+                item["sat"], torch.from_numpy(sat[row.sat_index]).permute(2, 0, 1).float() / 255
+            )
+            assert int(item["sat_id"]) == row.sat_index
+            np.testing.assert_allclose(item["T"].numpy(), [row.dE, row.dN, row.dU], rtol=1e-6)
+            np.testing.assert_allclose(item["uav_euler"].numpy(), [row.yaw, row.pitch, row.roll])
+
+    def test_convention_labels_against_scipy(self, smoke_root):
+        ds = PairDataset(smoke_root, "generalized/test")
+        for i in range(len(ds)):
+            item = ds[i]
+            yaw, pitch, roll = item["uav_euler"].double().numpy()
+            R_uav = Rotation.from_euler("ZXY", [yaw, pitch, roll]).as_matrix()
+            R_sat = Rotation.from_euler("ZXY", [0.0, -math.pi / 2, 0.0]).as_matrix()
+            np.testing.assert_allclose(item["R"].numpy(), R_uav @ R_sat.T, atol=1e-6)
+            row = ds.poses.iloc[i]
+            sat = ds.sat_table.loc[row.sat_index]
+            # T = UAV position minus the satellite capture point above the flight centre
+            np.testing.assert_allclose(
+                item["T"].numpy(), [row.E - sat.E, row.N - sat.N, row.U - sat.U], atol=1e-3
+            )
+            assert sat.U - row.U > 800.0  # 1000 m above the centre's ground, UAV at 80-120 m
+
+    def test_splits_listed_and_unknown_split(self, smoke_root):
+        names = list_splits(smoke_root)
+        for s in ("standard/train", "standard/val", "standard/test", "generalized/test",
+                  "flight/pitch0", "flight/pitch-10", "flight/pitch-50", "height600/train",
+                  "height1400/test", "pitch-40to-50/test"):  # fmt: skip
+            assert s in names
+        ds = PairDataset(smoke_root, "flight/pitch-50")
+        assert ds.splits == names and ds.manifest["splits"]["flight/pitch-50"] == len(ds)
+        with pytest.raises(ValueError, match="available"):
+            PairDataset(smoke_root, "nope")
+
+    def test_dataloader_workers_and_pickling(self, smoke_root):
+        ds = PairDataset(smoke_root, "standard/train")
+        ds[0]  # opens a memory map in this process
+        assert len(pickle.dumps(ds)) < 2_000_000  # maps are dropped, not copied
+        loader = DataLoader(ds, batch_size=5, num_workers=2, shuffle=False)
+        batches = list(loader)
+        assert sum(len(b["index"]) for b in batches) == len(ds)
+        torch.testing.assert_close(batches[1]["uav"][0], ds[5]["uav"])
+
+    def test_truncated_shard_named(self, smoke_root, tmp_path):
+        root = copy_dataset(smoke_root, tmp_path / "ds")
+        shard = root / "uav" / "shard_00001.npy"
+        shard.write_bytes(shard.read_bytes()[:-100])
+        with pytest.raises(DatasetError, match=r"truncated file .*uav/shard_00001\.npy"):
+            PairDataset(root, "standard/train", verify="size")
+
+    def test_corrupted_shard_named(self, smoke_root, tmp_path):
+        root = copy_dataset(smoke_root, tmp_path / "ds")
+        shard = root / "uav" / "shard_00000.npy"
+        data = bytearray(shard.read_bytes())
+        data[-7] ^= 0xFF  # same size, one pixel changed
+        shard.write_bytes(bytes(data))
+        with pytest.raises(DatasetError, match=r"corrupted file .*uav/shard_00000\.npy"):
+            PairDataset(root, "standard/train")
+
+    def test_missing_shard_named(self, smoke_root, tmp_path):
+        root = copy_dataset(smoke_root, tmp_path / "ds")
+        (root / "sat" / "shard_00000.npy").unlink()
+        with pytest.raises(DatasetError, match=r"missing file .*sat/shard_00000\.npy"):
+            PairDataset(root, "standard/val", verify="size")
+
+    def test_missing_manifest_named(self, tmp_path):
+        with pytest.raises(DatasetError, match="does not exist"):
+            PairDataset(tmp_path / "nothing", "standard/train")
+        (tmp_path / "ds").mkdir()
+        with pytest.raises(DatasetError, match=r"manifest\.json is missing"):
+            PairDataset(tmp_path / "ds", "standard/train")

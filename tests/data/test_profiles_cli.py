@@ -1,0 +1,108 @@
+"""Profiles and the simulate / preview / bench command lines."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from benchmark.cli import main
+from benchmark.data.profiles import PROFILES, Profile, get_profile
+
+
+class TestProfiles:
+    def test_issue_sizes(self):
+        assert PROFILES["smoke"].image_size <= 48 and 10 <= PROFILES["smoke"].n_standard < 100
+        assert PROFILES["quick"].image_size == 96 and 1000 <= PROFILES["quick"].n_standard <= 9999
+        assert PROFILES["paper"].image_size == 224 and PROFILES["paper"].n_standard >= 10000
+        for p in PROFILES.values():  # paper Sec. 3.1 / 3.5 constants
+            assert p.sat_height_m == 1000.0 and p.sat_footprint_m == (2000.0, 1000.0)
+            assert p.flight_pitches_deg == (0.0, -10.0, -50.0)
+            assert p.flight_altitude_m == (70.0, 90.0)
+
+    def test_frozen(self):
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            PROFILES["quick"].image_size = 1
+
+    def test_size_override_scales_every_set(self):
+        p = get_profile("quick", 300)
+        q = PROFILES["quick"]
+        assert p.n_standard == 300 and p.image_size == q.image_size
+        assert p.n_generalized_test == q.n_generalized_test // 10
+        assert p.n_height_train == q.n_height_train // 10
+
+    def test_bad_input(self):
+        with pytest.raises(ValueError, match="unknown profile 'huge'"):
+            get_profile("huge")
+        with pytest.raises(ValueError, match="positive"):
+            get_profile("quick", 0)
+        with pytest.raises(ValueError, match="standard_fractions"):
+            dataclasses.replace(PROFILES["smoke"], standard_fractions=(0.5, 0.5, 0.5))
+
+    def test_dict_round_trip(self):
+        for p in PROFILES.values():
+            assert Profile.from_dict(p.to_dict()) == p
+        with pytest.raises(ValueError, match="unknown fields"):
+            Profile.from_dict({**PROFILES["smoke"].to_dict(), "colour": 1})
+
+
+class TestSimulateCommand:
+    def test_unknown_profile_exits_2(self, tmp_path, capsys):
+        with pytest.raises(SystemExit) as err:
+            main(["simulate", "--profile", "huge", "--out", str(tmp_path / "x")])
+        assert err.value.code == 2 and not (tmp_path / "x").exists()
+        assert "huge" in capsys.readouterr().err
+
+    @pytest.mark.parametrize("flag", [["--size", "0"], ["--size", "-5"], ["--workers", "0"]])
+    def test_bad_numbers_exit_2(self, tmp_path, capsys, flag):
+        assert main(["simulate", "--profile", "smoke", "--out", str(tmp_path / "x"), *flag]) == 2
+        assert not (tmp_path / "x").exists()
+        assert flag[0] in capsys.readouterr().err
+
+    def test_other_config_refused(self, smoke_root, city_cache, capsys):
+        before = (smoke_root / "manifest.json").read_bytes()
+        code = main(["simulate", "--profile", "smoke", "--size", "30", "--out", str(smoke_root),
+                     "--city-cache", str(city_cache), "--quiet"])  # fmt: skip
+        assert code == 2
+        assert "different config" in capsys.readouterr().err
+        assert (smoke_root / "manifest.json").read_bytes() == before
+
+    def test_complete_dataset_reported(self, smoke_root, city_cache, capsys):
+        code = main(["simulate", "--profile", "smoke", "--out", str(smoke_root),
+                     "--city-cache", str(city_cache), "--quiet"])  # fmt: skip
+        assert code == 0 and "already complete" in capsys.readouterr().out
+
+
+class TestPreviewCommand:
+    def test_writes_png(self, smoke_root, tmp_path):
+        import matplotlib.image
+
+        out = tmp_path / "sheet.png"
+        assert main(["preview", str(smoke_root), "--split", "flight/pitch-10", "--n", "4",
+                     "--out", str(out)]) == 0  # fmt: skip
+        img = matplotlib.image.imread(out)
+        assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 300
+        assert np.std(img[..., :3]) > 0.05
+
+    def test_unknown_split_and_missing_dataset(self, smoke_root, tmp_path, capsys):
+        assert main(["preview", str(smoke_root), "--split", "nope"]) == 2
+        assert "unknown split" in capsys.readouterr().err
+        assert main(["preview", str(tmp_path / "none")]) == 2
+        assert "does not exist" in capsys.readouterr().err
+
+
+class TestBenchCommand:
+    def test_unknown_target(self, capsys):
+        assert main(["bench", "nope"]) == 2
+        assert "simulate" in capsys.readouterr().err
+
+    def test_targets_resolve(self):
+        import importlib
+
+        from benchmark.bench import TARGET_HELP, TARGETS
+
+        assert set(TARGETS) == set(TARGET_HELP)
+        for spec in TARGETS.values():
+            module, func = spec.split(":")
+            assert callable(getattr(importlib.import_module(module), func))
