@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 
-import cv2
 import numpy as np
 from numba import njit
+from scipy.ndimage import uniform_filter
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -37,17 +37,63 @@ def hash01(*keys: np.ndarray | int) -> np.ndarray:
 
 def smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cell_px: float) -> np.ndarray:
     """Value noise in about [-1, 1], float32 ``shape``: a random lattice every ``cell_px`` texels,
-    interpolated bicubically (cv2.resize is deterministic)."""
+    interpolated with Catmull-Rom bicubics (a serial numba loop: deterministic, and no OpenCV
+    thread pool is started in a process that may fork workers afterwards)."""
     h, w = shape
-    gh = max(2, math.ceil(h / cell_px) + 3)
-    gw = max(2, math.ceil(w / cell_px) + 3)
-    lattice = rng.uniform(-1.0, 1.0, size=(gh, gw)).astype(np.float32)
-    big = cv2.resize(
-        lattice, (round(gw * cell_px), round(gh * cell_px)), interpolation=cv2.INTER_CUBIC
+    gh = max(4, math.ceil(h / cell_px) + 4)
+    gw = max(4, math.ceil(w / cell_px) + 4)
+    lattice = rng.uniform(-1.0, 1.0, size=(gh, gw))
+    return _bicubic_upsample(lattice, float(cell_px), h, w)
+
+
+@njit(cache=True)
+def _cubic_weights(f):
+    # Catmull-Rom: interpolating, C1, weights sum to 1.
+    f2 = f * f
+    f3 = f2 * f
+    return (
+        -0.5 * f3 + f2 - 0.5 * f,
+        1.5 * f3 - 2.5 * f2 + 1.0,
+        -1.5 * f3 + 2.0 * f2 + 0.5 * f,
+        0.5 * f3 - 0.5 * f2,
     )
-    oy = int(cell_px)
-    ox = int(cell_px)
-    return np.ascontiguousarray(big[oy : oy + h, ox : ox + w])
+
+
+@njit(cache=True)
+def _bicubic_upsample(lattice, cell, h, w):
+    """Output texel (j, i) samples the lattice at ((j + 0.5) / cell + 1, (i + 0.5) / cell + 1)."""
+    out = np.empty((h, w), np.float32)
+    wx = np.empty((w, 4))
+    ix = np.empty(w, np.int64)
+    for i in range(w):
+        x = (i + 0.5) / cell + 1.0
+        x0 = math.floor(x)
+        ix[i] = x0 - 1
+        a, b, c, d = _cubic_weights(x - x0)
+        wx[i, 0] = a
+        wx[i, 1] = b
+        wx[i, 2] = c
+        wx[i, 3] = d
+    row = np.empty((4, w))
+    for j in range(h):
+        y = (j + 0.5) / cell + 1.0
+        y0 = math.floor(y)
+        wy = _cubic_weights(y - y0)
+        for k in range(4):
+            src = lattice[y0 - 1 + k]
+            for i in range(w):
+                p = ix[i]
+                row[k, i] = (
+                    src[p] * wx[i, 0]
+                    + src[p + 1] * wx[i, 1]
+                    + src[p + 2] * wx[i, 2]
+                    + src[p + 3] * wx[i, 3]
+                )
+        for i in range(w):
+            out[j, i] = (
+                row[0, i] * wy[0] + row[1, i] * wy[1] + row[2, i] * wy[2] + row[3, i] * wy[3]
+            )
+    return out
 
 
 def fbm(
@@ -140,10 +186,10 @@ def bake_lighting(
     vis = sun_visibility(
         np.ascontiguousarray(height, np.float32), mpp, sun.astype(np.float64), gmax
     )
-    vis = cv2.blur(vis, (3, 3), borderType=cv2.BORDER_REFLECT)
+    vis = uniform_filter(vis, size=3, mode="reflect")
     # Ambient occlusion: how far the local mean height (radius ~6 m) rises above this texel.
     k = max(3, round(6.0 / mpp) | 1)
-    local = cv2.blur(height.astype(np.float32), (k, k), borderType=cv2.BORDER_REFLECT)
+    local = uniform_filter(height.astype(np.float32), size=k, mode="reflect")
     ao = np.clip(1.0 - 0.04 * np.maximum(local - height, 0.0), 0.6, 1.0)
     shade = (ambient * ao + diffuse * np.maximum(ndotl, 0.0) * vis).astype(np.float32)
     out = albedo * shade[:, :, None]
