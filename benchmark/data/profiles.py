@@ -41,7 +41,7 @@ class Profile:
     samples_per_flight: int = 16
     frame_stride: int = 15  # 30 fps video, one sample every 0.5 s
     fov_deg: float = 60.0  # horizontal field of view of the UAV camera
-    supersample: int = 2
+    supersample: int = 1  # rays per pixel per axis; textures are mip-mapped, 2 costs 4x
     shard_size: int = 256  # UAV images per .npy shard
     city_size_m: tuple[float, float] | None = None  # build_city size_m; None: its default tile
     city_metres_per_px: float = 1.0
@@ -107,7 +107,6 @@ PROFILES: dict[str, Profile] = {
         n_height_test=4,
         samples_per_flight=4,
         frame_stride=30,
-        supersample=1,
         shard_size=16,
         city_size_m=(1024.0, 768.0),
         city_metres_per_px=2.0,

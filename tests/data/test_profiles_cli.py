@@ -60,6 +60,15 @@ class TestSimulateCommand:
         assert not (tmp_path / "x").exists()
         assert flag[0] in capsys.readouterr().err
 
+    def test_writes_and_resumes_dataset(self, smoke_root, city_cache, tmp_path, capsys):
+        out = tmp_path / "ds"
+        args = ["simulate", "--profile", "smoke", "--out", str(out), "--workers", "1",
+                "--city-cache", str(city_cache), "--quiet"]  # fmt: skip
+        assert main(args) == 0
+        assert "written" in capsys.readouterr().out
+        assert (out / "manifest.json").read_bytes() == (smoke_root / "manifest.json").read_bytes()
+        assert main(args) == 0 and "already complete" in capsys.readouterr().out
+
     def test_other_config_refused(self, smoke_root, city_cache, capsys):
         before = (smoke_root / "manifest.json").read_bytes()
         code = main(["simulate", "--profile", "smoke", "--size", "30", "--out", str(smoke_root),
