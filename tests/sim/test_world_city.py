@@ -112,6 +112,16 @@ class TestCityQueries:
         assert np.all(np.abs(c[:, 0]) + 1400.0 <= 1792.0)
         assert np.all(np.abs(c[:, 1]) + 700.0 <= 1280.0)
 
+    def test_convention_rows_go_north_and_ortho_image_is_north_up(self, city):
+        H, W = city.shape
+        e0, n0 = city.origin
+        for j, i in ((0, 0), (H - 1, 5), (17, W - 1), (H // 2, W // 3)):
+            E = e0 + (i + 0.5) * city.metres_per_px
+            N = n0 + (j + 0.5) * city.metres_per_px
+            assert city.surface_height(E, N) == city.height[j, i]
+            np.testing.assert_array_equal(city.ortho_image()[H - 1 - j, i], city.ortho[j, i])
+        assert n0 == city.extent[2] and e0 == city.extent[0]
+
     def test_mirror_extension_is_continuous(self, city):
         # Beyond the eastern edge the world is the mirror image of the tile.
         _e0, e1, _, _ = city.extent
