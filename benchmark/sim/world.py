@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.progress import Progress
 from benchmark.sim.city_layout import generate, rng_for
 from benchmark.sim.render_core import MAT_BUILDING, MAT_WATER
 from benchmark.sim.textures import bake_lighting, max_pyramid, mean_pyramid
@@ -100,11 +101,21 @@ def _flight_centres(style: str, seed: int, shape, mpp: float) -> np.ndarray:
     return np.asarray(pts, np.float64)
 
 
-def _assemble(style: str, seed: int, change: int, shape, mpp: float) -> City:
+def _assemble(style: str, seed: int, change: int, shape, mpp: float, progress: bool) -> City:
     S = get_style(style)
     sun, season = _sun(style, seed, change)
-    R = generate(S, seed, shape, mpp, change, season)
-    ortho = bake_lighting(R.albedo, R.height, mpp, sun, ambient=0.55, diffuse=0.6)
+    what = f"city {style} seed {seed}" + (f" change {change - 1}" if change else "")
+    with Progress(3, what, unit="step", enabled=progress) as bar:
+        R = generate(S, seed, shape, mpp, change, season)
+        bar.update(1, postfix="layout")
+        ortho = bake_lighting(R.albedo, R.height, mpp, sun, ambient=0.55, diffuse=0.6)
+        bar.update(1, postfix="lighting")
+        city = _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season)
+        bar.update(1, postfix="pyramids")
+    return city
+
+
+def _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season) -> City:
     H, W = shape
     g = math.gcd(H, W)
     levels = min(9, (g & -g).bit_length() - 1)  # exact halvings only
@@ -197,7 +208,7 @@ def _load(path: Path) -> City:
     )
 
 
-def _build(style, seed, change, size_m, mpp, cache_dir) -> City:
+def _build(style, seed, change, size_m, mpp, cache_dir, progress=False) -> City:
     get_style(style)
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -207,12 +218,12 @@ def _build(style, seed, change, size_m, mpp, cache_dir) -> City:
         raise ValueError(f"size_m must be two sizes >= 128 m (E, N), got {size_m!r}")
     shape = _grid_shape(size_m, mpp)
     if cache_dir is False:
-        return _assemble(style, int(seed), int(change), shape, mpp)
+        return _assemble(style, int(seed), int(change), shape, mpp, progress)
     root = default_cache_dir() if cache_dir is None else Path(cache_dir)
     path = root / _key(style, int(seed), int(change), shape, mpp)
     if (path / "meta.json").exists():
         return _load(path)
-    city = _assemble(style, int(seed), int(change), shape, mpp)
+    city = _assemble(style, int(seed), int(change), shape, mpp, progress)
     _save(city, path)
     return _load(path) if (path / "meta.json").exists() else city
 
@@ -224,15 +235,20 @@ def build_city(
     cache_dir: str | Path | bool | None = None,
     size_m: tuple[float, float] = DEFAULT_SIZE_M,
     metres_per_px: float = 1.0,
+    progress: bool = False,
 ) -> City:
     """Generate (or load from the cache) the city ``(style, seed)``; deterministic.
 
+    A full-size city takes about 15 s and 1.7 GB of peak memory to build (``progress=True``
+    prints a bar); loading it from the cache is instant (memory-mapped, 163 MB of arrays).
     Raises ValueError for an unknown style (listing ``STYLES``), a negative seed or bad sizes.
     """
-    return _build(style, seed, 0, tuple(size_m), float(metres_per_px), cache_dir)
+    return _build(style, seed, 0, tuple(size_m), float(metres_per_px), cache_dir, progress)
 
 
-def changed_city(city: City, seed: int, *, cache_dir: str | Path | bool | None = None) -> City:
+def changed_city(
+    city: City, seed: int, *, cache_dir: str | Path | bool | None = None, progress: bool = False
+) -> City:
     """The same place at an earlier time (paper Sec. 3.5): other sun and season, cars re-drawn,
     ~5-10 % of buildings demolished and some gaps built on, some open blocks developed, 20 % of the
     trees gone and 15 % new ones. ``seed`` (>= 0) selects the change; the result is cached like
@@ -242,7 +258,9 @@ def changed_city(city: City, seed: int, *, cache_dir: str | Path | bool | None =
         raise ValueError(f"change seed must be a non-negative integer, got {seed!r}")
     H, W = city.shape
     size = (W * city.metres_per_px, H * city.metres_per_px)
-    out = _build(city.style, city.seed, int(seed) + 1, size, city.metres_per_px, cache_dir)
+    out = _build(
+        city.style, city.seed, int(seed) + 1, size, city.metres_per_px, cache_dir, progress
+    )
     return replace(out, flight_centres=city.flight_centres.copy())
 
 
