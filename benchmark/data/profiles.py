@@ -66,8 +66,8 @@ class Profile:
 
     def with_size(self, n_standard: int) -> Profile:
         """This profile rescaled so that the standard split holds ``n_standard`` pairs."""
-        if n_standard <= 0:
-            raise ValueError(f"size must be a positive number of pairs, got {n_standard}")
+        if n_standard < 3:
+            raise ValueError(f"size must be >= 3 pairs (train, val, test), got {n_standard}")
         f = n_standard / self.n_standard
 
         def scale(n: int) -> int:
@@ -75,7 +75,7 @@ class Profile:
 
         return dataclasses.replace(
             self,
-            n_standard=max(3, n_standard),
+            n_standard=n_standard,
             n_generalized_test=scale(self.n_generalized_test),
             n_flight_per_pitch=scale(self.n_flight_per_pitch),
             n_pitch_per_bin=scale(self.n_pitch_per_bin),

@@ -70,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.size is not None and args.size <= 0:
-        raise UsageError(f"--size must be a positive number of pairs, got {args.size}")
+    if args.size is not None and args.size < 3:
+        raise UsageError(f"--size must be >= 3 pairs (train, val, test), got {args.size}")
     if args.workers < 1:
         raise UsageError(f"--workers must be >= 1, got {args.workers}")
     if args.seed < 0:

@@ -45,6 +45,20 @@ from benchmark.progress import Progress
 PLAN_VERSION = 1  # bump when benchmark.sim.flights / splits change what they produce
 
 
+SPLIT_NOTES = {
+    "standard/{train,val,test}": "oxford + cambridge; whole flights per split, val/test flights "
+    "redrawn if a frame is within 10 m and 10 deg (heading and pitch) of a training frame",
+    "generalized/{train,val}": "= standard/{train,val}",
+    "generalized/test": "london (unseen style)",
+    "flight/pitch{0,-10,-50}": "industrial, pitch fixed, 70-90 m; satellite image from the "
+    "earlier-time world (changed_city), 2.5 x 1.2 km; camera noise, blur, JPEG on UAV images",
+    "height{h}/{train,test}": "subsets of standard/{train,test} (whole flights) paired with a "
+    "satellite image shot from h m, footprint 2 x 1 km * h / 1000 (paper Fig. 5)",
+    "pitch{hi}to{lo}/test": "new oxford + cambridge test flights with pitch in [lo, hi] deg "
+    "(paper Fig. 6, view difference)",
+}
+
+
 class ConfigMismatchError(ValueError):
     """The output directory holds a dataset (or a partial one) with another config."""
 
@@ -402,6 +416,7 @@ def write_manifest(
             "dE, dN, dU": "UAV position minus satellite capture point",
             "images": "uint8 (n, H, W, 3) RGB, .npy shards",
         },
+        "split_definitions": SPLIT_NOTES,
         "files": files,
     }
     atomic_write_bytes(out / MANIFEST, canonical_json(manifest))

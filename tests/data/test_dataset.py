@@ -100,7 +100,6 @@ class TestSimulateDataset:
             simulate_dataset(tmp_path, SMOKE, 0, cache_dir=city_cache)
         assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
 
-    @pytest.mark.slow
     def test_other_seed_other_images(self, smoke_root, tmp_path, city_cache):
         out = tmp_path / "s1"
         simulate_dataset(out, SMOKE, 1, workers=2, cache_dir=city_cache, progress=False)
@@ -201,3 +200,33 @@ class TestPairDataset:
         (tmp_path / "ds").mkdir()
         with pytest.raises(DatasetError, match=r"manifest\.json is missing"):
             PairDataset(tmp_path / "ds", "standard/train")
+
+
+@pytest.mark.slow
+class TestInterruptedCommand:
+    def test_ctrl_c_then_rerun_gives_identical_bytes(self, tmp_path, city_cache):
+        """A real interruption: SIGINT to ``uavbench simulate`` after its first shard, rerun."""
+        import os
+        import signal
+        import subprocess
+        import sys
+        import time
+
+        def command(out):
+            return [sys.executable, "-m", "benchmark.cli", "simulate", "--profile", "smoke",
+                    "--size", "240", "--workers", "2", "--out", str(out),
+                    "--city-cache", str(city_cache), "--quiet"]  # fmt: skip
+
+        env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+        ref, out = tmp_path / "ref", tmp_path / "out"
+        subprocess.run(command(ref), check=True, env=env, capture_output=True)
+        proc = subprocess.Popen(command(out), env=env, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + 120
+        while not list(out.glob("uav/shard_*.npy")) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 130
+        assert "interrupted" in proc.stderr.read().decode()
+        assert not (out / "manifest.json").exists()
+        subprocess.run(command(out), check=True, env=env, capture_output=True)
+        assert all_files(out) == all_files(ref)

@@ -35,8 +35,9 @@ class TestProfiles:
     def test_bad_input(self):
         with pytest.raises(ValueError, match="unknown profile 'huge'"):
             get_profile("huge")
-        with pytest.raises(ValueError, match="positive"):
-            get_profile("quick", 0)
+        for bad in (0, -3, 2):
+            with pytest.raises(ValueError, match=">= 3 pairs"):
+                get_profile("quick", bad)
         with pytest.raises(ValueError, match="standard_fractions"):
             dataclasses.replace(PROFILES["smoke"], standard_fractions=(0.5, 0.5, 0.5))
 
