@@ -99,7 +99,7 @@ class PairDataset(Dataset):
         self._uav_index = self.poses["uav_index"].to_numpy(np.int64)
         self._sat_index = self.poses["sat_index"].to_numpy(np.int64)
         uav_shards = sorted(set((self._uav_index // self.shard_size).tolist()))
-        n_sat_shards = -(-len(self.sat_table) // self.shard_size)
+        n_sat_shards = -(-len(self.sat_table) // int(self.manifest["sat_shard_size"]))
         sat_names = [shard_name("sat", k) for k in range(n_sat_shards)]
         _verify(
             self.root,

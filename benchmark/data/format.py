@@ -8,7 +8,7 @@ Layout (all paths relative to the dataset root)::
     sat.parquet            one row per satellite image (pose, city, centre, height, footprint)
     pairs.parquet          one row per (split, pair): indices into both image stores + labels
     uav/shard_00000.npy    uint8 (n, H, W, 3) UAV images, rows [k * shard_size, ...)
-    sat/shard_00000.npy    uint8 (m, H, W, 3) satellite images, the same way
+    sat/shard_00000.npy    uint8 (m, H, W, 3) satellite images, rows [k * sat_shard_size, ...)
     manifest.json          written last: config, counts, splits and {path: bytes, sha256, shape}
 
 Every file is written to a temporary name and renamed into place, so a killed run leaves either a
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
 CONFIG = "config.json"
 TABLES = ("uav.parquet", "sat.parquet", "pairs.parquet")

@@ -43,6 +43,7 @@ class Profile:
     fov_deg: float = 60.0  # horizontal field of view of the UAV camera
     supersample: int = 1  # rays per pixel per axis; textures are mip-mapped, 2 costs 4x
     shard_size: int = 256  # UAV images per .npy shard
+    sat_shard_size: int = 8  # satellite images per shard (each costs ~16 UAV frames to render)
     city_size_m: tuple[float, float] | None = None  # build_city size_m; None: its default tile
     city_metres_per_px: float = 1.0
 
@@ -61,8 +62,8 @@ class Profile:
         edges = self.pitch_bin_edges_deg
         if any(b >= a for a, b in itertools.pairwise(edges)):
             raise ValueError(f"Profile.pitch_bin_edges_deg must decrease strictly, got {edges}")
-        if self.samples_per_flight < 1 or self.shard_size < 1:
-            raise ValueError("Profile.samples_per_flight and shard_size must be >= 1")
+        if min(self.samples_per_flight, self.shard_size, self.sat_shard_size) < 1:
+            raise ValueError("Profile.samples_per_flight, shard_size, sat_shard_size must be >= 1")
 
     def with_size(self, n_standard: int) -> Profile:
         """This profile rescaled so that the standard split holds ``n_standard`` pairs."""

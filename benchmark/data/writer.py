@@ -221,9 +221,14 @@ def _shard_rows(table: pd.DataFrame, k: int, size: int) -> pd.DataFrame:
     return table.iloc[k * size : (k + 1) * size]
 
 
-def _shard_shape(n_rows: int, k: int, p: Profile) -> tuple[int, int, int, int]:
-    n = min(p.shard_size, n_rows - k * p.shard_size)
-    return (n, p.image_size, p.image_size, 3)
+def shard_size(kind: str, p: Profile) -> int:
+    """Images per shard; satellite shards are small so their costly renders spread out."""
+    return p.shard_size if kind == "uav" else p.sat_shard_size
+
+
+def _shard_shape(kind: str, n_rows: int, k: int, p: Profile) -> tuple[int, int, int, int]:
+    size = shard_size(kind, p)
+    return (min(size, n_rows - k * size), p.image_size, p.image_size, 3)
 
 
 def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
@@ -236,7 +241,7 @@ def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
         time.sleep(0.05)  # let the other workers take the remaining warm-up tasks
         return kind, os.getpid(), 0
     table = ctx.uav if kind == "uav" else ctx.sat
-    rows = _shard_rows(table, k, ctx.profile.shard_size)
+    rows = _shard_rows(table, k, shard_size(kind, ctx.profile))
     images = render_uav_rows(ctx, rows) if kind == "uav" else render_sat_rows(ctx, rows)
     atomic_save_npy(ctx.root / shard_name(kind, k), images)
     return kind, k, len(rows)
@@ -311,8 +316,8 @@ class RenderPool:
                 return
 
 
-def n_shards(n_rows: int, p: Profile) -> int:
-    return -(-n_rows // p.shard_size)
+def n_shards(kind: str, n_rows: int, p: Profile) -> int:
+    return -(-n_rows // shard_size(kind, p))
 
 
 def simulate_dataset(
@@ -360,11 +365,11 @@ def simulate_dataset(
         if not path.is_file():
             atomic_write_bytes(path, data)
 
-    tasks = [("sat", k) for k in range(n_shards(len(plan.sat), profile))]
-    tasks += [("uav", k) for k in range(n_shards(len(plan.uav), profile))]
+    tasks = [("sat", k) for k in range(n_shards("sat", len(plan.sat), profile))]
+    tasks += [("uav", k) for k in range(n_shards("uav", len(plan.uav), profile))]
 
     def shape_of(kind: str, k: int) -> tuple[int, int, int, int]:
-        return _shard_shape(len(plan.uav if kind == "uav" else plan.sat), k, profile)
+        return _shard_shape(kind, len(plan.uav if kind == "uav" else plan.sat), k, profile)
 
     sizes = {t: shape_of(*t)[0] for t in tasks}
     pending = [t for t in tasks if not npy_complete(out / shard_name(*t), shape_of(*t))]
@@ -403,6 +408,7 @@ def write_manifest(
         **config,
         "image_size": config["profile"]["image_size"],
         "shard_size": config["profile"]["shard_size"],
+        "sat_shard_size": config["profile"]["sat_shard_size"],
         "counts": {
             "uav_images": len(plan.uav),
             "sat_images": len(plan.sat),
