@@ -216,13 +216,13 @@ def _facade(hx, hy, hz, t, dx, dy, axis, ci, cj, pix_angle, world):
     flip_y = (cj % (2 * hh)) >= hh
     if flip_x != flip_y:
         theta = -theta
-    best = -2.0
-    bx = nx
-    by = ny
-    for k in range(4):
-        a = theta + 0.5 * math.pi * k
-        cx_ = math.cos(a)
-        cy_ = math.sin(a)
+    # The four wall normals are (c, s) rotated by multiples of 90 deg: pick the closest one.
+    c0 = math.cos(theta)
+    s0 = math.sin(theta)
+    bx = c0
+    by = s0
+    best = c0 * nx + s0 * ny
+    for cx_, cy_ in ((-s0, c0), (-c0, -s0), (s0, -c0)):
         d = cx_ * nx + cy_ * ny
         if d > best:
             best = d
