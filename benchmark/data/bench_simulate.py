@@ -86,7 +86,7 @@ def main(argv: list[str]) -> int:
         raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
     single_thread_env()
     from benchmark.data.profiles import PROFILES
-    from benchmark.data.writer import RenderPool, _Context, render_sat_rows
+    from benchmark.data.render_pool import RenderContext, RenderPool, render_sat_rows
     from benchmark.sim import build_city
     from benchmark.sim.splits import city_seed
 
@@ -129,7 +129,7 @@ def main(argv: list[str]) -> int:
                     )
                 ]
             )
-            ctx = _Context(
+            ctx = RenderContext(
                 Path(tmp) / f"out{size}",
                 profile,
                 args.seed,

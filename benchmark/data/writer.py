@@ -8,30 +8,23 @@ processes that share the cities copy-on-write and use one thread each.
 
 from __future__ import annotations
 
-import dataclasses
 import io
 import json
-import multiprocessing as mp
 import os
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from benchmark.data.camera_effects import apply_camera_effects
 from benchmark.data.format import (
     CONFIG,
     FORMAT_VERSION,
     MANIFEST,
     DatasetError,
-    atomic_save_npy,
     atomic_write_bytes,
     canonical_json,
     file_entry,
@@ -40,6 +33,7 @@ from benchmark.data.format import (
     shard_name,
 )
 from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, Profile
+from benchmark.data.render_pool import RenderContext, RenderPool, _shard_shape, shard_size
 from benchmark.progress import Progress
 
 PLAN_VERSION = 1  # bump when benchmark.sim.flights / splits change what they produce
@@ -136,117 +130,6 @@ def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tu
     return cities
 
 
-@dataclass
-class _Context:
-    """What rendering needs. ``cities`` is rebuilt in each worker by ``city_factory``."""
-
-    root: Path
-    profile: Profile
-    seed: int
-    cities: dict[tuple[str, str], Any]
-    uav: pd.DataFrame
-    sat: pd.DataFrame
-
-
-_CTX: _Context | None = None
-
-
-def _single_thread() -> None:
-    """One thread per worker for numba/OpenMP/BLAS/cv2/torch: parallelism comes from processes."""
-    os.environ.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
-    import cv2
-    import torch
-
-    cv2.setNumThreads(1)
-    torch.set_num_threads(1)
-
-
-def _worker_init(
-    root: Path,
-    profile: Profile,
-    seed: int,
-    city_factory: Callable[[], dict[tuple[str, str], Any]],
-    uav: pd.DataFrame,
-    sat: pd.DataFrame,
-) -> None:
-    global _CTX
-    _single_thread()  # before the factory imports numba (it reads NUMBA_NUM_THREADS once)
-    _CTX = _Context(root, profile, seed, city_factory(), uav, sat)
-
-
-def render_uav_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
-    """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects."""
-    from benchmark.sim import Camera, render_uav
-    from benchmark.sim.splits import sample_seed
-
-    p = ctx.profile
-    camera = Camera(p.image_size, p.image_size, p.fov_deg)
-    out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
-    for j, r in enumerate(rows.itertuples(index=False)):
-        img = render_uav(
-            ctx.cities[(r.city, "now")],
-            np.array([r.E, r.N, r.U]),
-            r.yaw,
-            r.pitch,
-            r.roll,
-            camera,
-            supersample=p.supersample,
-        )
-        if r.camera_effects:
-            img = apply_camera_effects(
-                img, np.random.default_rng(sample_seed(ctx.seed, r.uav_index))
-            )
-        out[j] = img
-    return out
-
-
-def render_sat_rows(ctx: _Context, rows: pd.DataFrame) -> np.ndarray:
-    """Render satellite images; uint8 ``(n, S, S, 3)``."""
-    from benchmark.sim import render_satellite
-
-    p = ctx.profile
-    out = np.empty((len(rows), p.image_size, p.image_size, 3), np.uint8)
-    for j, r in enumerate(rows.itertuples(index=False)):
-        out[j] = render_satellite(
-            ctx.cities[(r.city, r.variant)],
-            (r.E, r.N),
-            height_m=r.height_m,
-            footprint_m=(r.footprint_E_m, r.footprint_N_m),
-            size=p.image_size,
-        )
-    return out
-
-
-def _shard_rows(table: pd.DataFrame, k: int, size: int) -> pd.DataFrame:
-    return table.iloc[k * size : (k + 1) * size]
-
-
-def shard_size(kind: str, p: Profile) -> int:
-    """Images per shard; satellite shards are small so their costly renders spread out."""
-    return p.shard_size if kind == "uav" else p.sat_shard_size
-
-
-def _shard_shape(kind: str, n_rows: int, k: int, p: Profile) -> tuple[int, int, int, int]:
-    size = shard_size(kind, p)
-    return (min(size, n_rows - k * size), p.image_size, p.image_size, 3)
-
-
-def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
-    ctx = _CTX
-    assert ctx is not None, "worker context not set"
-    kind, k = task
-    if kind == "warmup":  # one tiny frame: loads the renderer's compiled code in this process
-        tiny = dataclasses.replace(ctx, profile=dataclasses.replace(ctx.profile, image_size=8))
-        render_uav_rows(tiny, ctx.uav.iloc[:1])
-        time.sleep(0.05)  # let the other workers take the remaining warm-up tasks
-        return kind, os.getpid(), 0
-    table = ctx.uav if kind == "uav" else ctx.sat
-    rows = _shard_rows(table, k, shard_size(kind, ctx.profile))
-    images = render_uav_rows(ctx, rows) if kind == "uav" else render_sat_rows(ctx, rows)
-    atomic_save_npy(ctx.root / shard_name(kind, k), images)
-    return kind, k, len(rows)
-
-
 def _remove_stale_temporaries(out: Path) -> None:
     """Delete ``.name.tmp<pid>`` files left by a killed run (only those of dead processes)."""
     for tmp in [*out.glob(".*.tmp*"), *out.glob("*/.*.tmp*")]:
@@ -257,63 +140,6 @@ def _remove_stale_temporaries(out: Path) -> None:
             tmp.unlink(missing_ok=True)
         except (ValueError, PermissionError):
             pass
-
-
-class RenderPool:
-    """Worker processes that render shards of one ``_Context`` (``with RenderPool(...) as p``).
-
-    With ``workers > 1`` and a picklable ``city_factory`` (returning ``ctx.cities``, normally by
-    loading them from the city cache, which memory-maps them) the workers are *spawned*, not
-    forked: a forked child deadlocks in OpenCV's or OpenMP's thread pool when the parent used it
-    before forking. Otherwise the shards are rendered in this process.
-    """
-
-    def __init__(
-        self,
-        ctx: _Context,
-        workers: int,
-        city_factory: Callable[[], dict[tuple[str, str], Any]] | None = None,
-    ) -> None:
-        self.ctx = ctx
-        self.workers = workers if city_factory is not None else 1
-        self._factory = city_factory
-        self._pool: Any = None
-
-    def __enter__(self) -> RenderPool:
-        if self.workers > 1:
-            c = self.ctx
-            initargs = (c.root, c.profile, c.seed, self._factory, c.uav, c.sat)
-            self._pool = mp.get_context("spawn").Pool(
-                self.workers, initializer=_worker_init, initargs=initargs
-            )
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
-            self._pool = None
-
-    def imap(self, tasks: list[tuple[str, int]]) -> Iterator[tuple[str, int, int]]:
-        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields ``(kind, k, n)`` as done."""
-        global _CTX
-        if self._pool is not None:
-            yield from self._pool.imap_unordered(_run_task, tasks)
-            return
-        _CTX = self.ctx
-        try:
-            for task in tasks:
-                yield _run_task(task)
-        finally:
-            _CTX = None
-
-    def warm_up(self) -> None:
-        """Wait until every worker has loaded the cities and the compiled renderer."""
-        seen: set[int] = set()
-        for _ in range(200):  # a worker still starting takes no task; ask again until all answer
-            seen |= {pid for _, pid, _ in self.imap([("warmup", k) for k in range(self.workers)])}
-            if len(seen) >= self.workers:
-                return
 
 
 def n_shards(kind: str, n_rows: int, p: Profile) -> int:
@@ -377,7 +203,7 @@ def simulate_dataset(
     total = len(plan.uav) + len(plan.sat)
     done = total - sum(sizes[t] for t in pending)
 
-    ctx = _Context(out, profile, seed, cities, plan.uav, plan.sat)
+    ctx = RenderContext(out, profile, seed, cities, plan.uav, plan.sat)
     t0 = time.perf_counter()
     with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
         factory = partial(build_cities, profile, seed, cache_dir)

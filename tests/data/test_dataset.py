@@ -213,7 +213,9 @@ class TestInterruptedCommand:
         import time
 
         def command(out):
-            return [sys.executable, "-m", "benchmark.cli", "simulate", "--profile", "smoke",
+            # not ``-m benchmark.cli``: that imports cli twice and its UsageError handler misses
+            entry = "import sys; from benchmark.cli import main; sys.exit(main(sys.argv[1:]))"
+            return [sys.executable, "-c", entry, "simulate", "--profile", "smoke",
                     "--size", "240", "--workers", "2", "--out", str(out),
                     "--city-cache", str(city_cache), "--quiet"]  # fmt: skip
 
