@@ -18,10 +18,10 @@ from benchmark.sim.render_core import MAT_BUILDING, MAT_TREE
 from benchmark.sim.textures import fbm, hash01
 from benchmark.sim.world_styles import Style
 
-SEASON_TREE = {  # multiplicative tint of the crown albedo, and crown radius factor
-    "summer": ((1.0, 1.0, 1.0), 1.0),
-    "autumn": ((1.55, 1.1, 0.75), 0.95),
-    "winter": ((1.45, 1.15, 1.25), 0.7),
+SEASON_TREE = {  # tint of the crown albedo, crown radius factor, crown opacity
+    "summer": ((1.0, 1.0, 1.0), 1.0, 1.0),
+    "autumn": ((1.55, 1.1, 0.75), 0.95, 1.0),
+    "winter": ((1.45, 1.15, 1.25), 0.7, 0.55),  # bare branches: the ground shows through
 }
 SEASON_GRASS = {
     "summer": (1.0, 1.0, 1.0),
@@ -60,9 +60,10 @@ def river_distance(
 
 
 @njit(cache=True)
-def _stamp_trees(cx, cy, rad, top, col, height, rgb, mat, tree_h, grain, mpp):
-    """Stamp domed crowns (grid units for cx, cy, rad) into tree_h/rgb/mat (mirror not needed)."""
-    H, W = height.shape
+def _stamp_trees(cx, cy, rad, top, col, opacity, rgb, mat, tree_h, grain):
+    """Stamp domed crowns (grid units for cx, cy, rad) into tree_h/rgb/mat; ``opacity`` < 1 lets
+    the ground show through bare winter crowns."""
+    H, W = tree_h.shape
     for k in range(cx.shape[0]):
         r = rad[k]
         i0 = max(0, math.floor(cx[k] - r))
@@ -85,7 +86,7 @@ def _stamp_trees(cx, cy, rad, top, col, height, rgb, mat, tree_h, grain, mpp):
                     # Leaf clumps: darker toward the rim, per-texel grain.
                     f = 0.82 + 0.18 * math.sqrt(1.0 - d2) + 0.16 * g
                     for c in range(3):
-                        rgb[j, i, c] = col[k, c] * f
+                        rgb[j, i, c] = rgb[j, i, c] * (1.0 - opacity) + col[k, c] * f * opacity
                     mat[j, i] = MAT_TREE
 
 
@@ -118,7 +119,7 @@ def plant_trees(
     if change:
         keep = (keep & (hash01(gi, gj, change, 4) >= 0.2)) | ((u >= p) & (u < 1.15 * p))
     cx, cy, gi, gj = cx[keep], cy[keep], gi[keep], gj[keep]
-    tint, rfac = SEASON_TREE[season]
+    tint, rfac, opacity = SEASON_TREE[season]
     rad = (2.2 + 3.6 * hash01(gi, gj, seed, 5) ** 1.5) * rfac / mpp
     top = 6.0 + 10.0 * hash01(gi, gj, seed, 6)
     base = np.asarray(S.tree, np.float64)[None, :]
@@ -136,11 +137,10 @@ def plant_trees(
         rad[order],
         top[order],
         col[order].astype(np.float32),
-        tree_h,
+        float(opacity),
         rgb,
         mat,
         tree_h,
         grain,
-        mpp,
     )
     return tree_h
