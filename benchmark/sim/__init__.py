@@ -7,23 +7,32 @@ Public API (paper Sec. 3.1 and 3.5; frames and conventions in DEVELOPERS.md):
     (generalized split); industrial is the flight-test analogue.
 ``GENERATOR_VERSION``
     Bumped whenever generated pixels change; part of the city cache key and the dataset manifest.
-``build_city(style, seed, *, cache_dir=None, size_m=(3584, 2560), metres_per_px=1.0) -> City``
-    Deterministic; cached on disk under (style, seed, size, resolution, GENERATOR_VERSION).
-``changed_city(city, seed) -> City``
-    The same place at an earlier time: other sun and season, moved cars, demolished/added
-    buildings, changed trees (for the flight-test satellite images).
+``build_city(style, seed, *, cache_dir=None, size_m=(3584, 2560), metres_per_px=1.0,
+progress=False) -> City``
+    Deterministic; cached on disk under (style, seed, size, resolution, GENERATOR_VERSION) in
+    ``cache_dir`` (default ``$UAVBENCH_CACHE`` or ``~/.cache/uavbench/cities``; False: no cache).
+    About 15 s and 1.7 GB peak to build a full tile; cached cities load memory-mapped (163 MB).
+``changed_city(city, seed, *, cache_dir=None) -> City``
+    The same place at an earlier time (Sec. 3.5): other sun and season (autumn colours or bare
+    winter trees), re-drawn cars, trailers, containers and trains, demolished and added buildings,
+    changed trees, solar panels not yet installed.
 ``City``
-    ``extent``, ``metres_per_px``, ``ground_height(E, N)``, ``surface_height(E, N)``,
-    ``clearance(E, N)``, ``max_structure_height``, ``flight_centres`` (K, 2), ``ortho_image()``.
-``Camera(width, height, fov_deg)``
+    ``extent`` (E_min, E_max, N_min, N_max), ``origin``, ``metres_per_px``,
+    ``ground_height(E, N)`` (terrain), ``surface_height(E, N)`` (terrain + structures),
+    ``clearance(E, N)`` (max surface height within 8 m), ``max_structure_height``,
+    ``flight_centres`` (6, 2), ``ortho_image()`` (north-up), ``with_rasters(...)`` (edited copy).
+``Camera(width, height, fov_deg)``, ``Camera.square(size, fov_deg)``
     Pinhole, horizontal FOV, square pixels, pixel centres on integer (u, v).
 ``render_uav(city, position_enu, yaw, pitch, roll, camera, *, supersample=1) -> (H, W, 3) uint8``
-``render_satellite(city, centre_en, *, height_m=1000, footprint_m=(2000, 1000), size) -> uint8``
+    About 33 ms per 224 px and 7-8 ms per 96 px frame on one core.
+``render_satellite(city, centre_en, *, height_m=1000, footprint_m=(2000, 1000), size=224)``
+    North-up nadir perspective view squashed to ``size x size`` (INTER_AREA), ~0.2 s.
 ``satellite_pose(city, centre_en, *, height_m=1000) -> (position (3,), (yaw, pitch, roll))``
 ``project_enu_to_pixel(points_enu, position_enu, yaw, pitch, roll, camera) -> (uv (N, 2), mask)``
 
-Heights: ENU U is absolute (metres above the tile's mean terrain level); a UAV flying "100 m above
-ground" is at ``U = city.ground_height(E, N) + 100``.
+Heights: ENU U is absolute (metres, zero = the tile's mean terrain level); a UAV flying "100 m
+above ground" is at ``U = city.ground_height(E, N) + 100``. The satellite camera is ``height_m``
+above the terrain at its centre.
 """
 
 from benchmark.sim.camera import Camera, euler_to_rotmat_np, project_enu_to_pixel
