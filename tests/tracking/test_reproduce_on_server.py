@@ -1,4 +1,4 @@
-"""Slow: a tiny ``uavbench reproduce`` (smoke profile, Table 3) against a REAL MLflow server on
+"""A tiny ``uavbench reproduce`` (smoke profile, Table 3) against a REAL MLflow server on
 loopback, read back through MLflow's REST API with plain HTTP; a second invocation finds every
 run in the store and trains nothing."""
 
@@ -7,8 +7,6 @@ from __future__ import annotations
 import json
 import urllib.parse
 import urllib.request
-
-import pytest
 
 from benchmark.cli import main
 
@@ -29,9 +27,8 @@ def tags(run: dict) -> dict[str, str]:
     return {t["key"]: t["value"] for t in run["data"].get("tags", [])}
 
 
-@pytest.mark.slow
 class TestReproduceAgainstServer:
-    def test_smoke_table3(self, mlflow_server, tmp_path, monkeypatch):
+    def test_smoke_table3(self, mlflow_server, smoke_dataset, tmp_path, monkeypatch):
         monkeypatch.chdir(tmp_path)
         monkeypatch.setenv("NUMBA_NUM_THREADS", "1")
         argv = [
@@ -46,7 +43,7 @@ class TestReproduceAgainstServer:
             "--tracking-uri",
             mlflow_server.url,
             "--data",
-            str(tmp_path / "data"),
+            str(smoke_dataset),
             "--workdir",
             str(tmp_path / "work"),
             "--out",
