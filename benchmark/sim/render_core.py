@@ -20,7 +20,8 @@ procedural equivalent of a mip level). Fog: ``c = c e^{-t/V} + haze (1 - e^{-t/V
 Grid coordinates: ``gx = (E - E0) / mpp`` and ``gy = (N - N0) / mpp``; texel ``[j, i]`` covers
 ``gx in [i, i+1)``, ``gy in [j, j+1)`` (row 0 is the southern edge). Everything here is float64,
 serial and free of fastmath, so a frame is bit-identical across runs and machines with the same
-numba/LLVM.
+numba/LLVM. ``error_model="numpy"`` drops the division-by-zero checks from the inner loops (no
+division there can be by zero; the output is unchanged) for about 10 % speed.
 
 The facade of a building texel: palette wall colour with a grid of windows (floor height, window
 spacing and size from the palette row), laid out along the building's wall direction (``orient``,
@@ -58,7 +59,7 @@ WALL_STEP_M = 2.5  # a step this high between two building texels is a facade, n
 MAX_ITER = 2048
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mirror(i, n):
     if i >= 0 and i < n:
         return i
@@ -68,7 +69,7 @@ def _mirror(i, n):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mirror_coord(x, size):
     """Continuous mirror of coordinate x into [0, size) (period 2 size)."""
     m = x % (2.0 * size)
@@ -77,14 +78,14 @@ def _mirror_coord(x, size):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _height(hpyr, hoff, hdims, level, ci, cj):
     hh = hdims[level, 0]
     ww = hdims[level, 1]
     return hpyr[hoff[level] + _mirror(cj, hh) * ww + _mirror(ci, ww)]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bilinear_rgb(tex, toff, tdims, level, gx, gy):
     """Bilinear RGB of mip ``level`` at level-0 grid coordinates (mirror addressing)."""
     s = float(1 << level)
@@ -113,7 +114,7 @@ def _bilinear_rgb(tex, toff, tdims, level, gx, gy):
     return r, g, bl
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _trilinear_rgb(tex, toff, tdims, lod, gx, gy):
     nlev = toff.shape[0]
     if lod <= 0.0:
@@ -127,7 +128,7 @@ def _trilinear_rgb(tex, toff, tdims, lod, gx, gy):
     return (a0 * (1.0 - w) + b0 * w, a1 * (1.0 - w) + b1 * w, a2 * (1.0 - w) + b2 * w)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ground_bilinear(ground, gscale, gx, gy):
     """Terrain height (metres) at level-0 grid coordinates from the coarse ground grid."""
     hh = ground.shape[0]
@@ -147,7 +148,7 @@ def ground_bilinear(ground, gscale, gx, gy):
     return top * (1.0 - fy) + bot * fy
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sky(dz, params):
     w = math.sqrt(max(dz, 0.0))
     w = min(1.0, w * 1.6)
@@ -158,7 +159,7 @@ def _sky(dz, params):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fog(col, t, params):
     vis = params[P_VIS]
     if vis <= 0.0:
@@ -171,7 +172,7 @@ def _fog(col, t, params):
     )
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _facade(hx, hy, hz, t, dx, dy, axis, ci, cj, pix_angle, world):
     """Colour of a facade hit at metres-space point (hx, hy, hz) on texel (ci, cj)."""
     hpyr, hoff, hdims = world[:3]
@@ -283,7 +284,7 @@ def _facade(hx, hy, hz, t, dx, dy, axis, ci, cj, pix_angle, world):
     return (out0, out1, out2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
     """Colour (0..255, float64 ``(3,)``) seen along one ray.
 
@@ -317,24 +318,25 @@ def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
             level = 0
         else:
             level = min(L, int(math.log2(run)))
+    # Integer DDA over the cells of the current level: (ci, cj) holds the ray at length t.
+    stepx = 1 if dx > 0.0 else -1
+    stepy = 1 if dy > 0.0 else -1
+    inv_dx = 1.0 / dx if dx != 0.0 else 0.0
+    inv_dy = 1.0 / dy if dy != 0.0 else 0.0
+    s = float(1 << level)
+    ci = math.floor((ox + t * dx) / s)
+    cj = math.floor((oy + t * dy) / s)
     for _ in range(MAX_ITER):
-        if t > tmax:
-            break
-        px = ox + t * dx
-        py = oy + t * dy
-        s = float(1 << level)
-        ci = math.floor(px / s)
-        cj = math.floor(py / s)
         if dx > 0.0:
-            tx = ((ci + 1) * s - ox) / dx
+            tx = ((ci + 1) * s - ox) * inv_dx
         elif dx < 0.0:
-            tx = (ci * s - ox) / dx
+            tx = (ci * s - ox) * inv_dx
         else:
             tx = inf
         if dy > 0.0:
-            ty = ((cj + 1) * s - oy) / dy
+            ty = ((cj + 1) * s - oy) * inv_dy
         elif dy < 0.0:
-            ty = (cj * s - oy) / dy
+            ty = (cj * s - oy) * inv_dy
         else:
             ty = inf
         texit = min(tx, ty)
@@ -342,22 +344,37 @@ def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
         zin = oz + t * dz
         zout = oz + texit * dz
         if zin > h and zout > h:
-            axis = 0 if tx < ty else 1
-            t = texit + 1e-7
+            # Skip the cell; climb a level when the step also leaves the parent cell.
+            t = max(t, texit)
+            if t > tmax:
+                break
             if dz >= 0.0 and zout > gmax:
                 return _sky(dz, params)
-            if level < L:
-                # Ascend only when the step also leaves the parent cell.
-                nci = math.floor((ox + t * dx) / s)
-                ncj = math.floor((oy + t * dy) / s)
-                if (nci >> 1) != (ci >> 1) or (ncj >> 1) != (cj >> 1):
-                    level += 1
+            if tx < ty:
+                axis = 0
+                up = (ci >> 1) != ((ci + stepx) >> 1)
+                ci += stepx
+            else:
+                axis = 1
+                up = (cj >> 1) != ((cj + stepy) >> 1)
+                cj += stepy
+            if up and level < L:
+                level += 1
+                s *= 2.0
+                ci >>= 1
+                cj >>= 1
             continue
         if level > 0:
             if zin > h:
                 t = max(t, (oz - h) / (-dz))
                 axis = -1
             level -= 1
+            s *= 0.5
+            # The child cell holding the ray, clamped into the parent against rounding.
+            nci = math.floor((ox + t * dx) / s)
+            ncj = math.floor((oy + t * dy) / s)
+            ci = min(max(nci, 2 * ci), 2 * ci + 1)
+            cj = min(max(ncj, 2 * cj), 2 * cj + 1)
             continue
         # Level 0: the ray meets this texel's column.
         t_top = (oz - h) / (-dz) if dz < 0.0 else -inf
@@ -408,7 +425,7 @@ def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
     return (params[P_HAZE], params[P_HAZE + 1], params[P_HAZE + 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def render_image(out, R, pos, f, cx, cy, ss, world):
     """Fill ``out`` (H, W, 3) uint8 by casting ``ss x ss`` rays per pixel (box filter).
 
