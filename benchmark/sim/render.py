@@ -100,6 +100,10 @@ def render_uav(
     the texel it is in).
     """
     pos = check_pose(position_enu, yaw, pitch, roll)
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a benchmark.sim.Camera, got {type(camera).__name__}")
+    if not isinstance(city, City):
+        raise TypeError(f"city must be a benchmark.sim.City, got {type(city).__name__}")
     if not (isinstance(supersample, (int, np.integer)) and 1 <= supersample <= 8):
         raise ValueError(f"supersample must be an integer in [1, 8], got {supersample!r}")
     surf = float(city.surface_height(pos[0], pos[1]))

@@ -198,6 +198,8 @@ class TestRenderUav:
         e, n = e0 + i + 0.5, n0 + j + 0.5
         with pytest.raises(ValueError, match="inside the geometry"):
             render_uav(city, np.array([e, n, city.height[j, i] - 1.0]), 0, 0, 0, cam)
+        with pytest.raises(TypeError, match="Camera"):
+            render_uav(city, np.array([0.0, 0.0, 100.0]), 0, 0, 0, (32, 32, 60.0))
         with pytest.raises(ValueError, match="supersample"):
             render_uav(city, np.array([0.0, 0.0, 100.0]), 0, 0, 0, cam, supersample=0)
 
