@@ -57,6 +57,7 @@ MAT_GROUND, MAT_WATER, MAT_TREE, MAT_SMALL, MAT_BUILDING = 0, 1, 2, 3, 16
 PAL_WALL, PAL_WIN, PAL_FLOOR, PAL_SPACING, PAL_WFRAC, PAL_HFRAC = 0, 3, 6, 7, 8, 9
 WALL_STEP_M = 2.5  # a step this high between two building texels is a facade, not a roof step
 MAX_ITER = 2048
+CROWN_BASE = 0.4  # tree columns are transparent below this fraction of their height
 
 
 @njit(cache=True, error_model="numpy")
@@ -395,16 +396,36 @@ def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
                     col[2] * (1.0 - fr) + sk[2] * fr,
                 )
             return _fog(col, th, params)
-        # Side face: which texel did the ray come from?
+        # Side face. Tree columns are solid only in their crown (the upper 60 %): lower down the
+        # ray passes under the crown, to the shaded ground beneath or on to the next texel.
+        hh0 = hdims[0, 0]
+        ww0 = hdims[0, 1]
+        m_here = mat[_mirror(cj, hh0), _mirror(ci, ww0)]
+        if m_here == MAT_TREE:
+            zg = ground_bilinear(ground, params[P_GSCALE], ox + t * dx, oy + t * dy)
+            if zin < zg + CROWN_BASE * (h - zg):
+                t_ground = (oz - zg) / (-dz) if dz < 0.0 else inf
+                if t_ground <= texit:
+                    gx_ = ox + t_ground * dx
+                    gy_ = oy + t_ground * dy
+                    lod = math.log2(max(t_ground * pix_angle / mpp, 1e-6))
+                    col = _trilinear_rgb(tex, toff, tdims, lod, gx_, gy_)
+                    col = (col[0] * 0.45, col[1] * 0.45, col[2] * 0.45)
+                    return _fog(col, t_ground, params)
+                t = texit
+                if tx < ty:
+                    axis = 0
+                    ci += stepx
+                else:
+                    axis = 1
+                    cj += stepy
+                continue
         if axis == 0:
             pi_ = ci - (1 if dx > 0 else -1)
             pj_ = cj
         else:
             pi_ = ci
             pj_ = cj - (1 if dy > 0 else -1)
-        hh0 = hdims[0, 0]
-        ww0 = hdims[0, 1]
-        m_here = mat[_mirror(cj, hh0), _mirror(ci, ww0)]
         m_prev = mat[_mirror(pj_, hh0), _mirror(pi_, ww0)]
         h_prev = _height(hpyr, hoff, hdims, 0, pi_, pj_)
         hx = ox + t * dx
