@@ -178,29 +178,49 @@ def _save(city: City, path: Path) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+_META_KEYS = (
+    "style",
+    "seed",
+    "change",
+    "season",
+    "metres_per_px",
+    "max_structure_height",
+    "generator_version",
+)
+
+
 def _load(path: Path) -> City:
-    meta = json.loads((path / "meta.json").read_text())
-    arrays = {n: np.asarray(np.load(path / f"{n}.npy", mmap_mode="r")) for n in _ARRAYS}
-    extra = {
-        k: v
-        for k, v in meta.items()
-        if k
-        not in (
-            "style",
-            "seed",
-            "change",
-            "season",
-            "metres_per_px",
-            "max_structure_height",
-            "generator_version",
-        )
-    }
+    """Load a cached city (memory-mapped); ValueError naming the file if anything is off."""
+    try:
+        meta = json.loads((path / "meta.json").read_text())
+        missing = [k for k in _META_KEYS if k not in meta]
+        if missing:
+            raise ValueError(f"missing keys {missing}")
+        if meta["generator_version"] != GENERATOR_VERSION:
+            raise ValueError(f"generator_version {meta['generator_version']!r}")
+    except (OSError, ValueError) as e:
+        raise ValueError(f"corrupt city cache {path / 'meta.json'}: {e}; delete {path}") from e
+    arrays = {}
+    for n in (*_ARRAYS, "sun"):
+        f = path / f"{n}.npy"
+        try:
+            arrays[n] = np.asarray(np.load(f, mmap_mode="r"))
+        except (OSError, ValueError) as e:
+            raise ValueError(f"corrupt city cache file {f}: {e}; delete {path}") from e
+    H, W = arrays["height"].shape
+    expect = {"ortho": (H, W, 3), "mat": (H, W), "orient": (H, W), "ground": (H // 4, W // 4)}
+    for n, shape in expect.items():
+        if arrays[n].shape != shape:
+            raise ValueError(
+                f"corrupt city cache file {path / (n + '.npy')}: shape {arrays[n].shape}, "
+                f"expected {shape}; delete {path}"
+            )
+    extra = {k: v for k, v in meta.items() if k not in _META_KEYS}
     return City(
         style=meta["style"],
         seed=meta["seed"],
         change=meta["change"],
         season=meta["season"],
-        sun=np.load(path / "sun.npy"),
         metres_per_px=meta["metres_per_px"],
         max_structure_height=meta["max_structure_height"],
         meta=extra,

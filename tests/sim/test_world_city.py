@@ -38,6 +38,15 @@ class TestBuildCity:
             assert c.style == "oxford" and c.seed == 5 and c.metres_per_px == 1.0
             np.testing.assert_array_equal(c.sun, city.sun)
 
+    @pytest.mark.parametrize("victim", ["height.npy", "meta.json", "tex.npy"])
+    def test_corrupt_cache_is_named(self, tmp_path, victim):
+        build_city("oxford", 5, cache_dir=tmp_path, size_m=SMALL)
+        (entry,) = tmp_path.iterdir()
+        f = entry / victim
+        f.write_bytes(f.read_bytes()[: 40 if victim != "meta.json" else 10])
+        with pytest.raises(ValueError, match=rf"corrupt city cache.*{victim}"):
+            build_city("oxford", 5, cache_dir=tmp_path, size_m=SMALL)
+
     def test_unknown_style_names_value_and_choices(self):
         with pytest.raises(ValueError, match=r"'paris'.*oxford.*industrial"):
             build_city("paris", 1, cache_dir=False, size_m=SMALL)
