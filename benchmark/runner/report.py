@@ -125,6 +125,8 @@ def markdown_table(
                 else:
                     cells.append("not run")
             lines.append("| " + " | ".join(cells) + " |")
+    if spec.note:
+        lines += ["", spec.note.strip()]
     return "\n".join(lines) + "\n"
 
 

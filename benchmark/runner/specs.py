@@ -65,6 +65,7 @@ class TableSpec:
     metrics: tuple[str, ...] = ()
     sweep: str | None = None
     sweep_values: tuple[str, ...] = ()
+    note: str = ""  # printed under the rendered table
 
     def jobs(self) -> list[Job]:
         """Concrete jobs; a sweep yields one per (value, variant). Cost specs train nothing."""
