@@ -85,4 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # Run through the imported module: executed as __main__, this file's UsageError would be a
+    # different class from the benchmark.cli.UsageError that command modules raise.
+    from benchmark.cli import main as _main
+
+    raise SystemExit(_main())
