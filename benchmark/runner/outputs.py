@@ -4,6 +4,7 @@ costs and the claim-by-claim summary ``README.md``."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import platform
 import time
 from pathlib import Path
@@ -115,7 +116,7 @@ def write_reports(
     data_root: Path,
     out: Path,
     logbook: Logbook | None,
-    wall_seconds: float | None = None,
+    invocations: list[dict] | None = None,
 ) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
@@ -157,7 +158,7 @@ def write_reports(
             logbook.log_table_outputs(spec.name, paths)
     claims = evaluate_claims(summaries)
     readme = out / "README.md"
-    readme.write_text(_readme(profile, specs, claims, wall_seconds))
+    readme.write_text(_readme(profile, specs, claims, invocations or []))
     written.append(readme)
     return written
 
@@ -168,14 +169,26 @@ def _input_size(data_root: Path) -> int:
     return int(read_manifest(Path(data_root))["image_size"])
 
 
-def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, wall: float | None) -> str:
+def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, runs: list[dict]) -> str:
     cpu = platform.processor() or platform.machine()
     lines = [
         f"# uavbench reproduction: profile `{profile.name}`",
         "",
         f"Written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.node()} "
-        f"({cpu}, {torch.get_num_threads()} torch threads in the main process, torch "
-        f"{torch.__version__})" + (f"; wall time {wall / 60:.1f} min." if wall else "."),
+        f"({cpu}, {os.cpu_count()} cores, torch {torch.__version__}).",
+        "",
+        "Invocations that produced these results (wall time: simulation, training and "
+        "evaluation, before the reports):",
+        "",
+        "| started (UTC) | wall time | training runs executed | machine | git commit |",
+        "|---|---|---|---|---|",
+    ]
+    for r in runs:
+        lines.append(
+            f"| {r['started']} | {r['wall_s'] / 60:.1f} min | {r['trained']} of {r['units']} | "
+            f"{r['machine']} | `{r['git_commit']}` |"
+        )
+    lines += [
         "",
         f"Profile: width {profile.width:g} GoogLeNet, {profile.epochs} epochs, {profile.optimizer} "
         f"lr {profile.lr:g} ({profile.lr_schedule}), batch {profile.batch_size}. Dataset profile "

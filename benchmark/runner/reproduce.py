@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
+import json
 import multiprocessing
+import os
 import platform
 import time
 from pathlib import Path
@@ -93,6 +95,18 @@ def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: 
                 raise
 
 
+def _log_invocation(workdir: Path, record: dict, keys: set[str]) -> list[dict]:
+    """Append this invocation to ``<workdir>/invocations.jsonl``; return those that trained units
+    of this plan (the provenance of the results), this one last."""
+    path = workdir / "invocations.jsonl"
+    history = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+    record = {**record, "unit_keys": sorted(keys)}
+    with path.open("a") as fh:
+        fh.write(json.dumps(record) + "\n")
+    relevant = [r for r in history if r.get("trained") and keys & set(r.get("unit_keys", []))]
+    return [*relevant, record]
+
+
 def run(args: argparse.Namespace) -> int:
     from benchmark.runner.outputs import write_reports
     from benchmark.tracking import RunStatus, create_tracker, git_commit, manifest_sha256
@@ -164,7 +178,18 @@ def run(args: argparse.Namespace) -> int:
     status = RunStatus.FINISHED
     try:
         execute_units(todo, args.jobs, on_done, args.quiet)
-        written = write_reports(specs, units, results, profile, data_root, out, logbook)
+        record = {
+            "started": time.strftime("%Y-%m-%d %H:%M", time.gmtime(started)),
+            "wall_s": time.time() - started,
+            "trained": len(todo),
+            "units": len(units),
+            "machine": f"{platform.node()}, {os.cpu_count()} cores",
+            "git_commit": provenance["git_commit"],
+        }
+        invocations = _log_invocation(workdir, record, {u.key for u in units})
+        written = write_reports(
+            specs, units, results, profile, data_root, out, logbook, invocations
+        )
     except KeyboardInterrupt:
         status = RunStatus.KILLED
         print("interrupted: finished runs are kept; run the same command again to resume")
