@@ -13,12 +13,8 @@ from dataclasses import dataclass
 
 import pandas as pd
 
-SUPPORTED, PARTLY, CONTRADICTED, NOT_RUN = (
-    "supported",
-    "partly supported",
-    "contradicted",
-    "not run",
-)
+SUPPORTED, PARTLY, CONTRADICTED = "supported", "partly supported", "contradicted"
+NOT_RUN, INCONCLUSIVE = "not run", "inconclusive"
 
 
 @dataclass
@@ -114,23 +110,34 @@ def _pairwise_claim(
 
 
 def translation_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    notes, outcomes = [], []
+    notes, outcomes, learned = [], [], []
+    axes = ("dE_m", "dN_m", "dU_m")
     for table, split in (("table3", "standard/test"), ("table4", "generalized/test")):
-        reg = [_value(s.get(table), "Pd/Re-Net", split, m) for m in ("dE_m", "dN_m", "dU_m")]
-        dist = [_value(s.get(table), "Re-Net-T", split, m) for m in ("dE_m", "dN_m", "dU_m")]
+        reg = [_value(s.get(table), "Pd/Re-Net", split, m) for m in axes]
+        dist = [_value(s.get(table), "Re-Net-T", split, m) for m in axes]
+        const = [_value(s.get(table), "Constant (train mean)", split, m) for m in axes]
         if any(v is None for v in reg + dist):
             continue
         mean_reg = sum(v[0] for v in reg) / 3
         mean_dist = sum(v[0] for v in dist) / 3
         # "does not help": the distribution branch is not clearly (>10%) better
         outcomes.append("yes" if mean_dist >= 0.9 * mean_reg else "no")
+        note = f"{split}: mean |error| regression {mean_reg:.1f} m vs Re-Net-T {mean_dist:.1f} m"
+        if all(v is not None for v in const):
+            mean_const = sum(v[0] for v in const) / 3
+            learned.append(min(mean_reg, mean_dist) <= 0.9 * mean_const)
+            note += f", constant predictor {mean_const:.1f} m"
+        notes.append(note)
+    verdict = _verdict(outcomes)
+    if learned and not any(learned):
+        verdict = INCONCLUSIVE
         notes.append(
-            f"{split}: mean |error| regression {mean_reg:.1f} m vs Re-Net-T {mean_dist:.1f} m"
+            "neither translation head beats the constant predictor by 10%: nothing learned"
         )
     return Claim(
         "A distribution layer does not improve translation (regression is a fair trade-off)",
         "Tables 3-4, mean of δE, δN, δU (m)",
-        _verdict(outcomes),
+        verdict,
         "; ".join(notes) or "tables 3-4 not run",
     )
 

@@ -8,6 +8,7 @@ import pandas as pd
 
 from benchmark.runner.claims import (
     CONTRADICTED,
+    INCONCLUSIVE,
     NOT_RUN,
     PARTLY,
     SUPPORTED,
@@ -113,6 +114,18 @@ class TestTranslationClaim:
             ),
         ]
         assert translation_claim({"table3": summary(rows)}).verdict == SUPPORTED
+
+    def test_nothing_learned_is_inconclusive(self):
+        rows = [
+            (label, "standard/test", None, {m: (v, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")})
+            for label, v in (
+                ("Pd/Re-Net", 150.0),
+                ("Re-Net-T", 152.0),
+                ("Constant (train mean)", 151.0),
+            )
+        ]
+        claim = translation_claim({"table3": summary(rows)})
+        assert claim.verdict == INCONCLUSIVE and "nothing learned" in claim.evidence
 
 
 class TestKappaClaim:
