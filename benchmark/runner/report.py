@@ -181,8 +181,13 @@ def sweep_figure(spec: TableSpec, summary: pd.DataFrame, path: Path) -> None:
     rows = math.ceil(len(metrics) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.2 * rows), squeeze=False)
     order = {str(x): i for i, x in enumerate(spec.sweep_values)}
+    # A line per variant and evaluated split; when the split itself follows the sweep value
+    # (Fig. 5's height{x}/test, Fig. 6's pitch{x}/test) a line per variant.
+    split_follows_x = any("{x}" in s for s in spec.eval_splits)
+    template = next((s for s in spec.eval_splits if "{x}" in s), "")
+    series = summary.assign(series=template if split_follows_x else summary["split"])
     for ax, m in zip(axes.flat, metrics, strict=False):
-        for (label, split), part in summary.groupby(["label", "split"], sort=False):
+        for (label, split), part in series.groupby(["label", "series"], sort=False):
             part = part.assign(_pos=part["x"].astype(str).map(order)).sort_values("_pos")
             xs = part["_pos"].to_numpy()
             ys = part[m].to_numpy(dtype=float)
