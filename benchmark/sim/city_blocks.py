@@ -292,46 +292,12 @@ def fill_park(S: Style, cv: Canvas, P: BlockPixels, noise_a: np.ndarray, noise_b
     _set(cv, P.idx, pond, rgb=wcol, mat=MAT_WATER, struct=-0.8, tree=0.0)
 
 
-def fill_lawn(S: Style, cv: Canvas, P: BlockPixels) -> None:
-    """Mown lawns / sports fields: alternating stripes, a path ring, trees at the edge."""
-    stripe = (np.floor(P.lu / 7.0) % 2) * 2.0 - 1.0
-    col = np.asarray(S.grass, np.float32)[None, :] * (
-        1.0 + 0.07 * stripe[:, None] + 0.04 * cv.grain[P.idx][:, None]
-    )
-    cv.rgb[P.idx] = col
-    cv.mat[P.idx] = MAT_GROUND
-    d = np.minimum(np.minimum(P.lu, P.lv), np.minimum(P.bw - P.lu, P.bh - P.lv))
-    cv.tree[P.idx] = np.where(d < 6.0, S.tree_park, 0.0).astype(np.float32)
-    ring = (d > 7.0) & (d < 9.0)
-    _set(cv, P.idx, ring, rgb=np.asarray(S.pavement, np.float32), tree=0.0)
-
-
-def fill_plaza(S: Style, cv: Canvas, P: BlockPixels) -> None:
-    """A paved square with a tile pattern and a regular grid of trees."""
-    tile = ((np.floor(P.lu / 3.0) + np.floor(P.lv / 3.0)) % 2) * 2.0 - 1.0
-    col = np.asarray(S.pavement, np.float32)[None, :] * (
-        1.0 + 0.04 * tile[:, None] + 0.03 * cv.grain[P.idx][:, None]
-    )
-    cv.rgb[P.idx] = col
-    cv.mat[P.idx] = MAT_GROUND
-    edge = np.minimum(np.minimum(P.lu, P.lv), np.minimum(P.bw - P.lu, P.bh - P.lv))
-    cv.tree[P.idx] = np.where(edge < 8.0, 0.35, 0.02).astype(np.float32)
-    # A fountain / monument plinth in the middle.
-    r = np.hypot(P.lu - 0.5 * P.bw, P.lv - 0.5 * P.bh)
-    basin = r < 5.0
-    _set(cv, P.idx, basin & (r > 4.2), rgb=np.asarray((200, 196, 186), np.float32), struct=0.6)
-    _set(cv, P.idx, r <= 4.2, rgb=np.asarray(S.water, np.float32) * 1.3, mat=MAT_WATER, struct=0.3)
-    _set(cv, P.idx, r < 1.0, rgb=np.asarray((190, 186, 176), np.float32), mat=MAT_SMALL, struct=3.5)
-
-
 __all__ = [
     "MAT_GROUND",
     "BlockPixels",
     "Canvas",
     "fill_detached",
-    "fill_lawn",
     "fill_park",
     "fill_parking",
-    "fill_plaza",
     "fill_terrace",
 ]
