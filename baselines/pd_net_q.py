@@ -40,7 +40,7 @@ from benchmark.geometry import (
     super_fibonacci,
 )
 from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_option
+from benchmark.models.heads import check_lattice_options
 from benchmark.models.spherical import LatticeDecoder, directionnet_loss, resultant_length
 
 
@@ -61,10 +61,9 @@ class PdNetQ(AttitudeHead):
         symmetric: bool = True,
     ) -> None:
         super().__init__(in_features)
-        self.kappa = check_option(kappa, "kappa", "pd_net_q")
-        self.alpha = check_option(alpha, "alpha", "pd_net_q", inclusive=True)
-        if not isinstance(n_points, int) or n_points < 8:
-            raise ValueError(f"pd_net_q: n_points must be an int >= 8, got {n_points!r}")
+        self.kappa, self.alpha = check_lattice_options(
+            "pd_net_q", n_points, kappa, alpha, min_points=8
+        )
         self.symmetric = bool(symmetric)
         self.register_buffer("grid", super_fibonacci(n_points), persistent=False)
         self.decoder = LatticeDecoder(in_features, 1, n_points, hidden)

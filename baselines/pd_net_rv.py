@@ -27,7 +27,7 @@ from torch import Tensor
 
 from benchmark.geometry import discrete_vmf, fibonacci_sphere, rotmat_to_rotvec, rotvec_to_rotmat
 from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_option, mlp
+from benchmark.models.heads import check_lattice_options, check_option, mlp
 from benchmark.models.spherical import directionnet_loss, lattice_log_density, resultant_length
 
 _MIN_ANGLE = 1e-6
@@ -61,11 +61,8 @@ class PdNetRv(AttitudeHead):
         angle_weight: float = 1.0,
     ) -> None:
         super().__init__(in_features)
-        self.kappa = check_option(kappa, "kappa", "pd_net_rv")
-        self.alpha = check_option(alpha, "alpha", "pd_net_rv", inclusive=True)
+        self.kappa, self.alpha = check_lattice_options("pd_net_rv", n_points, kappa, alpha)
         self.angle_weight = check_option(angle_weight, "angle_weight", "pd_net_rv", inclusive=True)
-        if not isinstance(n_points, int) or n_points < 4:
-            raise ValueError(f"pd_net_rv: n_points must be an int >= 4, got {n_points!r}")
         self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
         self.net = mlp(in_features, hidden, n_points + 1)
 

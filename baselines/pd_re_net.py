@@ -43,7 +43,7 @@ from torch import Tensor
 
 from benchmark.geometry import discrete_vmf, fibonacci_sphere, special_orthogonalize
 from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_option
+from benchmark.models.heads import check_lattice_options
 from benchmark.models.spherical import (
     LatticeDecoder,
     directionnet_loss,
@@ -68,10 +68,7 @@ class PdReNet(AttitudeHead):
         hidden: int = 160,
     ) -> None:
         super().__init__(in_features)
-        self.kappa = check_option(kappa, "kappa", "pd_re_net")
-        self.alpha = check_option(alpha, "alpha", "pd_re_net", inclusive=True)
-        if not isinstance(n_points, int) or n_points < 4:
-            raise ValueError(f"pd_re_net: n_points must be an int >= 4, got {n_points!r}")
+        self.kappa, self.alpha = check_lattice_options("pd_re_net", n_points, kappa, alpha)
         self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
         self.decoder = LatticeDecoder(in_features, 3, n_points, hidden)
 

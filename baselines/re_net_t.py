@@ -21,7 +21,7 @@ from torch.nn import functional
 
 from benchmark.geometry import discrete_vmf, fibonacci_sphere
 from benchmark.models import TranslationHead, register_head
-from benchmark.models.heads import check_option, mlp
+from benchmark.models.heads import check_lattice_options, check_option, mlp
 from benchmark.models.spherical import directionnet_loss, resultant_length
 
 _MIN_LENGTH = 1e-6  # metres; below this the direction is undefined and e_z is used
@@ -44,11 +44,8 @@ class ReNetT(TranslationHead):
         scale_weight: float = 1.0,
     ) -> None:
         super().__init__(in_features)
-        self.kappa = check_option(kappa, "kappa", "re_net_t")
-        self.alpha = check_option(alpha, "alpha", "re_net_t", inclusive=True)
+        self.kappa, self.alpha = check_lattice_options("re_net_t", n_points, kappa, alpha)
         self.scale_weight = check_option(scale_weight, "scale_weight", "re_net_t", inclusive=True)
-        if not isinstance(n_points, int) or n_points < 4:
-            raise ValueError(f"re_net_t: n_points must be an int >= 4, got {n_points!r}")
         self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
         self.net = mlp(in_features, hidden, n_points + 1)
 

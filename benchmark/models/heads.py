@@ -82,6 +82,18 @@ def check_option(
     return float(value)
 
 
+def check_lattice_options(
+    owner: str, n_points: object, kappa: float, alpha: float, *, min_points: int = 4
+) -> tuple[float, float]:
+    """The options every lattice-distribution head shares: ``(kappa, alpha)`` checked as floats
+    (kappa > 0, alpha >= 0) and ``n_points`` an int >= ``min_points``."""
+    kappa = check_option(kappa, "kappa", owner)
+    alpha = check_option(alpha, "alpha", owner, inclusive=True)
+    if isinstance(n_points, bool) or not isinstance(n_points, int) or n_points < min_points:
+        raise ValueError(f"{owner}: n_points must be an int >= {min_points}, got {n_points!r}")
+    return kappa, alpha
+
+
 def mlp(in_features: int, hidden: int, out_features: int) -> nn.Sequential:
     """``Linear(in, hidden) -> ReLU -> Linear(hidden, out)``: the layers of every head."""
     if hidden <= 0:
