@@ -185,7 +185,6 @@ def constant_claim(s: dict[str, pd.DataFrame]) -> Claim:
 
 
 def uncertainty_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    summary = s.get("table1")
     notes, outcomes = [], []
     for table, split in (("table1", "standard/test"), ("table2", "generalized/test")):
         summary = s.get(table)
