@@ -123,6 +123,9 @@ class Head(nn.Module):
     name: ClassVar[str] = ""  # set by @register_head
     paper_name: ClassVar[str] = ""  # e.g. "Pd/Re-Net", "Re-Net-R"
     is_probabilistic: ClassVar[bool] = False
+    # Bump when the head's maths changes (target, loss, decoding) without its options changing:
+    # the runner and `uavbench train` key finished runs on it, so old results are not reused.
+    version: ClassVar[int] = 1
 
     def __init__(self, in_features: int) -> None:
         super().__init__()

@@ -157,6 +157,18 @@ def get_head_class(name: str, kind: str | None = None) -> type[Head]:
     return cls
 
 
+def head_versions(attitude: str, translation: str) -> dict[str, int]:
+    """``{"attitude": v, "translation": v}``: the ``version`` of the two named heads.
+
+    Part of a finished run's identity (runner units, ``uavbench train``), so that a change to a
+    head's maths, which bumps its version, invalidates the runs made with the old maths.
+    """
+    return {
+        "attitude": get_head_class(attitude, "attitude").version,
+        "translation": get_head_class(translation, "translation").version,
+    }
+
+
 def create_head(name: str, kind: str | None = None, **kwargs: Any) -> Head:
     """Instantiate the head registered as ``name`` with ``kwargs`` (e.g. ``in_features=4096``).
 

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmark.config import flatten
+from benchmark.models.registry import head_versions
 from benchmark.runner.plan import Unit, job_key
 from benchmark.runner.specs import Job
 from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
@@ -77,6 +78,7 @@ class Logbook:
             "x": job.x if job.x is not None else "",
             "head": cfg.model.attitude,
             "translation_head": cfg.model.translation,
+            "head_versions": json.dumps(head_versions(cfg.model.attitude, cfg.model.translation)),
             "encoder": f"{cfg.model.encoder} {cfg.model.variant} w{cfg.model.width:g}",
             "seed": cfg.seed,
             "unit": unit.key,

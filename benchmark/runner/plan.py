@@ -3,8 +3,9 @@
 Many table entries share a model (Pd/Re-Net on ``standard/train`` appears in Tables 1-4, Fig. 6,
 Fig. 7 at kappa 10 and Fig. 9 as variant ``/``). A :class:`Unit` is one (train config, seed): it is
 trained once and evaluated on the union of the splits its jobs need. Its key hashes the train
-config without machine-specific paths plus the dataset's manifest hash, so the same reproduction on
-another machine finds the same keys in a shared tracking store.
+config without machine-specific paths, the dataset's manifest hash and the versions of its two
+heads, so the same reproduction on another machine finds the same keys in a shared tracking store,
+and a head whose maths changed (version bump) is trained again.
 """
 
 from __future__ import annotations
@@ -111,9 +112,13 @@ def train_config(
 
 
 def unit_key(cfg: TrainConfig, dataset_hash: str) -> str:
-    """Stable across machines: the config without its data path, plus the dataset identity."""
+    """Stable across machines: the config without its data path, the dataset identity and the
+    heads' versions."""
+    from benchmark.models.registry import head_versions
+
     portable = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""), threads=None)
-    text = json.dumps([config_hash(portable), dataset_hash])
+    versions = head_versions(cfg.model.attitude, cfg.model.translation)
+    text = json.dumps([config_hash(portable), dataset_hash, versions])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

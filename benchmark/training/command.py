@@ -54,6 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from benchmark.cli import UsageError
     from benchmark.config import ConfigError, config_hash, flatten, save_yaml
+    from benchmark.models.registry import head_versions
     from benchmark.training.config import load_train_config
 
     try:
@@ -81,9 +82,14 @@ def run(args: argparse.Namespace) -> int:
                 f"{what}={split!r} is not a split of {cfg.data.root}; available: "
                 f"{', '.join(available)}"
             )
-    # The run's identity: config, evaluated splits and dataset content (not where it lives).
+    # The run's identity: config, evaluated splits, dataset content (not where it lives) and the
+    # versions of the heads' maths.
     portable = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""))
-    identity = json.dumps([config_hash(portable), sorted(eval_splits), manifest])
+    try:
+        versions = head_versions(cfg.model.attitude, cfg.model.translation)
+    except ValueError as err:
+        raise UsageError(f"model: {err}") from None
+    identity = json.dumps([config_hash(portable), sorted(eval_splits), manifest, versions])
     run_key = hashlib.sha256(identity.encode()).hexdigest()[:16]
     out = args.out or Path("runs") / f"train-{config_hash(cfg)}"
 
@@ -100,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         "config_hash": config_hash(cfg),
         "head": cfg.model.attitude,
         "translation_head": cfg.model.translation,
+        "head_versions": json.dumps(versions),
         "encoder": f"{cfg.model.encoder}:{cfg.model.variant}",
         "seed": cfg.seed,
         "git_commit": git_commit() or "unknown",

@@ -16,6 +16,7 @@ from benchmark.models import (
     create_head,
     get_head_class,
     head_kind,
+    head_versions,
     list_encoders,
     list_heads,
     register_head,
@@ -71,6 +72,14 @@ class TestCreateHead:
     def test_unknown_name_lists_known(self):
         with pytest.raises(ValueError, match=r"no_such_head.*pd_re_net"):
             create_head("no_such_head", in_features=16)
+
+    def test_head_versions_are_positive_ints_and_check_the_kind(self):
+        for att in list_heads("attitude"):
+            versions = head_versions(att, "regression")
+            assert set(versions) == {"attitude", "translation"}
+            assert all(isinstance(v, int) and v >= 1 for v in versions.values())
+        with pytest.raises(ValueError, match="unknown attitude head 'regression'"):
+            head_versions("regression", "regression")
 
     def test_kind_mismatch(self):
         with pytest.raises(ValueError, match="unknown translation head 'pd_re_net'"):

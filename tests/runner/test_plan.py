@@ -63,6 +63,15 @@ class TestPlanUnits:
         assert {u.key for u in a}.isdisjoint({u.key for u in b})
         assert len({u.key for u in plan(seeds=(0, 1))}) == 52
 
+    def test_a_head_version_bump_changes_only_that_heads_keys(self, monkeypatch):
+        from benchmark.models import get_head_class
+
+        before = {u.key: u.cfg.model.attitude for u in plan()}
+        monkeypatch.setattr(get_head_class("pd_net_e"), "version", 99)
+        after = {u.key for u in plan()}
+        changed = {att for key, att in before.items() if key not in after}
+        assert changed == {"pd_net_e"}
+
     def test_missing_split_is_reported(self):
         with pytest.raises(ValueError, match="no split"):
             plan_units(
