@@ -49,7 +49,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def bench_poses(city, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
     """``n`` UAV poses on default-spec flights around the city's centres (no camera effects)."""
-    from benchmark.sim.flights import FlightSpec, generate_flight
+    from benchmark.sim import FlightSpec, generate_flight
 
     spec = FlightSpec(samples=samples)
     rows = []
@@ -87,8 +87,7 @@ def main(argv: list[str]) -> int:
     single_thread_env()
     from benchmark.data.profiles import PROFILES
     from benchmark.data.render_pool import RenderContext, RenderPool, render_sat_rows
-    from benchmark.sim import build_city
-    from benchmark.sim.splits import city_seed
+    from benchmark.sim import build_city, city_seed
 
     print(
         f"uavbench bench simulate: {args.workers} workers, {os.cpu_count()} cores, "

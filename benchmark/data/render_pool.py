@@ -64,8 +64,7 @@ def _worker_init(
 
 def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
     """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects."""
-    from benchmark.sim import Camera, render_uav
-    from benchmark.sim.splits import sample_seed
+    from benchmark.sim import Camera, render_uav, sample_seed
 
     p = ctx.profile
     camera = Camera(p.image_size, p.image_size, p.fov_deg)

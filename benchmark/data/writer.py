@@ -115,8 +115,7 @@ def parquet_bytes(df: pd.DataFrame) -> bytes:
 
 def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tuple[str, str], Any]:
     """All worlds of a dataset: ``{(style, "now"|"earlier"): City}``."""
-    from benchmark.sim import build_city, changed_city
-    from benchmark.sim.splits import city_seed
+    from benchmark.sim import build_city, changed_city, city_seed
 
     kwargs: dict[str, Any] = {"cache_dir": cache_dir, "metres_per_px": profile.city_metres_per_px}
     if profile.city_size_m is not None:
@@ -177,7 +176,7 @@ def simulate_dataset(
     cities = build_cities(profile, seed, cache_dir)
     stats["cities_s"] = time.perf_counter() - t0
 
-    from benchmark.sim.splits import make_plan
+    from benchmark.sim import make_plan
 
     t0 = time.perf_counter()
     plan = make_plan(profile, {s: c for (s, v), c in cities.items() if v == "now"}, seed)

@@ -30,12 +30,21 @@ progress=False) -> City``
 ``satellite_pose(city, centre_en, *, height_m=1000) -> (position (3,), (yaw, pitch, roll))``
 ``project_enu_to_pixel(points_enu, position_enu, yaw, pitch, roll, camera) -> (uv (N, 2), mask)``
 
+``FlightSpec``, ``generate_flight(...)``
+    Flight curves around a centre (``benchmark.sim.flights``).
+``make_plan(profile, cities, seed) -> Plan``, ``city_seed(seed, style)``, ``sample_seed(seed, i)``
+    The dataset plan (flights, splits, labels) and the seeds of worlds and renders
+    (``benchmark.sim.splits``; imported on first use, it pulls in pandas and scipy).
+
 Heights: ENU U is absolute (metres, zero = the tile's mean terrain level); a UAV flying "100 m
 above ground" is at ``U = city.ground_height(E, N) + 100``. The satellite camera is ``height_m``
 above the terrain at its centre.
 """
 
+from typing import Any
+
 from benchmark.sim.camera import Camera, euler_to_rotmat_np, project_enu_to_pixel
+from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.render import render_satellite, render_uav, satellite_camera, satellite_pose
 from benchmark.sim.world import GENERATOR_VERSION, STYLES, City, build_city, changed_city
 
@@ -44,12 +53,28 @@ __all__ = [
     "STYLES",
     "Camera",
     "City",
+    "FlightSpec",
     "build_city",
     "changed_city",
+    "city_seed",
     "euler_to_rotmat_np",
+    "generate_flight",
+    "make_plan",
     "project_enu_to_pixel",
     "render_satellite",
     "render_uav",
+    "sample_seed",
     "satellite_camera",
     "satellite_pose",
 ]
+
+# Imported on first access (PEP 562): render workers import this package and need none of them.
+_FROM_SPLITS = ("city_seed", "make_plan", "sample_seed")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _FROM_SPLITS:
+        from benchmark.sim import splits
+
+        return getattr(splits, name)
+    raise AttributeError(f"module 'benchmark.sim' has no attribute {name!r}")
