@@ -41,8 +41,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
     from benchmark.data import DatasetError, PairDataset, list_splits
     from benchmark.evaluation.evaluate import evaluate
-    from benchmark.training.build import load_trained_model
-    from benchmark.training.loop import load_checkpoint
+    from benchmark.models.checkpoint import load_checkpoint, load_trained_model
 
     try:
         ckpt = load_checkpoint(args.checkpoint)

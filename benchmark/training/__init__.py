@@ -1,12 +1,14 @@
 """Training: the train config, the deterministic resumable loop, and model/dataset building.
 
 ``run_training(cfg, out_dir, on_epoch_end=...)`` is what a runner calls; this package never imports
-``benchmark.tracking`` (connect a tracker through ``on_epoch_end``).
+``benchmark.tracking`` (connect a tracker through ``on_epoch_end``) except in ``command.py``, the
+``uavbench train`` CLI. Checkpoints are read with ``benchmark.models.checkpoint`` (re-exported
+here).
 """
 
+from benchmark.models.checkpoint import load_checkpoint, load_trained_model
 from benchmark.training.build import (
     image_size_of,
-    load_trained_model,
     model_factory,
     open_datasets,
     predictions_csv_path,
@@ -27,7 +29,6 @@ from benchmark.training.loop import (
     NonFiniteLossError,
     TrainResult,
     derive_seed,
-    load_checkpoint,
     make_optimizer,
     train,
     translation_labels,

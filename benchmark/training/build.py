@@ -10,7 +10,7 @@ from torch.utils.data import Dataset, Subset
 
 from benchmark.config import ConfigError
 from benchmark.training.config import TrainConfig
-from benchmark.training.loop import EpochCallback, TrainResult, load_checkpoint, train
+from benchmark.training.loop import EpochCallback, TrainResult, train
 
 
 def _limit(dataset: Dataset, limit: int | None) -> Dataset:
@@ -140,15 +140,3 @@ def train_and_evaluate(
         )
         summaries[split] = summary
     return result, summaries
-
-
-def load_trained_model(checkpoint: str | Path) -> torch.nn.Module:
-    """Rebuild the ``PoseModel`` saved in a checkpoint (eval mode)."""
-    from benchmark.models import ModelConfig, build_model
-
-    ckpt = load_checkpoint(checkpoint)
-    if ckpt.get("model_config") is None:
-        raise ValueError(f"{checkpoint} holds no model config; cannot rebuild the model")
-    model = build_model(ModelConfig(**ckpt["model_config"]))
-    model.load_state_dict(ckpt["model"])
-    return model.eval()

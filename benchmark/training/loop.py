@@ -34,11 +34,11 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from benchmark.config import config_hash, to_dict
+from benchmark.models.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from benchmark.progress import Progress
 from benchmark.training.config import TrainConfig
 
 CHECKPOINT = "checkpoint.pt"
-CHECKPOINT_FORMAT = 1
 EpochCallback = Callable[[int, dict[str, float]], None]
 
 
@@ -115,17 +115,6 @@ def _set_rng_state(state: dict[str, Any]) -> None:
     torch.set_rng_state(state["torch"])
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
-
-
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    path = Path(path)
-    try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as err:  # truncated / foreign file: say which file
-        raise ValueError(f"cannot read checkpoint {path}: {err}") from err
-    if not isinstance(ckpt, dict) or ckpt.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path} is not a uavbench checkpoint (format {CHECKPOINT_FORMAT})")
-    return ckpt
 
 
 def make_optimizer(cfg: TrainConfig, model: torch.nn.Module) -> torch.optim.Optimizer:
