@@ -21,6 +21,8 @@ from benchmark.runner.plan import Unit, job_key
 from benchmark.runner.specs import Job
 from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
 
+SECONDS_METRIC = "unit_seconds"  # wall time of the unit's training + evaluation in its worker
+
 
 def experiment_name(profile: str, table: str) -> str:
     return f"uavbench-{profile}/{table}"
@@ -48,8 +50,11 @@ class Logbook:
             )
         return self.parents[table]
 
-    def finished(self, job: Job, unit: Unit) -> dict[str, dict[str, float]] | None:
-        """Per-split metrics of this job's FINISHED run in the store, or None."""
+    def finished(self, job: Job, unit: Unit) -> tuple[dict[str, dict[str, float]], float] | None:
+        """``(per-split metrics, unit seconds)`` of this job's FINISHED run in the store, or None.
+
+        The seconds are the unit's training and evaluation time when it ran (0 for runs logged
+        before this was recorded), so re-reporting keeps ``train_seconds``."""
         info = self.tracker.find_finished_run(
             experiment_name(self.profile, job.table), job_key(job, unit.key)
         )
@@ -60,7 +65,9 @@ class Logbook:
             split, sep, metric = key.rpartition("/")
             if sep and split in job.eval_splits:
                 out.setdefault(split, {})[metric] = float(value)
-        return out if set(out) == set(job.eval_splits) else None
+        if set(out) != set(job.eval_splits):
+            return None
+        return out, float(info.metrics.get(SECONDS_METRIC, 0.0))
 
     def log_job(
         self,
@@ -70,6 +77,7 @@ class Logbook:
         metrics: dict[str, dict[str, float]],
         artifacts: list[Path],
         error: str = "",
+        seconds: float = 0.0,
     ) -> None:
         cfg = unit.cfg
         tags: dict[str, Any] = {
@@ -103,6 +111,8 @@ class Logbook:
             for split in job.eval_splits:
                 summary = metrics.get(split, {})
                 run.log_metrics({f"{split}/{k}": v for k, v in summary.items() if _finite(v)})
+            if _finite(seconds):
+                run.log_metrics({SECONDS_METRIC: seconds})
             for path in artifacts:
                 if path.exists():
                     run.log_artifact(path, "predictions" if path.suffix == ".csv" else None)

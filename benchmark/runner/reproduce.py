@@ -143,12 +143,13 @@ def run(args: argparse.Namespace) -> int:
     results: dict[str, UnitResult] = {}
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
-        stored = [logbook.finished(job, unit) for job in unit.jobs]
-        if all(s is not None for s in stored):
+        stored = [s for job in unit.jobs if (s := logbook.finished(job, unit)) is not None]
+        if len(stored) == len(unit.jobs):
             merged: dict[str, dict[str, float]] = {}
-            for s in stored:
-                merged.update(s)
-            results[unit.key] = UnitResult(unit.key, True, metrics=merged)
+            for metrics, _ in stored:
+                merged.update(metrics)
+            seconds = max(seconds for _, seconds in stored)
+            results[unit.key] = UnitResult(unit.key, True, metrics=merged, seconds=seconds)
             continue
         unit_dir = workdir / "units" / unit.key
         todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir)))
@@ -170,7 +171,9 @@ def run(args: argparse.Namespace) -> int:
             ]
             if config_path is not None:
                 paths.append(config_path)
-            logbook.log_job(job, unit, result.history, result.metrics, paths, result.error)
+            logbook.log_job(
+                job, unit, result.history, result.metrics, paths, result.error, result.seconds
+            )
         if not result.ok:
             failures.append(f"{unit.title}: {result.error}")
             print(f"FAILED {unit.title}: {result.error}")

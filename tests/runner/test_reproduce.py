@@ -100,6 +100,28 @@ class TestReproduceSmoke:
         assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
         assert "26 training runs (26 already in the tracking store)" in capsys.readouterr().out
 
+    def test_second_invocation_keeps_the_numbers_and_train_times(
+        self, full_run, smoke_dataset, monkeypatch
+    ):
+        tmp, _ = full_run
+        monkeypatch.chdir(tmp)
+        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        # The first invocation's frame, reloaded from the reports (reported per unit).
+        first = pd.read_csv(tmp / "reports" / "results.csv")
+        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        again = pd.read_csv(tmp / "reports" / "results.csv")
+        keys = ["table", "label", "x", "split", "seed"]
+        merged = first.merge(again, on=keys, suffixes=("", "_again"))
+        assert len(merged) == len(first) == len(again)
+        trained = merged[merged["unit"].notna()]  # the constant predictor rows train nothing
+        assert len(trained) > 0 and (trained["train_seconds"] > 0).all()
+        pd.testing.assert_series_equal(
+            merged["train_seconds"], merged["train_seconds_again"], check_names=False
+        )
+        pd.testing.assert_series_equal(
+            merged["dphi_deg"], merged["dphi_deg_again"], check_names=False
+        )
+
 
 class TestReproduceFailures:
     def test_non_finite_loss_marks_run_failed(self, tmp_path, smoke_dataset, monkeypatch, capsys):
