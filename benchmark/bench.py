@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from benchmark.cli import UsageError
+from benchmark.errors import UsageError
 
 TARGETS: dict[str, str] = {
     "simulate": "benchmark.data.bench_simulate:main",

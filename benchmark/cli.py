@@ -18,6 +18,7 @@ import sys
 from collections.abc import Sequence
 
 from benchmark import __version__
+from benchmark.errors import UsageError  # re-exported: benchmark.cli.UsageError still works
 
 # subcommand -> module path. Order is the pipeline order shown in --help.
 COMMANDS: dict[str, str] = {
@@ -44,10 +45,6 @@ COMMAND_HELP: dict[str, str] = {
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
     "reproduce": "reproduce the paper's tables and figures: simulate, train, evaluate, report",
 }
-
-
-class UsageError(ValueError):
-    """Bad user input: printed without a traceback, exit code 2."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -85,8 +82,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # Run through the imported module: executed as __main__, this file's UsageError would be a
-    # different class from the benchmark.cli.UsageError that command modules raise.
-    from benchmark.cli import main as _main
-
-    raise SystemExit(_main())
+    raise SystemExit(main())

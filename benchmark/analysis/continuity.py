@@ -199,7 +199,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.cli import UsageError
+    from benchmark.errors import UsageError
 
     for name in ("pitch", "roll"):
         value = getattr(args, name)

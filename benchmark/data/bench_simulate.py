@@ -75,8 +75,8 @@ def _bench_cities(style: str, seed: int, cache: Path) -> dict[tuple[str, str], A
 
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
-    from benchmark.cli import UsageError
     from benchmark.data.simulate import single_thread_env
+    from benchmark.errors import UsageError
 
     if (
         args.workers < 1

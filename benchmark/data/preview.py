@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmark.cli import UsageError
+from benchmark.errors import UsageError
 
 HELP = "write a contact sheet PNG of UAV/satellite pairs with their poses"
 

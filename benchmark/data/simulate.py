@@ -14,8 +14,8 @@ import os
 import sys
 from pathlib import Path
 
-from benchmark.cli import UsageError
 from benchmark.data.profiles import PROFILES, get_profile
+from benchmark.errors import UsageError
 
 HELP = "render the UAV/satellite pair dataset (profiles smoke/quick/paper; resumable, parallel)"
 

@@ -165,7 +165,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.cli import UsageError
+    from benchmark.errors import UsageError
 
     if args.repeats < 1 or args.warmup < 0 or args.threads < 1:
         raise UsageError(

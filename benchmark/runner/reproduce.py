@@ -18,7 +18,7 @@ import platform
 import time
 from pathlib import Path
 
-from benchmark.cli import UsageError
+from benchmark.errors import UsageError
 from benchmark.progress import Progress, format_duration
 from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
 from benchmark.runner.logbook import Logbook, write_config

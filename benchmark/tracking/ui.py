@@ -32,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.cli import UsageError
+    from benchmark.errors import UsageError
     from benchmark.tracking.mlflow_tracker import default_tracking_uri
     from benchmark.tracking.server import MlflowServer, port_is_free
 

@@ -95,7 +95,7 @@ def measure(size: int, width: float, args: argparse.Namespace) -> tuple[float, f
 
 
 def main(argv: Sequence[str]) -> int:
-    from benchmark.cli import UsageError
+    from benchmark.errors import UsageError
 
     args = _parser().parse_args(list(argv))
     names = [m.strip() for m in args.models.split(",") if m.strip()]

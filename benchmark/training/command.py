@@ -52,8 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.cli import UsageError
     from benchmark.config import ConfigError, config_hash, flatten, save_yaml
+    from benchmark.errors import UsageError
     from benchmark.models.registry import head_versions
     from benchmark.training.config import load_train_config
 

@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from benchmark.cli import UsageError
+from benchmark.errors import UsageError
 from benchmark.training.bench import main
 
 
