@@ -100,8 +100,11 @@ class PdNetE(AttitudeHead):
         return torch.softmax(raw, dim=-1)
 
     def target_distribution(self, R: Tensor) -> Tensor:
-        phi = self._circle_angles(R)
-        c, k = self.centres.to(R.dtype), self.kappas.to(R.dtype)
+        return self._target(self._circle_angles(R))
+
+    def _target(self, phi: Tensor) -> Tensor:
+        """(B, 3) circle angles -> (B, 3, n_bins) discrete von Mises targets."""
+        c, k = self.centres.to(phi.dtype), self.kappas.to(phi.dtype)
         return torch.softmax(k[:, None] * torch.cos(c - phi[..., None]), dim=-1)
 
     def _resultant(self, p: Tensor) -> tuple[Tensor, Tensor]:
@@ -117,12 +120,12 @@ class PdNetE(AttitudeHead):
         return self.decode_distribution(self.distribution(raw))
 
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        target = self.target_distribution(R_gt)
+        phi = self._circle_angles(R_gt)  # (B, 3), shared by both terms
+        target = self._target(phi)
         cross_entropy = -(target * torch.log_softmax(raw, dim=-1)).sum(dim=(-1, -2))  # (B,)
         if self.direction_weight == 0:
             return cross_entropy.mean()
         cos, sin = self._resultant(self.distribution(raw))  # (B, 3) each
-        phi = self._circle_angles(R_gt)
         expectation = torch.stack([cos, sin], dim=-1)  # (B, 3, 2)
         label = torch.stack([torch.cos(phi), torch.sin(phi)], dim=-1)  # (B, 3, 2), unit
         direction = cosine_loss(expectation, label).sum(-1)  # (B,)
