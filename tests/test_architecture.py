@@ -73,8 +73,9 @@ def rel(path: Path) -> str:
 
 
 def own_package(path: Path) -> str:
-    parts = rel(path).removesuffix(".py").split("/")
-    return "baselines" if parts[0] == "baselines" else parts[1]
+    package = package_of(rel(path).removesuffix(".py").replace("/", "."))
+    assert package is not None, path
+    return package
 
 
 FILES = source_files()
