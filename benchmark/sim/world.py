@@ -35,7 +35,7 @@ from benchmark.sim.textures import bake_lighting, max_pyramid, mean_pyramid
 from benchmark.sim.world_city import City, dilate3
 from benchmark.sim.world_styles import STYLES, get_style
 
-GENERATOR_VERSION = "15"
+GENERATOR_VERSION = "16"
 DEFAULT_SIZE_M = (3584.0, 2560.0)
 SAT_MARGIN_M = (1400.0, 700.0)  # half of the largest satellite footprint (1400 m sweep)
 _ARRAYS = (
