@@ -16,6 +16,9 @@ from dataclasses import dataclass
 TRAIN_STYLES: tuple[str, ...] = ("oxford", "cambridge")
 GENERALIZED_STYLE = "london"
 FLIGHT_STYLE = "industrial"
+# Roles of the towns family, split names towns/<role>; the order of Profile.n_towns and
+# n_town_pairs. Same as benchmark.sim.towns.TOWN_ROLES (tested; data does not import sim here).
+TOWN_ROLES: tuple[str, ...] = ("train", "val", "test", "london")
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,16 @@ class Profile:
     sat_shard_size: int = 8  # satellite images per shard (each costs ~16 UAV frames to render)
     city_size_m: tuple[float, float] | None = None  # build_city size_m; None: its default tile
     city_metres_per_px: float = 1.0
+    # Leakage audit (issue 9): frames/{train,val,test} re-split the standard flights' frames at
+    # random, as a naive split of video frames would; same sizes as standard/{train,val,test}.
+    frame_split: bool = True
+    # Many towns (issue 9): procedurally distinct small tiles, one flight centre each (the tile
+    # centre). Towns per role (train, val, test: training styles; london: the held-out style) and
+    # pairs of towns/{train,val,test,london}.
+    n_towns: tuple[int, int, int, int] = (0, 0, 0, 0)
+    n_town_pairs: tuple[int, int, int, int] = (0, 0, 0, 0)
+    town_size_m: tuple[float, float] = (2048.0, 1280.0)  # holds the 2 km x 1 km footprint
+    town_metres_per_px: float = 2.0
 
     def __post_init__(self) -> None:
         if self.image_size < 8:
@@ -64,6 +77,18 @@ class Profile:
             raise ValueError(f"Profile.pitch_bin_edges_deg must decrease strictly, got {edges}")
         if min(self.samples_per_flight, self.shard_size, self.sat_shard_size) < 1:
             raise ValueError("Profile.samples_per_flight, shard_size, sat_shard_size must be >= 1")
+        for name in ("n_towns", "n_town_pairs"):
+            v = getattr(self, name)
+            if len(v) != 4 or any(int(x) != x or x < 0 for x in v):
+                raise ValueError(
+                    f"Profile.{name} must be 4 non-negative integers (train, val, test, london), "
+                    f"got {v}"
+                )
+        for role, towns, pairs in zip(TOWN_ROLES, self.n_towns, self.n_town_pairs, strict=True):
+            if pairs > 0 and towns == 0:
+                raise ValueError(
+                    f"Profile: {pairs} towns/{role} pairs need n_towns[{role}] > 0, got 0"
+                )
 
     def with_size(self, n_standard: int) -> Profile:
         """This profile rescaled so that the standard split holds ``n_standard`` pairs."""
@@ -82,6 +107,7 @@ class Profile:
             n_pitch_per_bin=scale(self.n_pitch_per_bin),
             n_height_train=scale(self.n_height_train),
             n_height_test=scale(self.n_height_test),
+            n_town_pairs=tuple(scale(n) for n in self.n_town_pairs),
         )
 
     def to_dict(self) -> dict:
@@ -111,6 +137,9 @@ PROFILES: dict[str, Profile] = {
         shard_size=16,
         city_size_m=(1024.0, 768.0),
         city_metres_per_px=2.0,
+        n_towns=(3, 1, 1, 1),
+        n_town_pairs=(16, 4, 4, 4),
+        town_size_m=(1024.0, 768.0),
     ),
     "quick": Profile(
         name="quick",
@@ -121,6 +150,8 @@ PROFILES: dict[str, Profile] = {
         n_pitch_per_bin=60,
         n_height_train=1200,
         n_height_test=300,
+        n_towns=(40, 4, 8, 6),
+        n_town_pairs=(1600, 160, 320, 320),
         samples_per_flight=16,
         shard_size=256,
     ),
@@ -133,6 +164,9 @@ PROFILES: dict[str, Profile] = {
         n_pitch_per_bin=400,
         n_height_train=8000,
         n_height_test=2400,
+        n_towns=(200, 20, 40, 30),
+        n_town_pairs=(16000, 1600, 2400, 2400),
+        town_metres_per_px=1.0,
         samples_per_flight=24,
         shard_size=256,
     ),

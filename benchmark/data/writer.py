@@ -36,7 +36,7 @@ from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLE
 from benchmark.data.render_pool import RenderContext, RenderPool, _shard_shape, shard_size
 from benchmark.progress import Progress
 
-PLAN_VERSION = 1  # bump when benchmark.sim.flights / splits change what they produce
+PLAN_VERSION = 2  # bump when benchmark.sim.flights / splits change what they produce
 
 
 SPLIT_NOTES = {
@@ -50,6 +50,14 @@ SPLIT_NOTES = {
     "satellite image shot from h m, footprint 2 x 1 km * h / 1000 (paper Fig. 5)",
     "pitch{hi}to{lo}/test": "new oxford + cambridge test flights with pitch in [lo, hi] deg "
     "(paper Fig. 6, view difference)",
+    "frames/{train,val,test}": "the frames of all standard flights re-split at random (a naive "
+    "split of video frames, for the leakage audit); same sizes as standard/*",
+    "towns/{train,val,test,london}": "many small procedurally distinct towns, one centre each; "
+    "train/val/test towns are distinct oxford/cambridge-style towns, london towns the held-out "
+    "style",
+    "illumination": "every flight has its own illumination state (sun, shadows) and fog "
+    "visibility, every satellite image its own independent state (columns light, sun_az, sun_el, "
+    "visibility_m, sat_light, sat_sun_az, sat_sun_el)",
 }
 
 
@@ -113,9 +121,11 @@ def parquet_bytes(df: pd.DataFrame) -> bytes:
     return buf.getvalue()
 
 
-def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tuple[str, str], Any]:
-    """All worlds of a dataset: ``{(style, "now"|"earlier"): City}``."""
-    from benchmark.sim import build_city, changed_city, city_seed
+def build_cities(
+    profile: Profile, seed: int, cache_dir: Path | None, *, progress: bool = False
+) -> dict[tuple[str, str], Any]:
+    """All worlds of a dataset: ``{(name, "now"|"earlier"): City}`` (paper styles and towns)."""
+    from benchmark.sim import build_city, build_town, changed_city, city_seed, town_list
 
     kwargs: dict[str, Any] = {"cache_dir": cache_dir, "metres_per_px": profile.city_metres_per_px}
     if profile.city_size_m is not None:
@@ -126,6 +136,16 @@ def build_cities(profile: Profile, seed: int, cache_dir: Path | None) -> dict[tu
     now = cities[(FLIGHT_STYLE, "now")]
     change = city_seed(seed, FLIGHT_STYLE, "earlier")
     cities[(FLIGHT_STYLE, "earlier")] = changed_city(now, change, cache_dir=cache_dir)
+    towns = town_list(
+        tuple(profile.n_towns), seed, train_styles=TRAIN_STYLES, london_style=GENERALIZED_STYLE
+    )
+    size = tuple(profile.town_size_m)
+    with Progress(len(towns), "towns", unit="town", enabled=progress and bool(towns)) as bar:
+        for town in towns:
+            cities[(town.name, "now")] = build_town(
+                town, size_m=size, metres_per_px=profile.town_metres_per_px, cache_dir=cache_dir
+            )
+            bar.update(1)
     return cities
 
 
@@ -173,13 +193,13 @@ def simulate_dataset(
     _remove_stale_temporaries(out)
 
     t0 = time.perf_counter()
-    cities = build_cities(profile, seed, cache_dir)
+    cities = build_cities(profile, seed, cache_dir, progress=progress)
     stats["cities_s"] = time.perf_counter() - t0
 
     from benchmark.sim import make_plan
 
     t0 = time.perf_counter()
-    plan = make_plan(profile, {s: c for (s, v), c in cities.items() if v == "now"}, seed)
+    plan = make_plan(profile, cities, seed)
     stats["plan_s"] = time.perf_counter() - t0
     tables = {"uav.parquet": plan.uav, "sat.parquet": plan.sat, "pairs.parquet": plan.pairs}
     for name, df in tables.items():

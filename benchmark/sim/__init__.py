@@ -35,6 +35,8 @@ progress=False) -> City``
 ``make_plan(profile, cities, seed) -> Plan``, ``city_seed(seed, style)``, ``sample_seed(seed, i)``
     The dataset plan (flights, splits, labels) and the seeds of worlds and renders
     (``benchmark.sim.splits``; imported on first use, it pulls in pandas and scipy).
+``town_list(n_towns, seed) -> [Town]``, ``build_town(town, size_m=, metres_per_px=)``
+    The many-towns family (``benchmark.sim.towns``; imported on first use).
 
 Heights: ENU U is absolute (metres, zero = the tile's mean terrain level); a UAV flying "100 m
 above ground" is at ``U = city.ground_height(E, N) + 100``. The satellite camera is ``height_m``
@@ -51,10 +53,13 @@ from benchmark.sim.world import GENERATOR_VERSION, STYLES, City, build_city, cha
 __all__ = [
     "GENERATOR_VERSION",
     "STYLES",
+    "TOWN_ROLES",
     "Camera",
     "City",
     "FlightSpec",
+    "Town",
     "build_city",
+    "build_town",
     "changed_city",
     "city_seed",
     "euler_to_rotmat_np",
@@ -66,10 +71,12 @@ __all__ = [
     "sample_seed",
     "satellite_camera",
     "satellite_pose",
+    "town_list",
 ]
 
 # Imported on first access (PEP 562): render workers import this package and need none of them.
 _FROM_SPLITS = ("city_seed", "make_plan", "sample_seed")
+_FROM_TOWNS = ("TOWN_ROLES", "Town", "build_town", "town_list")
 
 
 def __getattr__(name: str) -> Any:
@@ -77,4 +84,8 @@ def __getattr__(name: str) -> Any:
         from benchmark.sim import splits
 
         return getattr(splits, name)
+    if name in _FROM_TOWNS:
+        from benchmark.sim import towns
+
+        return getattr(towns, name)
     raise AttributeError(f"module 'benchmark.sim' has no attribute {name!r}")

@@ -19,6 +19,16 @@ Split definitions (paper Sec. 3.1, 3.3.2, 3.5; decisions where the paper is sile
 - ``pitch{hi}to{lo}/test`` (paper Fig. 6, view difference*): fresh oxford + cambridge test flights
   with pitch drawn inside one bin, e.g. ``pitch-10to-20`` = pitch in [-20, -10] deg; evaluated with
   a model trained on ``standard/train``; leak-checked against the training frames like the test set.
+- ``frames/{train,val,test}`` (leakage audit, beyond the paper*): the frames of all standard
+  flights re-split at random, as a naive split of video frames would (the paper does not say how it
+  split its 30 fps videos); same sizes as ``standard/*``, so neighbouring frames of one flight land
+  in train and test.
+- ``towns/{train,val,test,london}`` (beyond the paper*): many small towns (``benchmark.sim.towns``),
+  each with one centre; train, val and test towns are distinct towns of the training styles,
+  london towns of the held-out style. Nothing of a test town is seen in training.
+
+Every flight has its own capture time (illumination state and fog) and every satellite image its
+own, independent one (``benchmark.sim.illumination``).
 
 Every seed is derived from the dataset seed with ``numpy.random.SeedSequence`` spawn keys, so the
 plan is identical on every machine and any sample can be rendered alone.
@@ -38,12 +48,15 @@ from scipy.spatial import cKDTree
 
 from benchmark.geometry import SAT_R_N, euler_to_rotmat, relative_rotation
 from benchmark.sim.flights import FlightSpec, generate_flight
+from benchmark.sim.illumination import assign_illumination
 from benchmark.sim.render import satellite_pose
+from benchmark.sim.towns import TOWN_ROLES, Town, town_list
 
 LEAK_DIST_M = 10.0
 LEAK_ANGLE_DEG = 10.0
 SAMPLE_STREAM = 0x53  # spawn-key tag of per-sample render seeds
 CITY_STREAM = 0x43
+FRAME_SPLIT_STREAM = 0x46
 SAT_ATTITUDE = (0.0, -math.pi / 2.0, 0.0)  # yaw, pitch, roll of the satellite camera (Eq. 5)
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major R_uav^sat
@@ -87,7 +100,9 @@ class Plan:
     splits: list[str] = field(default_factory=list)
 
 
-def _groups(p: Any, styles_train: tuple[str, ...], london: str, industrial: str) -> list[Group]:
+def _groups(
+    p: Any, styles_train: tuple[str, ...], london: str, industrial: str, towns: list[Town]
+) -> list[Group]:
     def spec(**kw: Any) -> FlightSpec:
         return FlightSpec(samples=p.samples_per_flight, frame_stride=p.frame_stride, **kw)
 
@@ -123,6 +138,9 @@ def _groups(p: Any, styles_train: tuple[str, ...], london: str, industrial: str)
                 leak_check=True,
             )
         )
+    for r, (role, n) in enumerate(zip(TOWN_ROLES, p.n_town_pairs, strict=True)):
+        names = tuple(t.name for t in towns if t.role == role)
+        out.append(Group(f"towns/{role}", 50 + r, names, n, spec()))
     return [g for g in out if g.n > 0]
 
 
@@ -209,9 +227,21 @@ def relative_labels(uav: pd.DataFrame, sat: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def _add_frame_split(by_group: dict[str, pd.DataFrame], seed: int, add: Any) -> None:
+    """``frames/{train,val,test}``: the standard frames re-split at random (naive frame split)."""
+    parts = ("train", "val", "test")
+    rows = pd.concat([by_group[f"standard/{s}"] for s in parts])
+    order = np.random.default_rng(
+        np.random.SeedSequence(int(seed), spawn_key=(FRAME_SPLIT_STREAM,))
+    ).permutation(len(rows))
+    cuts = np.cumsum([len(by_group[f"standard/{s}"]) for s in parts])[:-1]
+    for part, idx in zip(parts, np.split(order, cuts), strict=True):
+        add(f"frames/{part}", rows.iloc[np.sort(idx)])
+
+
 def make_plan(
     p: Any,
-    cities: dict[str, Any],
+    cities: dict[tuple[str, str], Any],
     seed: int,
     *,
     train_styles: tuple[str, ...] = ("oxford", "cambridge"),
@@ -220,16 +250,22 @@ def make_plan(
 ) -> Plan:
     """Build the plan of profile ``p`` (``benchmark.data.profiles.Profile``) over ``cities``.
 
-    ``cities`` maps style -> City (the current world; ``flight_style``'s earlier-time world is
-    only needed to render its satellite images). Deterministic in (p, cities, seed).
+    ``cities`` maps ``(name, variant)`` -> City: ``(style, "now")`` for the four paper cities,
+    ``(flight_style, "earlier")`` for the flight test's satellite images and ``(town.name, "now")``
+    for every town of ``town_list(p.n_towns, seed)``. Deterministic in (p, cities, seed).
     """
-    groups = _groups(p, train_styles, generalized_style, flight_style)
+    towns = town_list(
+        tuple(p.n_towns), seed, train_styles=train_styles, london_style=generalized_style
+    )
+    style_of = {t.name: t.style for t in towns}
+    now = {name: c for (name, variant), c in cities.items() if variant == "now"}
+    groups = _groups(p, train_styles, generalized_style, flight_style, towns)
     leak = _LeakIndex()
     uav_rows: list[dict[str, Any]] = []
     flight_id = 0
     flights_of: dict[str, list[int]] = {}
     for g in groups:
-        flights = _flights_for_group(g, cities, seed, leak, flight_id)
+        flights = _flights_for_group(g, now, seed, leak, flight_id)
         flight_id += len(flights)
         flights_of[g.name] = [f["flight"] for f in flights]
         for f in flights:
@@ -237,7 +273,8 @@ def make_plan(
             for i in range(f["take"]):
                 uav_rows.append(
                     dict(
-                        group=g.name, city=f["style"], centre=f["centre"], flight=f["flight"],
+                        group=g.name, city=f["style"], style=style_of.get(f["style"], f["style"]),
+                        centre=f["centre"], flight=f["flight"],
                         frame=int(d["frame"][i]), time_s=float(d["time_s"][i]),
                         **{k: float(d[k][i]) for k in POSE_COLUMNS},
                         camera_effects=g.camera_effects,
@@ -254,11 +291,12 @@ def make_plan(
         key = (style, variant, centre, float(height), tuple(float(x) for x in fp))
         if key not in sat_key:
             sat_key[key] = len(sat_rows)
-            E, N, U = sat_position(cities[style], cities[style].flight_centres[centre], height)
+            E, N, U = sat_position(now[style], now[style].flight_centres[centre], height)
             yaw, pitch, roll = SAT_ATTITUDE
             sat_rows.append(
                 dict(
-                    sat_index=len(sat_rows), city=style, variant=variant, centre=centre,
+                    sat_index=len(sat_rows), city=style, style=style_of.get(style, style),
+                    variant=variant, centre=centre,
                     height_m=float(height), footprint_E_m=float(fp[0]), footprint_N_m=float(fp[1]),
                     E=E, N=N, U=U, yaw=yaw, pitch=pitch, roll=roll,
                 )
@@ -291,8 +329,10 @@ def make_plan(
     for g in groups:
         if g.name.startswith("flight/"):
             add_pairs(g.name, by_group[g.name], "earlier", h0, tuple(p.flight_sat_footprint_m))
-        elif g.name.startswith("pitch"):
+        elif g.name.startswith(("pitch", "towns/")):
             add_pairs(g.name, by_group[g.name], "now", h0, fp0)
+    if p.frame_split:
+        _add_frame_split(by_group, seed, lambda name, rows: add_pairs(name, rows, "now", h0, fp0))
     if p.n_height_train > 0 and p.n_height_test > 0:
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(0x48,)))
         subsets = {}
@@ -305,13 +345,15 @@ def make_plan(
             for part in ("train", "test"):
                 add_pairs(f"height{h:g}/{part}", subsets[part], "now", h, footprint(h))
 
-    sat = pd.DataFrame(sat_rows)
+    uav, sat = assign_illumination(uav, pd.DataFrame(sat_rows), cities, seed)
     pairs = pd.concat(pair_parts, ignore_index=True)
     u = uav.set_index("uav_index").loc[pairs.uav_index]
     s = sat.set_index("sat_index").loc[pairs.sat_index]
-    for col in ("city", "centre", "flight", "frame", "time_s", *POSE_COLUMNS):
+    for col in ("city", "style", "centre", "flight", "frame", "time_s", *POSE_COLUMNS):
         pairs[col] = u[col].to_numpy()
-    for col in POSE_COLUMNS:
+    for col in ("light", "visibility_m", "sun_az", "sun_el"):
+        pairs[col] = u[col].to_numpy()
+    for col in (*POSE_COLUMNS, "light", "sun_az", "sun_el"):
         pairs[f"sat_{col}"] = s[col].to_numpy()
     pairs["sat_height_m"] = s["height_m"].to_numpy()
     labels = relative_labels(u.reset_index(drop=True), s.reset_index(drop=True))

@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from scipy.spatial.transform import Rotation
@@ -21,12 +22,18 @@ from benchmark.sim.splits import (
     relative_labels,
     sample_seed,
 )
+from benchmark.sim.towns import TOWN_ROLES, town_list
 
 
 class FlatCity:
+    n_lights = 6
+
     def __init__(self, offset: float, centres: int = 3) -> None:
         self.offset = offset
         self.flight_centres = np.array([[400.0 * k, -250.0 * k] for k in range(centres)])
+
+    def light_angles(self, k):
+        return (2 * math.pi * k / self.n_lights, math.radians(20.0 + 5.0 * k))
 
     def ground_height(self, E, N):
         return self.offset + 0.01 * np.asarray(E) + 0.0 * np.asarray(N)
@@ -35,16 +42,20 @@ class FlatCity:
         return self.ground_height(E, N) + 25.0
 
 
-CITIES = {"oxford": FlatCity(10.0), "cambridge": FlatCity(3.0, 2), "london": FlatCity(30.0),
-          "industrial": FlatCity(50.0, 2)}  # fmt: skip
-
-
 def small_profile(**kw):
     base = dataclasses.replace(
         PROFILES["smoke"], n_standard=60, n_generalized_test=10, n_flight_per_pitch=5,
         n_pitch_per_bin=4, n_height_train=20, n_height_test=8, samples_per_flight=5,
+        n_towns=(4, 1, 2, 2), n_town_pairs=(20, 5, 10, 10),
     )  # fmt: skip
     return dataclasses.replace(base, **kw)
+
+
+CITIES = {("oxford", "now"): FlatCity(10.0), ("cambridge", "now"): FlatCity(3.0, 2),
+          ("london", "now"): FlatCity(30.0), ("industrial", "now"): FlatCity(50.0, 2),
+          ("industrial", "earlier"): FlatCity(50.0, 2)}  # fmt: skip
+for _k, _town in enumerate(town_list(small_profile().n_towns, 7) + town_list((4, 1, 2, 2), 8)):
+    CITIES[(_town.name, "now")] = FlatCity(float(_k), 1)
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +86,8 @@ class TestMakePlan:
         assert tr and va and te
         assert not (tr & va) and not (tr & te) and not (va & te)
         for name in plan.splits:
+            if name.startswith("frames/"):  # the naive split shares flights on purpose
+                continue
             if name.startswith("pitch") or name.endswith("/test"):
                 assert not (flights_of(plan, name) & tr), name
 
@@ -103,7 +116,7 @@ class TestMakePlan:
         for pitch in (0.0, -10.0, -50.0):
             rows = plan.pairs[plan.pairs.split == f"flight/pitch{pitch:g}"]
             np.testing.assert_allclose(rows.pitch, math.radians(pitch))
-            agl = rows.U - CITIES["industrial"].ground_height(rows.sat_E, rows.sat_N)
+            agl = rows.U - CITIES[("industrial", "now")].ground_height(rows.sat_E, rows.sat_N)
             assert agl.between(70.0, 90.0).all()
             sat = plan.sat.set_index("sat_index").loc[rows.sat_index]
             assert (sat.variant == "earlier").all() and (sat.footprint_E_m == 2500.0).all()
@@ -150,7 +163,7 @@ class TestMakePlan:
             np.testing.assert_allclose(p[d], p[c] - p[f"sat_{c}"])
         std = p[p.split == "standard/test"]
         np.testing.assert_allclose(std.sat_height_m, 1000.0)
-        cen = CITIES["oxford"].flight_centres
+        cen = CITIES[("oxford", "now")].flight_centres
         ox = std[std.city == "oxford"]
         np.testing.assert_allclose(ox[["sat_E", "sat_N"]].to_numpy(), cen[ox.centre.to_numpy()])
 
@@ -238,3 +251,88 @@ class TestLeakIndex:
         tilted = dict(d, pitch=np.array([-0.3 - math.radians(LEAK_ANGLE_DEG) - 0.01]))
         assert not idx.leaks("oxford", moved) and not idx.leaks("oxford", turned)
         assert idx.leaks("oxford", wrapped) and not idx.leaks("oxford", tilted)
+
+
+class TestFrameSplit:
+    def test_same_frames_and_sizes_as_standard(self, plan):
+        p = plan.pairs
+        std = set(p.loc[p.split.str.startswith("standard/"), "uav_index"])
+        frames = p[p.split.str.startswith("frames/")]
+        assert set(frames.uav_index) == std and not frames.uav_index.duplicated().any()
+        for part in ("train", "val", "test"):
+            assert (p.split == f"frames/{part}").sum() == (p.split == f"standard/{part}").sum()
+
+    def test_naive_split_puts_flights_in_train_and_test(self, plan):
+        # the point of the audit: frames of one flight straddle train and test
+        assert flights_of(plan, "frames/train") & flights_of(plan, "frames/test")
+
+    def test_labels_equal_the_standard_rows(self, plan):
+        p = plan.pairs
+        a = p[p.split.str.startswith("standard/")].set_index("uav_index").sort_index()
+        b = p[p.split.str.startswith("frames/")].set_index("uav_index").sort_index()
+        cols = [*R_COLUMNS, "dE", "dN", "dU", "sat_index", "light", "sat_light"]
+        pd.testing.assert_frame_equal(a[cols], b[cols])
+
+    def test_disabled(self):
+        plan = make_plan(small_profile(frame_split=False), CITIES, seed=7)
+        assert not any(s.startswith("frames/") for s in plan.splits)
+
+
+class TestTowns:
+    def test_roles_match_the_profile_roles(self):
+        from benchmark.data.profiles import TOWN_ROLES as DATA_ROLES
+
+        assert DATA_ROLES == TOWN_ROLES
+
+    def test_town_list(self):
+        towns = town_list((4, 1, 2, 2), 7)
+        assert [t.role for t in towns] == ["train"] * 4 + ["val", "test", "test"] + ["london"] * 2
+        assert {t.style for t in towns if t.role != "london"} == {"oxford", "cambridge"}
+        assert {t.style for t in towns if t.role == "london"} == {"london"}
+        assert len({t.seed for t in towns}) == len(towns) == len({t.name for t in towns})
+        assert town_list((4, 1, 2, 2), 7) == towns
+        assert {t.seed for t in town_list((4, 1, 2, 2), 8)}.isdisjoint(t.seed for t in towns)
+        with pytest.raises(ValueError, match="n_towns"):
+            town_list((1, 2), 7)
+
+    def test_splits_use_distinct_towns(self, plan):
+        p = plan.pairs
+        towns = {r: set(p.loc[p.split == f"towns/{r}", "city"]) for r in TOWN_ROLES}
+        assert len(towns["train"]) == 4 and len(towns["test"]) == 2
+        for a in TOWN_ROLES:
+            for b in TOWN_ROLES:
+                assert a == b or not (towns[a] & towns[b]), (a, b)
+        assert set(p.loc[p.split == "towns/london", "style"]) == {"london"}
+        assert set(p.loc[p.split == "towns/train", "style"]) == {"oxford", "cambridge"}
+        counts = p.split.value_counts()
+        assert [counts[f"towns/{r}"] for r in TOWN_ROLES] == [20, 5, 10, 10]
+
+    def test_one_satellite_image_per_town(self, plan):
+        p = plan.pairs[plan.pairs.split.str.startswith("towns/")]
+        assert (p.groupby("city").sat_index.nunique() == 1).all()
+        np.testing.assert_allclose(p[["sat_E", "sat_N"]].to_numpy(), 0.0)
+
+
+class TestIllumination:
+    def test_one_state_per_flight_and_independent_satellite_states(self, plan):
+        p = plan.pairs
+        assert (p.groupby("flight").light.nunique() == 1).all()
+        assert (p.groupby("flight").visibility_m.nunique() == 1).all()
+        flights = p.drop_duplicates("flight")
+        assert flights.light.nunique() == FlatCity.n_lights  # every state is drawn
+        # the UAV state and the satellite state of a pair are independent draws
+        assert (p.light != p.sat_light).mean() > 0.5
+        assert plan.sat.light.nunique() > 1
+
+    def test_angles_are_the_city_states(self, plan):
+        p = plan.pairs
+        expected = np.array([FlatCity(0.0).light_angles(k) for k in p.light])
+        np.testing.assert_allclose(p[["sun_az", "sun_el"]].to_numpy(), expected)
+        expected = np.array([FlatCity(0.0).light_angles(k) for k in p.sat_light])
+        np.testing.assert_allclose(p[["sat_sun_az", "sat_sun_el"]].to_numpy(), expected)
+
+    def test_visibility_range(self, plan):
+        from benchmark.sim.illumination import VISIBILITY_RANGE_M
+
+        assert plan.pairs.visibility_m.between(*VISIBILITY_RANGE_M).all()
+        assert plan.pairs.visibility_m.nunique() > 5
