@@ -11,6 +11,12 @@ embeddings are gathered back with ``torch.unique(..., return_inverse=True)``. Th
 an image's embedding does not depend on the other images of the batch: always in eval mode, and in
 training mode with the default per-sample GroupNorm (not with ``norm='batch'``, whose batch
 statistics would change).
+
+UAV-only control (``satellite_input="blank"``): the model replaces every satellite image by one
+constant mid-grey image (0.5 in every channel, before normalisation) in training and at test time,
+so training and evaluation run unchanged while the satellite branch carries no information. The
+grey image is encoded once per batch (exact with per-sample GroupNorm; with ``norm='batch'`` in
+training mode the batch statistics differ from encoding B grey copies).
 """
 
 from __future__ import annotations
@@ -29,6 +35,18 @@ from benchmark.models.registry import create_encoder, create_head
 # GoogLeNet's ImageNet input statistics; images enter the model as float RGB in [0, 1].
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
+# What the model feeds its encoder as the satellite image: the given image, or constant grey.
+SATELLITE_INPUTS = ("image", "blank")
+BLANK_GREY = 0.5  # the UAV-only control's satellite image, RGB in [0, 1]
+
+
+def check_satellite_input(value: object, where: str = "ModelConfig") -> str:
+    """``value`` if it is one of :data:`SATELLITE_INPUTS`; ValueError naming it otherwise."""
+    if value not in SATELLITE_INPUTS:
+        raise ValueError(
+            f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, got {value!r}"
+        )
+    return str(value)
 
 
 @dataclass
@@ -46,6 +64,7 @@ class ModelConfig:
     encoder_kwargs: dict[str, Any] = field(default_factory=dict)
     aux_weight: float = 0.3  # w1 = w2 of Algorithm 1 (paper Sec. 3.3)
     channels_last: bool = True  # memory format only: 1.2-2x faster convolutions on CPU
+    satellite_input: str = "image"  # "blank": UAV-only control, the satellite image is grey
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -69,6 +88,7 @@ class PoseModel(nn.Module):
         translation_head: head on the final level.
         aux_attitude_heads: one head per auxiliary level (``len(embedding_dims) - 1`` of them).
         aux_weights: ``w_i`` of Algorithm 1, one float for all or one per auxiliary head.
+        satellite_input: ``"image"`` or ``"blank"`` (every satellite image replaced by grey).
     """
 
     def __init__(
@@ -80,8 +100,10 @@ class PoseModel(nn.Module):
         aux_weights: float | Sequence[float] = 0.3,
         channels_last: bool = True,
         config: ModelConfig | None = None,
+        satellite_input: str = "image",
     ) -> None:
         super().__init__()
+        self.satellite_input = check_satellite_input(satellite_input, "PoseModel")
         n_aux = len(encoder.embedding_dims) - 1
         if len(aux_attitude_heads) != n_aux:
             raise ValueError(
@@ -147,6 +169,11 @@ class PoseModel(nn.Module):
                     f"sat_ids must be an integer tensor of shape ({batch},), got "
                     f"{sat_ids.dtype} {tuple(sat_ids.shape)}"
                 )
+        if self.satellite_input == "blank":
+            # UAV-only control: one grey image stands for every satellite image of the batch.
+            sat = torch.full((1, *sat.shape[1:]), BLANK_GREY, dtype=sat.dtype, device=sat.device)
+            inverse = torch.zeros(batch, dtype=torch.int64, device=sat.device)
+        elif sat_ids is not None:
             _, inverse = torch.unique(sat_ids, return_inverse=True)
             n_unique = int(inverse.max()) + 1
             order = torch.arange(batch, device=inverse.device)
@@ -209,6 +236,7 @@ class PoseModel(nn.Module):
 def build_model(config: ModelConfig) -> PoseModel:
     """Build a ``PoseModel`` from a ``ModelConfig`` through the encoder and head registries."""
     check_option(config.aux_weight, "aux_weight", "ModelConfig", inclusive=True)
+    check_satellite_input(config.satellite_input)
     encoder = create_encoder(
         config.encoder,
         variant=config.variant,
@@ -225,7 +253,14 @@ def build_model(config: ModelConfig) -> PoseModel:
         config.translation, "translation", in_features=2 * dims[-1], **config.translation_kwargs
     )
     return PoseModel(
-        encoder, heads[-1], translation, heads[:-1], config.aux_weight, config.channels_last, config
+        encoder,
+        heads[-1],
+        translation,
+        heads[:-1],
+        config.aux_weight,
+        config.channels_last,
+        config,
+        satellite_input=config.satellite_input,
     )
 
 

@@ -74,6 +74,7 @@ def model_factory(cfg: TrainConfig, input_size: int) -> Callable[[], torch.nn.Mo
                 attitude_kwargs=cfg.loss.attitude_kwargs(),
                 aux_weight=cfg.loss.aux_weight,
                 channels_last=m.channels_last,
+                satellite_input=m.satellite_input,
             )
         except TypeError as err:  # an option the chosen head does not take (e.g. loss.kappa)
             raise ConfigError(

@@ -60,9 +60,16 @@ class ModelSection:
     translation: str = "regression"
     channels_last: bool = True
     shared_satellite: bool = True  # encode each distinct satellite image once per batch (exact)
+    # "blank": the UAV-only control (the model feeds grey instead of the satellite image, in
+    # training and evaluation alike; see benchmark.models.pair). Part of the run's identity.
+    satellite_input: Literal["image", "blank"] = "image"
 
     def __post_init__(self) -> None:
         _positive(self.width, "width")
+        if self.satellite_input not in ("image", "blank"):
+            raise ValueError(
+                f"model.satellite_input must be 'image' or 'blank', got {self.satellite_input!r}"
+            )
 
 
 @dataclass(frozen=True)

@@ -165,6 +165,7 @@ class TestConfiguration:
             ({"attitude_kwargs": {"kappa": 0.0}}, "kappa must be > 0.0, got 0.0"),
             ({"aux_weight": -1.0}, "aux_weight must be >= 0.0, got -1.0"),
             ({"colour": "red"}, "colour"),
+            ({"satellite_input": "grey"}, "satellite_input must be one of .*got 'grey'"),
         ],
     )
     def test_bad_configuration_fails_at_construction(self, kwargs, match):
@@ -182,6 +183,56 @@ class TestConfiguration:
         torch.testing.assert_close(
             model.eval()(uav, sat, ids).attitude, clone.eval()(uav, sat, ids).attitude
         )
+
+
+class TestBlankSatellite:
+    """The UAV-only control: the satellite input is replaced by constant grey inside the model."""
+
+    @pytest.mark.parametrize("training", [False, True])
+    @pytest.mark.parametrize("variant", ["/", "a-f"])
+    def test_satellite_image_is_ignored(self, training, variant):
+        model = small_model(variant=variant, satellite_input="blank").train(training)
+        uav, sat, ids, _, _ = batch()
+        other = torch.rand_like(sat)
+        a, b = model(uav, sat, ids), model(uav, other, None)
+        torch.testing.assert_close(a.attitude, b.attitude, rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(a.translation, b.translation, rtol=1e-5, atol=1e-6)
+        for x, y in zip(a.aux_attitude, b.aux_attitude, strict=True):
+            torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-6)
+
+    @pytest.mark.parametrize("n", [1, 3, 8])
+    def test_equals_normal_model_fed_grey(self, n):
+        """Independent reference: the same weights with satellite_input='image' fed mid-grey."""
+        blank = small_model(variant="/", satellite_input="blank").eval()
+        plain = small_model(variant="/").eval()
+        plain.load_state_dict(blank.state_dict())
+        uav, sat, ids, _, _ = batch(n=n, n_sat=1)
+        grey = torch.full_like(sat, 0.5)
+        torch.testing.assert_close(
+            blank(uav, sat, ids).attitude, plain(uav, grey).attitude, rtol=1e-4, atol=1e-5
+        )
+
+    def test_grey_encoded_once(self):
+        model = small_model(variant="/", satellite_input="blank").eval()
+        seen = []
+        model.encoder.register_forward_hook(lambda m, i, o: seen.append(i[0].shape[0]))
+        uav, sat, _, _, _ = batch(n=6, n_sat=3)
+        model(uav, sat)
+        assert seen == [6 + 1]
+
+    def test_saved_in_config_and_default(self):
+        model = small_model(variant="/", satellite_input="blank")
+        assert model.config.to_dict()["satellite_input"] == "blank"
+        clone = create_model(**model.config.to_dict())
+        assert clone.satellite_input == "blank"
+        assert small_model(variant="/").satellite_input == "image"
+
+    def test_still_learns_from_the_uav_image(self):
+        model = small_model(variant="/", satellite_input="blank").train()
+        uav, sat, ids, R, T = batch()
+        model.loss(model(uav, sat, ids), R, T)["total"].backward()
+        grads = [p.grad for p in model.encoder.parameters() if p.grad is not None]
+        assert grads and all(torch.isfinite(g).all() for g in grads)
 
 
 class TestManualConstruction:

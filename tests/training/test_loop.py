@@ -173,3 +173,25 @@ class TestTrainLearns:
         res = run(cfg, (data, data), tmp_path / "o")
         assert res.history[-1]["train_loss_att"] < 0.05 * res.history[0]["train_loss_att"]
         assert res.history[-1]["val_dphi_deg"] < 3.0
+
+
+class TestUavOnlyControl:
+    def test_blank_satellite_trains_saves_and_ignores_the_satellite(self, tiny_data, tmp_path):
+        """model.satellite_input=blank reaches the model and its checkpoint; the training loop
+        runs unchanged and the trained model's output does not depend on the satellite image."""
+        cfg = tiny_config("model.satellite_input=blank", "model.variant=/", "optim.epochs=1")
+        result = run(cfg, tiny_data, tmp_path / "blank")
+        ckpt = load_checkpoint(tmp_path / "blank" / CHECKPOINT)
+        assert ckpt["model_config"]["satellite_input"] == "blank"
+        model = load_trained_model(tmp_path / "blank" / CHECKPOINT)
+        item = tiny_data[1][0]
+        uav = item["uav"][None]
+        a = model(uav, item["sat"][None]).attitude
+        b = model(uav, torch.rand_like(item["sat"][None])).attitude
+        torch.testing.assert_close(a, b)
+        normal = run(tiny_config("model.variant=/", "optim.epochs=1"), tiny_data, tmp_path / "n")
+        assert not same_state(result.model, normal.model)
+
+    def test_bad_value_names_the_field(self):
+        with pytest.raises(ConfigError, match="satellite_input"):
+            tiny_config("model.satellite_input=grey")
