@@ -6,6 +6,9 @@ by path, size and mtime). A missing, truncated or corrupted file raises ``Datase
 it. UAV shards are opened with ``np.load(mmap_mode="r")`` once per process (lazily, so forked
 DataLoader workers map them themselves), never per item. The satellite images, one per centre
 and height (a few dozen), are read into memory once.
+
+``satellite="swap"`` is the satellite-swap probe: every pair gets the satellite image of another
+place (rules in ``benchmark.data.swap``) and keeps its labels.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from benchmark.data.format import (
     shard_name,
     verify_files,
 )
+from benchmark.data.swap import SATELLITE_MODES, swap_targets
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major, as written by simulate
 
@@ -69,13 +73,25 @@ class PairDataset(Dataset):
         satellite capture point; ``uav_euler``: float32 ``(3,)`` UAV ``(yaw, pitch, roll)``
         radians; ``index``: int64 ``()`` row of ``poses``.
 
-    Attributes: ``poses`` (DataFrame, one row per item, all label columns), ``manifest``,
-    ``splits`` (all split names), ``sat_images`` (uint8 ``(M, H, W, 3)``), ``sat_table``.
+    ``satellite``: ``"true"`` (each pair's own satellite image) or ``"swap"`` (the image of another
+    place, :func:`benchmark.data.swap.swap_targets`; ``sat`` and ``sat_id`` change, labels do not).
+
+    Attributes: ``poses`` (DataFrame, one row per item, all label columns; ``sat_index`` is the
+    true image), ``manifest``, ``splits`` (all split names), ``sat_images`` (uint8
+    ``(M, H, W, 3)``), ``sat_table``, ``satellite``, ``swap_map`` (``{true: served}`` sat indices;
+    empty for ``"true"``), ``served_sat_index`` (int64 ``(N,)``, the image each item serves).
     """
 
-    def __init__(self, root: str | Path, split: str, *, verify: str = "sha256") -> None:
+    def __init__(
+        self, root: str | Path, split: str, *, verify: str = "sha256", satellite: str = "true"
+    ) -> None:
         if verify not in ("sha256", "size"):
             raise ValueError(f"PairDataset: verify must be 'sha256' or 'size', got {verify!r}")
+        if satellite not in SATELLITE_MODES:
+            raise ValueError(
+                f"PairDataset: satellite must be one of {SATELLITE_MODES}, got {satellite!r}"
+            )
+        self.satellite = satellite
         self.root = Path(root)
         self.manifest = read_manifest(self.root)
         self.splits = list(self.manifest["splits"])
@@ -98,6 +114,11 @@ class PairDataset(Dataset):
 
         self._uav_index = self.poses["uav_index"].to_numpy(np.int64)
         self._sat_index = self.poses["sat_index"].to_numpy(np.int64)
+        self.swap_map: dict[int, int] = {}
+        if satellite == "swap":
+            self.swap_map = swap_targets(self.sat_table, split, self._sat_index)
+            self._sat_index = np.array([self.swap_map[int(s)] for s in self._sat_index], np.int64)
+        self.served_sat_index = self._sat_index
         uav_shards = sorted(set((self._uav_index // self.shard_size).tolist()))
         n_sat_shards = -(-len(self.sat_table) // int(self.manifest["sat_shard_size"]))
         sat_names = [shard_name("sat", k) for k in range(n_sat_shards)]

@@ -18,6 +18,7 @@ from torch.utils.data import DataLoader
 
 from benchmark.data import DatasetError, PairDataset, list_splits
 from benchmark.data.profiles import PROFILES
+from benchmark.data.swap import swap_targets
 from benchmark.data.writer import ConfigMismatchError, simulate_dataset
 
 SMOKE = PROFILES["smoke"]
@@ -232,3 +233,92 @@ class TestInterruptedCommand:
         assert not (out / "manifest.json").exists()
         subprocess.run(command(out), check=True, env=env, capture_output=True)
         assert all_files(out) == all_files(ref)
+
+
+def sat_rows(rows: list[tuple[str, str, int, str]]) -> pd.DataFrame:
+    """A synthetic sat table: (city, style, centre, variant) rows at 1000 m, 2 km x 1 km."""
+    return pd.DataFrame(
+        [
+            dict(sat_index=i, city=c, style=s, centre=k, variant=v, height_m=1000.0,
+                 footprint_E_m=2000.0, footprint_N_m=1000.0)
+            for i, (c, s, k, v) in enumerate(rows)
+        ]
+    )  # fmt: skip
+
+
+class TestSwapTargets:
+    """The mapping rules of ``benchmark.data.swap`` on synthetic tables (no rendering)."""
+
+    TABLE = sat_rows(
+        [("oxford", "oxford", k, "now") for k in range(3)]
+        + [("cambridge", "cambridge", k, "now") for k in range(2)]
+        + [("london", "london", k, "now") for k in range(2)]
+        + [(f"town-test{k:02d}-oxford", "oxford", 0, "now") for k in range(3)]
+        + [
+            ("town-london00-london", "london", 0, "now"),
+            ("town-train00-oxford", "oxford", 0, "now"),
+        ]
+    )
+
+    def test_standard_is_the_next_centre_of_the_same_city(self):
+        got = swap_targets(self.TABLE, "standard/test", [0, 1, 2, 3, 4])
+        assert got == {0: 1, 1: 2, 2: 0, 3: 4, 4: 3}
+
+    def test_generalized_takes_a_paper_city_outside_the_split(self):
+        got = swap_targets(self.TABLE, "generalized/test", [5, 6])
+        cities = self.TABLE.set_index("sat_index")["city"]
+        assert {cities[v] for v in got.values()} <= {"oxford", "cambridge"}
+        assert got[5] != got[6]
+
+    def test_towns_take_another_town_of_the_split(self):
+        got = swap_targets(self.TABLE, "towns/test", [7, 8, 9])
+        assert got == {7: 8, 8: 9, 9: 7}
+
+    def test_single_town_falls_back_to_another_town(self):
+        got = swap_targets(self.TABLE, "towns/london", [10])
+        assert got[10] in {7, 8, 9, 11}
+
+    def test_no_other_place_is_an_error(self):
+        with pytest.raises(DatasetError, match="no satellite image of another place"):
+            swap_targets(self.TABLE.iloc[:1], "standard/test", [0])
+
+    def test_unknown_index_is_an_error(self):
+        with pytest.raises(DatasetError, match=r"\[99\]"):
+            swap_targets(self.TABLE, "standard/test", [99])
+
+
+class TestSatelliteSwap:
+    """``PairDataset(..., satellite="swap")`` on every split of the smoke dataset."""
+
+    def test_every_pair_gets_another_place_labels_unchanged(self, smoke_root):
+        for split in list_splits(smoke_root):
+            true = PairDataset(smoke_root, split, verify="size")
+            swap = PairDataset(smoke_root, split, verify="size", satellite="swap")
+            assert swap.satellite == "swap" and true.swap_map == {}
+            pd.testing.assert_frame_equal(true.poses, swap.poses)
+            sat = true.sat_table.set_index("sat_index")
+            for i in range(len(true)):
+                a, b = true[i], swap[i]
+                for key in ("uav", "R", "T", "uav_euler", "index"):
+                    assert torch.equal(a[key], b[key]), (split, i, key)
+                s_true, s_swap = int(a["sat_id"]), int(b["sat_id"])
+                assert s_true == int(true.poses["sat_index"][i])
+                assert s_swap == swap.swap_map[s_true] == int(swap.served_sat_index[i])
+                assert not torch.equal(a["sat"], b["sat"]), (split, i)  # other pixels
+                place = (sat.city[s_true], sat.centre[s_true])
+                assert (sat.city[s_swap], sat.centre[s_swap]) != place, split
+                assert sat.height_m[s_swap] == sat.height_m[s_true], split
+                if split == "generalized/test":
+                    assert sat.city[s_swap] != sat.city[s_true]
+                    assert sat.city[s_swap] in ("oxford", "cambridge")
+
+    def test_deterministic(self, smoke_root):
+        for split in ("standard/test", "generalized/test"):
+            a = PairDataset(smoke_root, split, verify="size", satellite="swap")
+            b = PairDataset(smoke_root, split, verify="size", satellite="swap")
+            assert a.swap_map == b.swap_map
+            assert np.array_equal(a.served_sat_index, b.served_sat_index)
+
+    def test_bad_mode_named(self, smoke_root):
+        with pytest.raises(ValueError, match=r"satellite must be one of.*'grey'"):
+            PairDataset(smoke_root, "standard/test", satellite="grey")
