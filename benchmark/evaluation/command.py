@@ -4,6 +4,9 @@
         --split generalized/test
 
 The dataset defaults to the one the checkpoint was trained on (its config's ``data.root``).
+``--satellite swap`` is the satellite-swap probe: each pair is shown the satellite image of another
+place (``benchmark.data.swap``), labels unchanged; its files are ``<split>__swap.csv`` and
+``metrics__swap.json``.
 """
 
 from __future__ import annotations
@@ -27,6 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="directory for <split>.csv and metrics.json (default: beside "
         "the checkpoint, in predictions/)",
+    )
+    parser.add_argument(
+        "--satellite",
+        choices=("true", "swap"),
+        default="true",
+        help="true: each pair's own satellite image; swap: another place's (the swap probe)",
     )
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -63,12 +72,18 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or args.checkpoint.parent / "predictions"
     shared = bool(ckpt["config"]["model"].get("shared_satellite", True))
     results = {}
+    suffix = "" if args.satellite == "true" else "__swap"
     for split in splits:
-        dataset = PairDataset(root, split, verify=data_cfg.get("verify", "size"))
+        try:
+            dataset = PairDataset(
+                root, split, verify=data_cfg.get("verify", "size"), satellite=args.satellite
+            )
+        except DatasetError as err:
+            raise UsageError(f"--satellite {args.satellite} on {split}: {err}") from None
         summary, _ = evaluate(
             model,
             dataset,
-            out_csv=out / (split.replace("/", "_") + ".csv"),
+            out_csv=out / (split.replace("/", "_") + suffix + ".csv"),
             batch_size=args.batch_size,
             shared_satellite=shared,
             progress=not args.quiet,
@@ -76,7 +91,10 @@ def run(args: argparse.Namespace) -> int:
         )
         results[split] = summary
         keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
-        print(f"{split}: n={int(summary['n'])} " + ", ".join(f"{k}={summary[k]:.3f}" for k in keys))
-    (out / "metrics.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
-    print(f"predictions and metrics.json in {out}", file=sys.stderr)
+        print(
+            f"{split} ({args.satellite} satellite): n={int(summary['n'])} "
+            + ", ".join(f"{k}={summary[k]:.3f}" for k in keys)
+        )
+    (out / f"metrics{suffix}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    print(f"predictions and metrics{suffix}.json in {out}", file=sys.stderr)
     return 0

@@ -3,6 +3,11 @@
 Heads are used only through the contract (``benchmark.models.heads``): ``decode`` for every head;
 ``log_prob`` and ``uncertainty`` when the head declares ``is_probabilistic``. Nothing here knows
 which head it is running.
+
+Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city``, ``centre`` and
+``flight`` columns and the satellite image each pair was shown (``sat_index``, the swapped one under
+``satellite="swap"``), so that paired comparisons can resample whole flights
+(``benchmark.evaluation.paired``).
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from typing import Any
 
 import pandas as pd
 import torch
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import DataLoader, Dataset, Subset
 
 from benchmark.evaluation.metrics import predictions_frame, summarize, write_predictions_csv
 from benchmark.progress import Progress
@@ -117,6 +122,26 @@ def predictions_to_frame(
     )
 
 
+GROUP_COLUMNS = ("city", "centre", "flight")
+
+
+def pair_columns(dataset: Dataset) -> dict[str, Sequence[Any]]:
+    """``city``, ``centre``, ``flight`` and ``sat_index`` (the satellite image served) of each item
+    of a ``PairDataset`` or a ``Subset`` of one, in item order; ``{}`` for any other dataset."""
+    base, rows = dataset, None
+    if isinstance(dataset, Subset):
+        base, rows = dataset.dataset, list(dataset.indices)
+    poses = getattr(base, "poses", None)
+    if not isinstance(poses, pd.DataFrame) or not set(GROUP_COLUMNS) <= set(poses.columns):
+        return {}
+    picked = poses if rows is None else poses.iloc[rows]
+    out: dict[str, Sequence[Any]] = {c: picked[c].tolist() for c in GROUP_COLUMNS}
+    served = getattr(base, "served_sat_index", None)
+    if served is not None:
+        out["sat_index"] = [int(served[i]) for i in (range(len(poses)) if rows is None else rows)]
+    return out
+
+
 def evaluate(
     model: torch.nn.Module,
     dataset: Dataset,
@@ -130,7 +155,8 @@ def evaluate(
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Predict ``dataset``, write the per-sample CSV to ``out_csv`` (if given) and return
     ``(summary, frame)``: the :func:`~benchmark.evaluation.metrics.summarize` metrics (plus the
-    mean losses as ``loss_<term>``) and the per-sample table."""
+    mean losses as ``loss_<term>``) and the per-sample table. ``extra`` columns default to
+    :func:`pair_columns` of the dataset."""
     pred = predict(
         model,
         dataset,
@@ -139,6 +165,8 @@ def evaluate(
         progress=progress,
         desc=desc,
     )
+    if extra is None:
+        extra = pair_columns(dataset)
     frame = predictions_to_frame(pred, extra)
     if out_csv is not None:
         write_predictions_csv(frame, out_csv)
