@@ -9,6 +9,12 @@ rendered at about 4x the output resolution (never finer than the texture) and th
 ``size x size`` with ``cv2.INTER_AREA``, as the paper resizes its 2 km x 1 km images to 224 x 224.
 Buildings lean away from the nadir point by the true perspective relief displacement
 ``r h / (H - h)``.
+
+Illumination: a city has ``city.n_lights`` illumination states; ``light=k`` renders with state k's
+baked ortho texture (its shading and shadows) and its sun for the facades' Lambert term, so the UAV
+frames of a flight and the satellite image of its centre can be lit at independent times of day.
+``visibility_m`` is the UAV view's fog distance V (``c = c e^{-t/V} + haze (1 - e^{-t/V})``),
+``VISIBILITY_M`` by default; the satellite image has no haze.
 """
 
 from __future__ import annotations
@@ -27,20 +33,33 @@ ZENITH = (96.0, 140.0, 200.0)
 VISIBILITY_M = 2600.0
 
 
-def _params(city: City, *, fog: bool) -> np.ndarray:
+def _check_visibility(visibility_m: float | None) -> float:
+    if visibility_m is None:
+        return VISIBILITY_M
+    ok = isinstance(visibility_m, (int, float, np.integer, np.floating))
+    if not (ok and not isinstance(visibility_m, bool) and math.isfinite(visibility_m)):
+        raise ValueError(f"visibility_m must be a finite number of metres, got {visibility_m!r}")
+    if not 10.0 <= visibility_m <= 1e6:
+        raise ValueError(f"visibility_m must be in [10, 1e6] metres, got {visibility_m!r}")
+    return float(visibility_m)
+
+
+def _params(city: City, light: int, visibility_m: float | None) -> np.ndarray:
+    """Kernel parameters for illumination state ``light``; ``visibility_m`` None: no fog."""
+    fog = visibility_m is not None
     p = np.zeros(rc.N_PARAMS)
     e0, n0 = city.origin
     p[rc.P_MPP] = city.metres_per_px
     p[rc.P_E0] = e0
     p[rc.P_N0] = n0
     p[rc.P_GMAX] = city.height_range[1] + 0.01
-    p[rc.P_SUN : rc.P_SUN + 3] = city.sun
+    p[rc.P_SUN : rc.P_SUN + 3] = city.light_suns[light]
     p[rc.P_AMB] = 0.55
     p[rc.P_DIF] = 0.6
     p[rc.P_HAZE : rc.P_HAZE + 3] = HAZE
-    p[rc.P_VIS] = VISIBILITY_M if fog else 0.0
+    p[rc.P_VIS] = visibility_m if fog else 0.0
     p[rc.P_ZENITH : rc.P_ZENITH + 3] = ZENITH
-    p[rc.P_TMAX] = 5.0 * VISIBILITY_M if fog else 1e5
+    p[rc.P_TMAX] = 5.0 * visibility_m if fog else 1e5  # beyond 5 V the haze is 99.3 % opaque
     p[rc.P_GSCALE] = 4.0
     p[rc.P_GMIN] = city.height_range[0]
     return p
@@ -56,21 +75,22 @@ def _render(
     width: int,
     height: int,
     ss: int,
-    fog: bool,
+    light: int,
+    visibility_m: float | None,
 ) -> np.ndarray:
     out = np.empty((height, width, 3), np.uint8)
     world = (
         city.hpyr,
         city.hoff,
         city.hdims,
-        city.tex,
+        city.tex[light],
         city.toff,
         city.tdims,
         city.mat,
         city.orient,
         city.ground,
         city.palette,
-        _params(city, fog=fog),
+        _params(city, light, visibility_m),
     )
     rc.render_image(
         out, np.ascontiguousarray(R), pos, float(f), float(cx), float(cy), int(ss), world
@@ -87,6 +107,8 @@ def render_uav(
     camera: Camera,
     *,
     supersample: int = 1,
+    light: int = 0,
+    visibility_m: float | None = None,
 ) -> np.ndarray:
     """The forward-looking UAV view, ``(camera.height, camera.width, 3)`` uint8.
 
@@ -95,9 +117,11 @@ def render_uav(
         yaw, pitch, roll: radians (DEVELOPERS.md conventions).
         supersample: rays per pixel per axis (box filtered); textures are mip-mapped anyway, so
             1 is fine for training data, 2 removes the residual edge aliasing.
+        light: illumination state in ``[0, city.n_lights)`` (baked texture and facade sun).
+        visibility_m: fog distance V, metres, in [10, 1e6]; None: ``VISIBILITY_M`` (2600 m).
 
-    Raises ValueError for a non-finite pose or a camera inside the geometry (below the surface of
-    the texel it is in).
+    Raises ValueError for a non-finite pose, a camera inside the geometry (below the surface of
+    the texel it is in), a bad ``light`` or a bad ``visibility_m``.
     """
     pos = check_pose(position_enu, yaw, pitch, roll)
     if not isinstance(camera, Camera):
@@ -106,6 +130,8 @@ def render_uav(
         raise TypeError(f"city must be a benchmark.sim.City, got {type(city).__name__}")
     if not (isinstance(supersample, (int, np.integer)) and 1 <= supersample <= 8):
         raise ValueError(f"supersample must be an integer in [1, 8], got {supersample!r}")
+    light = city.check_light(light)
+    vis = _check_visibility(visibility_m)
     surf = float(city.surface_height(pos[0], pos[1]))
     if pos[2] <= surf + 0.5:
         raise ValueError(
@@ -113,9 +139,8 @@ def render_uav(
         )
     R = euler_to_rotmat_np(float(yaw), float(pitch), float(roll))
     cx, cy = camera.principal_point
-    return _render(
-        city, pos, R, camera.focal_px, cx, cy, camera.width, camera.height, supersample, fog=True
-    )
+    w, h = camera.width, camera.height
+    return _render(city, pos, R, camera.focal_px, cx, cy, w, h, supersample, light, vis)
 
 
 def satellite_pose(
@@ -154,14 +179,16 @@ def render_satellite(
     footprint_m: tuple[float, float] = (2000.0, 1000.0),
     size: int = 224,
     oversample: float = 4.0,
+    light: int = 0,
 ) -> np.ndarray:
     """The north-up nadir satellite image around ``centre_en``, ``(size, size, 3)`` uint8.
 
     Rendered with square pixels of ground sampling distance
     ``max(metres_per_px, footprint_E / (oversample * size))`` at the centre's terrain height, then
     resized (anisotropically for a non-square footprint) to ``size x size`` with INTER_AREA.
-    No haze.
+    No haze. ``light``: illumination state in ``[0, city.n_lights)`` (ValueError otherwise).
     """
+    light = city.check_light(light)
     if not (isinstance(size, (int, np.integer)) and size >= 8):
         raise ValueError(f"size must be an integer >= 8, got {size!r}")
     fe, fn = (float(footprint_m[0]), float(footprint_m[1]))
@@ -171,7 +198,7 @@ def render_satellite(
     gsd = max(city.metres_per_px, fe / (oversample * size))
     w, h, f = satellite_camera((fe, fn), height_m, gsd)
     R = euler_to_rotmat_np(yaw, pitch, roll)
-    img = _render(city, pos, R, f, 0.5 * (w - 1), 0.5 * (h - 1), w, h, 1, fog=False)
+    img = _render(city, pos, R, f, 0.5 * (w - 1), 0.5 * (h - 1), w, h, 1, light, None)
     if (w, h) == (size, size):
         return img
     return cv2.resize(img, (size, size), interpolation=cv2.INTER_AREA)

@@ -39,7 +39,7 @@ from numba import njit
 
 # Indices into the float64 ``params`` vector handed to the kernels (built by render.py).
 P_MPP, P_E0, P_N0, P_GMAX = 0, 1, 2, 3
-P_SUN = 4  # 4, 5, 6: unit vector towards the sun (ENU)
+P_SUN = 4  # 4, 5, 6: unit vector towards the sun of the rendered illumination state (ENU)
 P_AMB, P_DIF = 7, 8
 P_HAZE = 9  # 9, 10, 11: haze / horizon colour (0..255)
 P_VIS = 12  # fog distance V in metres; <= 0 disables fog

@@ -1,4 +1,4 @@
-"""Procedural noise, hashing, sun shading/shadow baking and mip pyramids for the city generator.
+"""Procedural noise, hashing and mip pyramids for the city generator (lighting: lighting.py).
 
 All functions are deterministic: noise comes from ``numpy.random.Generator`` streams seeded by the
 caller, hashes are pure integer arithmetic (no Python ``hash``), and the numba kernels are serial.
@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.ndimage import uniform_filter
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -119,83 +118,6 @@ def fine_grain(rng: np.random.Generator, shape: tuple[int, int]) -> np.ndarray:
     return rng.uniform(-1.0, 1.0, size=shape).astype(np.float32)
 
 
-@njit(cache=True)
-def _mirror(i, n):
-    m = i % (2 * n)
-    if m >= n:
-        m = 2 * n - 1 - m
-    return m
-
-
-@njit(cache=True)
-def sun_visibility(height, mpp, sun, gmax):
-    """1 where a texel top sees the sun, 0 where the height field blocks it (mirror-tiled).
-
-    Marches from each texel centre towards the sun in 0.5-texel steps until the ray rises above the
-    highest point ``gmax``. ``sun`` is a unit ENU vector with ``sun[2] > 0``.
-    """
-    H, W = height.shape
-    out = np.ones((H, W), np.float32)
-    horiz = math.sqrt(sun[0] * sun[0] + sun[1] * sun[1])
-    if horiz < 1e-6:
-        return out
-    step = 0.5
-    sx = sun[0] / horiz * step
-    sy = sun[1] / horiz * step
-    rise = sun[2] / horiz * step * mpp  # metres per step
-    for j in range(H):
-        for i in range(W):
-            z = height[j, i] + 0.05
-            x = i + 0.5
-            y = j + 0.5
-            while z < gmax:
-                x += sx
-                y += sy
-                z += rise
-                hv = height[_mirror(math.floor(y), H), _mirror(math.floor(x), W)]
-                if hv > z:
-                    out[j, i] = 0.0
-                    break
-    return out
-
-
-def bake_lighting(
-    albedo: np.ndarray,
-    height: np.ndarray,
-    mpp: float,
-    sun: np.ndarray,
-    ambient: float,
-    diffuse: float,
-) -> np.ndarray:
-    """Ortho colour = albedo x (ambient + diffuse max(0, n.sun) x shadow), uint8 ``(H, W, 3)``.
-
-    Normals come from central differences of the height field; slopes steeper than 60 deg are the
-    1-texel risers of walls and are treated as flat (a wall has no top area in the ortho view).
-    Shadows are softened by a 3x3 box blur (a penumbra about one texel wide). A light ambient
-    occlusion darkens ground close to taller neighbours (the foot of walls, under trees).
-    """
-    hp = np.pad(height, 1, mode="reflect")
-    gx = (hp[1:-1, 2:] - hp[1:-1, :-2]) / (2.0 * mpp)
-    gy = (hp[2:, 1:-1] - hp[:-2, 1:-1]) / (2.0 * mpp)
-    steep = (gx * gx + gy * gy) > 3.0
-    gx = np.where(steep, 0.0, gx)
-    gy = np.where(steep, 0.0, gy)
-    inv = 1.0 / np.sqrt(1.0 + gx * gx + gy * gy)
-    ndotl = (-gx * sun[0] - gy * sun[1] + sun[2]) * inv
-    gmax = float(height.max()) + 0.1
-    vis = sun_visibility(
-        np.ascontiguousarray(height, np.float32), mpp, sun.astype(np.float64), gmax
-    )
-    vis = uniform_filter(vis, size=3, mode="reflect")
-    # Ambient occlusion: how far the local mean height (radius ~6 m) rises above this texel.
-    k = max(3, round(6.0 / mpp) | 1)
-    local = uniform_filter(height.astype(np.float32), size=k, mode="reflect")
-    ao = np.clip(1.0 - 0.04 * np.maximum(local - height, 0.0), 0.6, 1.0)
-    shade = (ambient * ao + diffuse * np.maximum(ndotl, 0.0) * vis).astype(np.float32)
-    out = albedo * shade[:, :, None]
-    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
-
-
 def max_pyramid(height: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Max-mip pyramid of ``(H, W)`` float32 heights, flattened for numba.
 
@@ -215,30 +137,50 @@ def max_pyramid(height: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray
 
 
 def mean_pyramid(rgb: np.ndarray, levels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Box-filtered mip pyramid of an ``(H, W, 3)`` uint8 texture, flattened to ``(N, 3)`` uint8."""
-    lev = [np.ascontiguousarray(rgb, np.uint8)]
-    acc = rgb.astype(np.float32)
-    for _ in range(levels):
-        acc = acc.reshape(acc.shape[0] // 2, 2, acc.shape[1] // 2, 2, 3).mean(axis=(1, 3))
-        lev.append(np.clip(acc + 0.5, 0, 255).astype(np.uint8))
-    flat, offsets, dims = _flatten([a.reshape(-1, 3) for a in lev], [a.shape[:2] for a in lev])
-    return flat, offsets, dims
+    """Box-filtered mip pyramid of an ``(H, W, 3)`` uint8 texture, flattened to ``(N, 3)`` uint8.
 
-
-def _flatten(levels, shapes=None):
-    """Concatenate levels along axis 0 after flattening their two grid axes.
-
-    ``levels`` are (rows, cols) arrays (heights) or already-flat (rows * cols, C) arrays whose grid
-    shapes are given in ``shapes``.
+    Level k + 1 is the 2 x 2 mean of level k's unrounded float32 values, rounded half-up to uint8
+    (so rounding errors do not accumulate down the pyramid).
     """
-    shapes = shapes if shapes is not None else [a.shape for a in levels]
-    sizes = [int(s[0]) * int(s[1]) for s in shapes]
+    h, w = rgb.shape[:2]
+    shapes = [(h >> k, w >> k) for k in range(levels + 1)]
+    sizes = [a * b for a, b in shapes]
+    offsets = np.zeros(levels + 1, np.int64)
+    offsets[1:] = np.cumsum(sizes)[:-1]
+    flat = np.empty((sum(sizes), 3), np.uint8)
+    flat[: sizes[0]] = np.ascontiguousarray(rgb, np.uint8).reshape(-1, 3)
+    if levels:
+        _mean_levels(np.ascontiguousarray(rgb, np.uint8), levels, flat, offsets)
+    return flat, offsets, np.array(shapes, np.int64)
+
+
+@njit(cache=True)
+def _mean_levels(rgb, levels, flat, offsets):
+    acc = rgb.astype(np.float32)
+    for k in range(1, levels + 1):
+        hh = acc.shape[0] // 2
+        ww = acc.shape[1] // 2
+        nxt = np.empty((hh, ww, 3), np.float32)
+        base = offsets[k]
+        for j in range(hh):
+            for i in range(ww):
+                for c in range(3):
+                    v = (
+                        acc[2 * j, 2 * i, c]
+                        + acc[2 * j, 2 * i + 1, c]
+                        + acc[2 * j + 1, 2 * i, c]
+                        + acc[2 * j + 1, 2 * i + 1, c]
+                    ) * np.float32(0.25)
+                    nxt[j, i, c] = v
+                    flat[base + j * ww + i, c] = np.uint8(min(max(v + 0.5, 0.0), 255.0))
+        acc = nxt
+
+
+def _flatten(levels):
+    """Concatenate ``(rows, cols)`` levels into one flat array with offsets and dims."""
+    sizes = [a.size for a in levels]
     offsets = np.zeros(len(levels), np.int64)
     offsets[1:] = np.cumsum(sizes)[:-1]
-    parts = [
-        a.ravel() if a.ndim == 2 and a.shape == tuple(sh) else a
-        for a, sh in zip(levels, shapes, strict=False)
-    ]
-    flat = np.ascontiguousarray(np.concatenate(parts, axis=0))
-    dims = np.array([[int(s[0]), int(s[1])] for s in shapes], np.int64)
+    flat = np.ascontiguousarray(np.concatenate([a.ravel() for a in levels]))
+    dims = np.array([a.shape for a in levels], np.int64)
     return flat, offsets, dims

@@ -30,8 +30,9 @@ import numpy as np
 
 from benchmark.progress import Progress
 from benchmark.sim.city_layout import generate, rng_for
+from benchmark.sim.lighting import N_LIGHTS, bake_light_states, sample_suns
 from benchmark.sim.render_core import MAT_BUILDING, MAT_WATER
-from benchmark.sim.textures import bake_lighting, max_pyramid, mean_pyramid
+from benchmark.sim.textures import max_pyramid
 from benchmark.sim.world_city import City, dilate3
 from benchmark.sim.world_styles import STYLES, get_style
 
@@ -39,9 +40,9 @@ GENERATOR_VERSION = "16"
 DEFAULT_SIZE_M = (3584.0, 2560.0)
 SAT_MARGIN_M = (1400.0, 700.0)  # half of the largest satellite footprint (1400 m sweep)
 _ARRAYS = (
+    "light_suns",
     "height",
     "ground",
-    "ortho",
     "mat",
     "orient",
     "palette",
@@ -66,21 +67,12 @@ def _grid_shape(size_m, mpp: float) -> tuple[int, int]:
     return h, w
 
 
-def _sun(style: str, seed: int, change: int) -> tuple[np.ndarray, str]:
-    """Sun direction and season: summer mid-morning to mid-afternoon for the flown city; a changed
-    city gets another azimuth and a lower winter/autumn sun."""
+def _suns(style: str, seed: int, change: int, n_lights: int) -> tuple[np.ndarray, str]:
+    """``(K, 3)`` sun vectors of the illumination states and the season: summer morning to
+    afternoon for the flown city; a changed city gets its own, lower winter or autumn suns."""
     r = rng_for(style, seed * 7 + 1 + change, "sun")
-    if change == 0:
-        az, el, season = r.uniform(120, 240), r.uniform(38, 58), "summer"
-    else:
-        season = "winter" if r.uniform() < 0.5 else "autumn"
-        az = r.uniform(120, 240)
-        el = r.uniform(14, 24) if season == "winter" else r.uniform(24, 34)
-    az_r, el_r = math.radians(az), math.radians(el)  # azimuth clockwise from north
-    sun = np.array(
-        [math.sin(az_r) * math.cos(el_r), math.cos(az_r) * math.cos(el_r), math.sin(el_r)]
-    )
-    return sun, season
+    season = "summer" if change == 0 else ("winter" if r.uniform() < 0.5 else "autumn")
+    return sample_suns(r, n_lights, season), season
 
 
 def _flight_centres(style: str, seed: int, shape, mpp: float) -> np.ndarray:
@@ -101,26 +93,28 @@ def _flight_centres(style: str, seed: int, shape, mpp: float) -> np.ndarray:
     return np.asarray(pts, np.float64)
 
 
-def _assemble(style: str, seed: int, change: int, shape, mpp: float, progress: bool) -> City:
+def _assemble(
+    style: str, seed: int, change: int, shape, mpp: float, n_lights: int, progress: bool
+) -> City:
     S = get_style(style)
-    sun, season = _sun(style, seed, change)
+    suns, season = _suns(style, seed, change, n_lights)
     what = f"city {style} seed {seed}" + (f" change {change - 1}" if change else "")
-    with Progress(3, what, unit="step", enabled=progress) as bar:
-        R = generate(S, seed, shape, mpp, change, season)
-        bar.update(1, postfix="layout")
-        ortho = bake_lighting(R.albedo, R.height, mpp, sun, ambient=0.55, diffuse=0.6)
-        bar.update(1, postfix="lighting")
-        city = _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season)
-        bar.update(1, postfix="pyramids")
-    return city
-
-
-def _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season) -> City:
     H, W = shape
     g = math.gcd(H, W)
     levels = min(9, (g & -g).bit_length() - 1)  # exact halvings only
-    hpyr, hoff, hdims = max_pyramid(R.height, levels)
-    tex, toff, tdims = mean_pyramid(ortho, levels)
+    with Progress(2, what, unit="step", enabled=progress) as bar:
+        R = generate(S, seed, shape, mpp, change, season)
+        bar.update(1, postfix="layout")
+        tex, toff, tdims = bake_light_states(R.albedo, R.height, mpp, suns, levels)
+        city = _finish(style, seed, change, shape, mpp, R, (tex, toff, tdims), suns, season)
+        bar.update(1, postfix=f"{n_lights} illumination states")
+    return city
+
+
+def _finish(style, seed, change, shape, mpp, R, texture, suns, season) -> City:
+    H, W = shape
+    tex, toff, tdims = texture
+    hpyr, hoff, hdims = max_pyramid(R.height, len(toff) - 1)
     ground = R.ground.reshape(H // 4, 4, W // 4, 4).mean(axis=(1, 3)).astype(np.float32)
     c8 = R.height.reshape(H // 8, 8, W // 8, 8).max(axis=(1, 3))
     clear = dilate3(c8)
@@ -130,11 +124,10 @@ def _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season) -> City:
         seed=int(seed),
         change=int(change),
         season=season,
-        sun=sun,
+        light_suns=suns,
         metres_per_px=float(mpp),
         height=R.height,
         ground=ground,
-        ortho=ortho,
         mat=R.mat,
         orient=R.orient,
         palette=R.palette,
@@ -151,8 +144,9 @@ def _pyramids(style, seed, change, shape, mpp, R, ortho, sun, season) -> City:
     )
 
 
-def _key(style, seed, change, shape, mpp) -> str:
-    return f"{style}-{seed}-c{change}-{shape[1]}x{shape[0]}-{mpp:g}-v{GENERATOR_VERSION}"
+def _key(style, seed, change, shape, mpp, n_lights) -> str:
+    size = f"{shape[1]}x{shape[0]}-{mpp:g}"
+    return f"{style}-{seed}-c{change}-{size}-L{n_lights}-v{GENERATOR_VERSION}"
 
 
 def _save(city: City, path: Path) -> None:
@@ -160,7 +154,6 @@ def _save(city: City, path: Path) -> None:
     tmp = Path(tempfile.mkdtemp(prefix=path.name + ".tmp", dir=path.parent))
     for name in _ARRAYS:
         np.save(tmp / f"{name}.npy", np.ascontiguousarray(getattr(city, name)))
-    np.save(tmp / "sun.npy", city.sun)
     meta = {
         "style": city.style,
         "seed": city.seed,
@@ -168,6 +161,7 @@ def _save(city: City, path: Path) -> None:
         "season": city.season,
         "metres_per_px": city.metres_per_px,
         "max_structure_height": city.max_structure_height,
+        "n_lights": city.n_lights,
         "generator_version": GENERATOR_VERSION,
         **city.meta,
     }
@@ -185,6 +179,7 @@ _META_KEYS = (
     "season",
     "metres_per_px",
     "max_structure_height",
+    "n_lights",
     "generator_version",
 )
 
@@ -201,20 +196,30 @@ def _load(path: Path) -> City:
     except (OSError, ValueError) as e:
         raise ValueError(f"corrupt city cache {path / 'meta.json'}: {e}; delete {path}") from e
     arrays = {}
-    for n in (*_ARRAYS, "sun"):
+    for n in _ARRAYS:
         f = path / f"{n}.npy"
         try:
             arrays[n] = np.asarray(np.load(f, mmap_mode="r"))
         except (OSError, ValueError) as e:
             raise ValueError(f"corrupt city cache file {f}: {e}; delete {path}") from e
     H, W = arrays["height"].shape
-    expect = {"ortho": (H, W, 3), "mat": (H, W), "orient": (H, W), "ground": (H // 4, W // 4)}
+    K = int(meta["n_lights"])
+    n_tex = int(arrays["toff"][-1] + arrays["tdims"][-1].prod()) if len(arrays["toff"]) else -1
+    expect = {
+        "light_suns": (K, 3),
+        "tex": (K, n_tex, 3),
+        "mat": (H, W),
+        "orient": (H, W),
+        "ground": (H // 4, W // 4),
+    }
     for n, shape in expect.items():
         if arrays[n].shape != shape:
             raise ValueError(
                 f"corrupt city cache file {path / (n + '.npy')}: shape {arrays[n].shape}, "
                 f"expected {shape}; delete {path}"
             )
+    if n_tex < H * W:
+        raise ValueError(f"corrupt city cache file {path / 'toff.npy'}: bad offsets; delete {path}")
     extra = {k: v for k, v in meta.items() if k not in _META_KEYS}
     return City(
         style=meta["style"],
@@ -228,8 +233,15 @@ def _load(path: Path) -> City:
     )
 
 
-def _build(style, seed, change, size_m, mpp, cache_dir, progress=False) -> City:
+def _build(style, seed, change, size_m, mpp, n_lights, cache_dir, progress=False) -> City:
     get_style(style)
+    if not (
+        isinstance(n_lights, (int, np.integer))
+        and not isinstance(n_lights, bool)
+        and 1 <= n_lights <= 64
+    ):
+        raise ValueError(f"n_lights must be an integer in [1, 64], got {n_lights!r}")
+    n_lights = int(n_lights)
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if not (math.isfinite(mpp) and 0.1 <= mpp <= 4.0):
@@ -238,12 +250,12 @@ def _build(style, seed, change, size_m, mpp, cache_dir, progress=False) -> City:
         raise ValueError(f"size_m must be two sizes >= 128 m (E, N), got {size_m!r}")
     shape = _grid_shape(size_m, mpp)
     if cache_dir is False:
-        return _assemble(style, int(seed), int(change), shape, mpp, progress)
+        return _assemble(style, int(seed), int(change), shape, mpp, n_lights, progress)
     root = default_cache_dir() if cache_dir is None else Path(cache_dir)
-    path = root / _key(style, int(seed), int(change), shape, mpp)
+    path = root / _key(style, int(seed), int(change), shape, mpp, n_lights)
     if (path / "meta.json").exists():
         return _load(path)
-    city = _assemble(style, int(seed), int(change), shape, mpp, progress)
+    city = _assemble(style, int(seed), int(change), shape, mpp, n_lights, progress)
     _save(city, path)
     return _load(path) if (path / "meta.json").exists() else city
 
@@ -255,33 +267,43 @@ def build_city(
     cache_dir: str | Path | bool | None = None,
     size_m: tuple[float, float] = DEFAULT_SIZE_M,
     metres_per_px: float = 1.0,
+    n_lights: int = N_LIGHTS,
     progress: bool = False,
 ) -> City:
     """Generate (or load from the cache) the city ``(style, seed)``; deterministic.
 
-    A full-size city takes about 15 s and 1.7 GB of peak memory to build (``progress=True``
-    prints a bar); loading it from the cache is instant (memory-mapped, 163 MB of arrays).
-    Raises ValueError for an unknown style (listing ``STYLES``), a negative seed or bad sizes.
+    ``n_lights`` illumination states are baked (default ``N_LIGHTS``; cost in the module
+    docstring); ``progress=True`` prints a bar. Loading from the cache is instant (memory-mapped).
+    Raises ValueError for an unknown style (listing ``STYLES``), a negative seed, bad sizes or a
+    bad ``n_lights``.
     """
-    return _build(style, seed, 0, tuple(size_m), float(metres_per_px), cache_dir, progress)
+    mpp = float(metres_per_px)
+    return _build(style, seed, 0, tuple(size_m), mpp, n_lights, cache_dir, progress)
 
 
 def changed_city(
     city: City, seed: int, *, cache_dir: str | Path | bool | None = None, progress: bool = False
 ) -> City:
-    """The same place at an earlier time (paper Sec. 3.5): other sun and season, cars re-drawn,
-    ~5-10 % of buildings demolished and some gaps built on, some open blocks developed, 20 % of the
-    trees gone and 15 % new ones. ``seed`` (>= 0) selects the change; the result is cached like
-    ``build_city``.
+    """The same place at an earlier time (paper Sec. 3.5): another season (winter or autumn) with
+    its own ``city.n_lights`` low suns, cars re-drawn, ~5-10 % of buildings demolished and some
+    gaps built on, some open blocks developed, 20 % of the trees gone and 15 % new ones. ``seed``
+    (>= 0) selects the change; the result is cached like ``build_city``.
     """
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise ValueError(f"change seed must be a non-negative integer, got {seed!r}")
     H, W = city.shape
     size = (W * city.metres_per_px, H * city.metres_per_px)
-    out = _build(
-        city.style, city.seed, int(seed) + 1, size, city.metres_per_px, cache_dir, progress
-    )
+    mpp, k = city.metres_per_px, city.n_lights
+    out = _build(city.style, city.seed, int(seed) + 1, size, mpp, k, cache_dir, progress)
     return replace(out, flight_centres=city.flight_centres.copy())
 
 
-__all__ = ["DEFAULT_SIZE_M", "GENERATOR_VERSION", "STYLES", "City", "build_city", "changed_city"]
+__all__ = [
+    "DEFAULT_SIZE_M",
+    "GENERATOR_VERSION",
+    "N_LIGHTS",
+    "STYLES",
+    "City",
+    "build_city",
+    "changed_city",
+]

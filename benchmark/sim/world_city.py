@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from benchmark.sim.lighting import sun_angles
 from benchmark.sim.textures import max_pyramid, mean_pyramid
 
 GROUND_SCALE = 4  # texels per cell of the coarse terrain grid
@@ -22,11 +23,17 @@ class City:
 
     Attributes:
         style, seed: what was generated; ``change`` is 0 for the city as flown and the change seed
-            for an earlier-time version (``changed_city``); ``season`` and ``sun`` (unit ENU vector
-            towards the sun) describe the lighting baked into ``ortho``.
+            for an earlier-time version (``changed_city``); ``season`` its season.
+        light_suns: ``(K, 3)`` float64 unit ENU vectors towards the sun of the K illumination
+            states (``n_lights``); ``light_angles(k)`` gives (azimuth, elevation) radians.
+        tex, toff, tdims: ``tex`` ``(K, N, 3)`` uint8, per state the flattened mip pyramid of the
+            ortho texture with that state's shading and shadows baked in; ``toff`` ``(L+1,)`` and
+            ``tdims`` ``(L+1, 2)`` its level offsets and (rows, cols), shared by all states.
+            ``ortho`` is state 0's full-resolution texture ``(H, W, 3)`` (a view of ``tex``),
+            ``light_ortho(k)`` state k's; ``sun`` is ``light_suns[0]``.
         metres_per_px: texel size; ``shape`` ``(H, W)`` in texels.
         height: ``(H, W)`` float32 absolute surface height, metres. ``ground``: ``(H/4, W/4)``
-            float32 terrain height (4-texel cells). ``ortho``: ``(H, W, 3)`` uint8 shaded texture.
+            float32 terrain height (4-texel cells).
         max_structure_height: tallest building/tree above its ground, metres.
         flight_centres: ``(K, 2)`` float64 (E, N) centres such that the largest satellite
             footprint (2.8 km x 1.4 km) around each one stays inside the tile.
@@ -36,11 +43,10 @@ class City:
     seed: int
     change: int
     season: str
-    sun: np.ndarray
+    light_suns: np.ndarray
     metres_per_px: float
     height: np.ndarray
     ground: np.ndarray
-    ortho: np.ndarray
     mat: np.ndarray
     orient: np.ndarray
     palette: np.ndarray
@@ -79,9 +85,44 @@ class City:
         e0, _, n0, _ = self.extent
         return (e0, n0)
 
-    def ortho_image(self) -> np.ndarray:
-        """The ortho texture north-up (row 0 = north), ``(H, W, 3)`` uint8, for viewing."""
-        return np.ascontiguousarray(self.ortho[::-1])
+    @property
+    def n_lights(self) -> int:
+        """K, the number of illumination states."""
+        return int(self.light_suns.shape[0])
+
+    def check_light(self, light: int) -> int:
+        """``light`` as an int if it is an integer in [0, K); ValueError naming it otherwise."""
+        ok = isinstance(light, (int, np.integer)) and not isinstance(light, bool)
+        if not (ok and 0 <= light < self.n_lights):
+            raise ValueError(
+                f"light must be an integer in [0, {self.n_lights}) (the city's illumination "
+                f"states), got {light!r}"
+            )
+        return int(light)
+
+    def light_angles(self, k: int) -> tuple[float, float]:
+        """``(azimuth, elevation)`` radians of state k's sun; azimuth clockwise from north in
+        [0, 2 pi), elevation above the horizon."""
+        return sun_angles(self.light_suns[self.check_light(k)])
+
+    @property
+    def sun(self) -> np.ndarray:
+        """``(3,)`` unit ENU vector towards the sun of illumination state 0."""
+        return self.light_suns[0]
+
+    def light_ortho(self, k: int) -> np.ndarray:
+        """State k's full-resolution ortho texture ``(H, W, 3)`` uint8 (a view, row 0 south)."""
+        H, W = self.shape
+        return self.tex[self.check_light(k), : H * W].reshape(H, W, 3)
+
+    @property
+    def ortho(self) -> np.ndarray:
+        """State 0's ortho texture ``(H, W, 3)`` uint8 (row 0 = southern edge)."""
+        return self.light_ortho(0)
+
+    def ortho_image(self, light: int = 0) -> np.ndarray:
+        """The ortho texture of state ``light`` north-up (row 0 = north), ``(H, W, 3)`` uint8."""
+        return np.ascontiguousarray(self.light_ortho(light)[::-1])
 
     def with_rasters(
         self,
@@ -94,14 +135,22 @@ class City:
         """A copy with some rasters replaced (same shapes) and the pyramids rebuilt.
 
         For tests and experiments (markers, flat worlds); ``ground`` is the (H/4, W/4) grid.
+        ``ortho`` is ``(H, W, 3)`` (the same texture for every illumination state) or
+        ``(K, H, W, 3)`` (one per state); lighting is not re-baked.
         """
+        H, W = self.shape
+        K = self.n_lights
         height = self.height if height is None else np.asarray(height, np.float32)
-        ortho = self.ortho if ortho is None else np.asarray(ortho, np.uint8)
         mat = self.mat if mat is None else np.asarray(mat, np.uint8)
         ground = self.ground if ground is None else np.asarray(ground, np.float32)
+        if ortho is not None:
+            ortho = np.asarray(ortho, np.uint8)
+            if ortho.shape not in ((H, W, 3), (K, H, W, 3)):
+                raise ValueError(
+                    f"ortho must have shape {(H, W, 3)} or {(K, H, W, 3)}, got {ortho.shape}"
+                )
         for name, a, shp in (
             ("height", height, self.height.shape),
-            ("ortho", ortho, self.ortho.shape),
             ("mat", mat, self.mat.shape),
             ("ground", ground, self.ground.shape),
         ):
@@ -109,14 +158,18 @@ class City:
                 raise ValueError(f"{name} must have shape {shp}, got {a.shape}")
         levels = len(self.hoff) - 1
         hpyr, hoff, hdims = max_pyramid(height, levels)
-        tex, toff, tdims = mean_pyramid(ortho, levels)
-        H, W = self.shape
+        tex, toff, tdims = self.tex, self.toff, self.tdims
+        if ortho is not None and ortho.ndim == 3:  # one pyramid, copied to every state
+            flat, toff, tdims = mean_pyramid(ortho, levels)
+            tex = np.repeat(flat[None], K, axis=0)
+        elif ortho is not None:
+            pyrs = [mean_pyramid(o, levels) for o in ortho]
+            tex = np.stack([p[0] for p in pyrs])
         c8 = height.reshape(H // 8, 8, W // 8, 8).max(axis=(1, 3))
         clear = dilate3(c8)
         return replace(
             self,
             height=height,
-            ortho=ortho,
             mat=mat,
             ground=ground,
             hpyr=hpyr,

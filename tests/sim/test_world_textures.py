@@ -8,13 +8,13 @@ import cv2
 import numpy as np
 import pytest
 
+from benchmark.sim.lighting import sun_visibility
 from benchmark.sim.textures import (
     _bicubic_upsample,
     hash01,
     max_pyramid,
     mean_pyramid,
     smooth_noise,
-    sun_visibility,
 )
 
 
