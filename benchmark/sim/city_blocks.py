@@ -62,6 +62,23 @@ class BlockPixels:
     bh: np.ndarray
     key: np.ndarray  # int64 block key
     district: np.ndarray  # [0, 1]: 1 = dense, tall district; 0 = green, low district
+    edge: (
+        np.ndarray
+    )  # metres to an irregular block edge (district-boundary arterial), large if none
+    edge_along: np.ndarray  # metres along that edge (parcel frontage coordinate)
+
+
+def touching(key: np.ndarray, mask: np.ndarray, near: np.ndarray) -> np.ndarray:
+    """Texels of ``mask`` whose object (same ``key``) has any texel in ``mask & near``.
+
+    Objects (houses, sheds, containers, pitches) cut by an irregular block edge are removed whole
+    with this (``mask & ~touching(...)``) instead of being cut in half. Exact as long as an object
+    never straddles two fill chunks, which city_layout guarantees (chunks split by block key).
+    """
+    bad = mask & near
+    if not bad.any():
+        return np.zeros_like(mask)
+    return mask & np.isin(key, np.unique(key[bad]))
 
 
 def lerp(lo_hi: tuple[float, float], t: np.ndarray) -> np.ndarray:
@@ -139,13 +156,16 @@ def _roof_details(S: Style, cv: Canvas, P: BlockPixels, roof, pkey, d, along, D,
 
 
 def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
-    """Buildings round the block perimeter (terraces, or slabs when ``high``), gardens inside."""
+    """Buildings round the block perimeter (terraces, or slabs when ``high``), gardens inside.
+
+    An irregular block edge (a district-boundary arterial) is a fifth side: the terraces turn to
+    face it, their parcels laid out along it."""
     hb = lambda k: hash01(P.key, cv.seed, k)  # noqa: E731
     D = np.minimum(lerp(S.depth, hb(1)), 0.5 * np.minimum(P.bw, P.bh))
-    e = np.stack([P.lu, P.lv, P.bw - P.lu, P.bh - P.lv])
+    e = np.stack([P.lu, P.lv, P.bw - P.lu, P.bh - P.lv, P.edge])
     side = np.argmin(e, axis=0)
     d = np.min(e, axis=0)
-    along = np.where(side % 2 == 0, P.lv, P.lu)
+    along = np.where(side == 4, P.edge_along, np.where(side % 2 == 0, P.lv, P.lu))
     pw = lerp(S.parcel, hb(2))
     pidx = np.floor(along / pw + hb(3)).astype(np.int64)
     pkey = P.key * 1009 + side * 211 + pidx
@@ -228,6 +248,7 @@ def fill_detached(S: Style, cv: Canvas, P: BlockPixels) -> None:
     ac = a - 0.5 * lw - xo
     inh = (np.abs(ac) < 0.5 * hw) & (b > sb) & (b < sb + hd) & (0.5 * P.bh > sb + hd + 4)
     inh &= P.lu < P.bw - 2.0
+    inh &= ~touching(pkey, inh, P.edge < 2.0)  # whole houses only along a district boundary
     eave = lerp(S.height_low, hp(6))
     pitch = np.tan(np.radians(lerp((32.0, 45.0), hp(7))))
     ridge_across = hp(8) < 0.25  # some houses have the ridge perpendicular to the street
@@ -243,6 +264,7 @@ def fill_detached(S: Style, cv: Canvas, P: BlockPixels) -> None:
     # A car on some driveways.
     car = drive & (hash01(pkey, cv.seed, cv.change, 9) < 0.45) & (b > 1.0) & (b < 5.4)
     car &= np.abs(ac - 0.5 * hw - 2.0) < 0.9
+    car &= ~touching(pkey, car, P.edge < 1.0)
     ccol = pick(CAR_COLOURS, hash01(pkey, cv.seed, cv.change, 10))
     _set(cv, P.idx, car, struct=1.5, rgb=ccol, mat=MAT_SMALL)
     hedge = ((a < 0.7) | (b < 0.7)) & (b < 0.5 * P.bh - 0.5) & ~drive & (hp(11) < 0.7)
@@ -256,6 +278,7 @@ def fill_parking(S: Style, cv: Canvas, P: BlockPixels) -> None:
     g = cv.grain[P.idx]
     asph = np.asarray(S.asphalt, np.float32)[None, :] * (1.0 + 0.06 * g[:, None])
     border = (P.lu < 2.5) | (P.lv < 2.5) | (P.bw - P.lu < 2.5) | (P.bh - P.lv < 2.5)
+    border |= P.edge < 2.5
     _set(cv, P.idx, ~border, rgb=asph, mat=MAT_GROUND, tree=0.0)
     _grass(S, cv, P, border, S.tree_park)
     y = (P.lv - 2.5) % 16.0
@@ -266,11 +289,12 @@ def fill_parking(S: Style, cv: Canvas, P: BlockPixels) -> None:
     stall = np.floor(x / 2.5).astype(np.int64)
     a = x - stall * 2.5
     inside = ~border & (P.lv < P.bh - 5.0)
-    line = inside & stall_row & (a < 0.12 + 0.0 * a)
+    line = inside & stall_row & (a < 0.12 + 0.0 * a) & ~border
     cv.rgb[P.idx[line]] = np.float32(215.0)
     skey = (P.key * 131 + row) * 4099 + stall * 2 + (y < 5.0)
     occ = hash01(skey, cv.seed, cv.change, 21) < lerp((0.3, 0.9), hash01(P.key, cv.seed, 23))
     car = inside & stall_row & occ & (np.abs(a - 1.25) < 0.9) & (b > 0.4) & (b < 4.7)
+    car &= ~touching(skey, car, border)
     ccol = pick(CAR_COLOURS, hash01(skey, cv.seed, cv.change, 22))
     glass = (b > 1.6) & (b < 2.4) | (b > 3.6) & (b < 4.1)
     ccol = np.where(glass[:, None], ccol * 0.35 + 20.0, ccol)
@@ -300,4 +324,5 @@ __all__ = [
     "fill_park",
     "fill_parking",
     "fill_terrace",
+    "touching",
 ]

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from benchmark.sim.city_blocks import BlockPixels, Canvas, _set, lerp, pick
+from benchmark.sim.city_blocks import BlockPixels, Canvas, _set, lerp, pick, touching
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
 from benchmark.sim.textures import hash01
 from benchmark.sim.world_styles import Style
@@ -40,6 +40,7 @@ def fill_lawn(S: Style, cv: Canvas, P: BlockPixels) -> None:
     cv.rgb[P.idx] = col
     cv.mat[P.idx] = MAT_GROUND
     d = np.minimum(np.minimum(P.lu, P.lv), np.minimum(P.bw - P.lu, P.bh - P.lv))
+    d = np.minimum(d, P.edge)  # the ring path follows a district-boundary arterial too
     cv.tree[P.idx] = np.where(d < 6.0, S.tree_park, 0.0).astype(np.float32)
     ring = (d > 7.0) & (d < 9.0)
     _set(cv, P.idx, ring, rgb=np.asarray(S.pavement, np.float32), tree=0.0)
@@ -53,6 +54,8 @@ def fill_lawn(S: Style, cv: Canvas, P: BlockPixels) -> None:
     hl, hw = 52.5 * k, 34.0 * k
     has = (hash01(P.key, cv.seed, 71) < 0.6) & (k > 0.45)
     ax, ay = np.abs(x), np.abs(y)
+    # No pitch where a district boundary cuts into it (it would be cut in half).
+    has &= ~touching(P.key, (ax < 52.5 * k + 2.0) & (ay < 34.0 * k + 2.0), d < 4.0)
     # Distance to the pitch outline (a rectangle), then the halfway line.
     outline = np.minimum(
         np.where(ay <= hw, np.abs(ax - hl), np.hypot(ax - hl, ay - hw)),
@@ -78,12 +81,18 @@ def fill_plaza(S: Style, cv: Canvas, P: BlockPixels) -> None:
     cv.rgb[P.idx] = col
     cv.mat[P.idx] = MAT_GROUND
     edge = np.minimum(np.minimum(P.lu, P.lv), np.minimum(P.bw - P.lu, P.bh - P.lv))
+    edge = np.minimum(edge, P.edge)
     cv.tree[P.idx] = np.where(edge < 8.0, 0.35, 0.02).astype(np.float32)
     church = hash01(P.key, cv.seed, 72) < S.church_prob
     x = P.lu - 0.5 * P.bw
     y = P.lv - 0.5 * P.bh
     r = np.hypot(x, y)
-    f = ~church
+    # Fountain or church only where a district boundary does not cut through it.
+    centre = (np.abs(x) < np.minimum(0.3 * np.maximum(P.bw, P.bh), 22.0) + 2.0) & (np.abs(y) < 8)
+    centre |= (np.abs(y) < np.minimum(0.3 * np.maximum(P.bw, P.bh), 22.0) + 2.0) & (np.abs(x) < 8)
+    cut = touching(P.key, centre, P.edge < 2.0)
+    church &= ~cut
+    f = ~church & ~cut
     _set(
         cv,
         P.idx,

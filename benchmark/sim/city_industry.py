@@ -18,6 +18,7 @@ from benchmark.sim.city_blocks import (
     _set,
     lerp,
     pick,
+    touching,
 )
 from benchmark.sim.render_core import MAT_GROUND, MAT_SMALL
 from benchmark.sim.textures import hash01
@@ -57,6 +58,7 @@ def _containers(cv: Canvas, P: BlockPixels, pkey, sel, xl, y, pl, W) -> None:
     skey = (pkey * 4099 + row) * 131 + col
     levels = np.floor(hash01(skey, cv.seed, cv.change, 91) * 4.0)  # 0 = empty slot
     box &= levels > 0
+    box &= ~touching(skey, box, P.edge < 1.0)
     colour = pick(CONTAINER_COLOURS, hash01(skey, cv.seed, cv.change, 92))
     ribs = (cx % 0.6) < 0.15
     colour = colour * (1.0 - 0.12 * ribs)[:, None]
@@ -76,6 +78,8 @@ def _tanks(cv: Canvas, P: BlockPixels, pkey, sel, xl, y, pl, W) -> None:
     d = np.hypot(dx, dy)
     fits = ((ci + 1) * pitch + 6.0 < pl) & ((cj + 1) * pitch + 6.0 < W)
     tank = sel & (d < r) & fits & (hash01(pkey, ci, cj, cv.seed, 94) < 0.85)
+    tkey = (pkey * 4099 + ci.astype(np.int64)) * 4099 + cj.astype(np.int64)
+    tank &= ~touching(tkey, tank, P.edge < 2.0)
     h = lerp((9.0, 15.0), hash01(pkey, ci, cj, cv.seed, 95))
     roof = h + 1.5 * (1.0 - (d / r) ** 2)
     grey = np.where(hash01(pkey, cv.seed, 96) < 0.7, 226.0, 180.0).astype(np.float32)
@@ -109,11 +113,16 @@ def fill_warehouse(S: Style, cv: Canvas, P: BlockPixels) -> None:
     kind = np.searchsorted(np.cumsum(S_KINDS[S.name]), hp(9)).clip(0, 3)
     inb = (xl > mx) & (xl < pl - mx) & (y > front) & (y < W - back) & (kind == SHED)
     inb &= (pl - 2 * mx > 15.0) & (W - front - back > 15.0)
+    # A shed on a block cut by a district boundary keeps a setback from it (one wall follows the
+    # arterial, under a flat roof); it is dropped if less than a 15 m deep shed is left.
+    cut = touching(pkey, inb, P.edge < mx)
+    inb &= P.edge > mx
+    inb &= ~touching(pkey, inb, cut & (P.edge < mx + 1.0) & ((y - front < 15.0) | (xl - mx < 15.0)))
     eave = lerp(S.height_high, hp(5))
     # Skylight strips across the roof every 6-10 m; a few sheds have a low-pitch double roof.
     sp = lerp((6.0, 10.0), hp(6))
     sky = ((xl % sp) < 1.2) & (hp(7) < 0.6)
-    gable = hp(8) < S.gable_prob
+    gable = (hp(8) < S.gable_prob) & ~cut
     yr = y - front
     wr = W - front - back
     roof = eave + np.where(gable, np.minimum(0.12 * (0.5 * wr - np.abs(yr - 0.5 * wr)), 3.0), 0.0)
@@ -135,6 +144,7 @@ def fill_warehouse(S: Style, cv: Canvas, P: BlockPixels) -> None:
     yb = np.where(kind == TRUCKS, y % 34.0, y)  # truck parks: rows of bays with 18 m aisles
     trailer = occ & (np.abs(sx) < 1.3) & (yb > 2.0) & (yb < 15.6) & (front > 17.0) & yard
     trailer &= (xl > 2.0) & (xl < pl - 2.0)
+    trailer &= ~touching(pkey * 4099 + slot, trailer, P.edge < 1.0)
     tcol = pick(TRAILER_COLOURS, hash01(pkey, slot, cv.seed, cv.change, 14))
     tcol = tcol * (1.0 - 0.25 * (np.abs(sx) > 1.0))[:, None]
     _set(cv, P.idx, trailer, struct=3.9, rgb=tcol, mat=MAT_SMALL)

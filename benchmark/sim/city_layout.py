@@ -1,18 +1,16 @@
-"""Street network and city assembly: from (style, seed) to height, albedo and material rasters.
+"""City assembly: from (style, seed) to height, albedo and material rasters.
 
-The street network is a rotated grid with irregular spacings whose coordinates ``(u, v)`` are
-displaced by smooth noise (``warp_amp``): strongly warped for oxford (curved streets), nearly
-straight for cambridge/industrial. For every texel the generator finds the enclosing grid lines,
-hence its distance to the nearest street centreline (carriageway, kerb, pavement, markings, parked
-cars) and its block and local block coordinates, which the block programmes (city_blocks.py) turn
-into buildings, gardens, parks, lots. A river band (city_nature.py) overrides it; major streets
-bridge it.
+The street network (city_districts.py) is a patchwork of districts separated by arterial roads,
+each with its own grid angle and pitches (grids warped by smooth noise, organic old cores, radial
+streets round greens). For every texel it gives the distance to the nearest street centrelines
+(carriageway, kerb, pavement, markings, parked cars), the block and the local block coordinates,
+which the block programmes (city_blocks.py, ...) turn into buildings, gardens, parks, lots. A
+river band (city_nature.py) overrides it; major streets bridge it.
 """
 
 from __future__ import annotations
 
 import math
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,6 +18,7 @@ import numpy as np
 from benchmark.sim import city_blocks as cb
 from benchmark.sim import city_details as cd
 from benchmark.sim import city_industry as ci
+from benchmark.sim.city_districts import KEY_BASE, Streets, rng_for, street_fields
 from benchmark.sim.city_nature import SEASON_GRASS, plant_trees, river_distance, terrain
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
 from benchmark.sim.textures import fine_grain, hash01, smooth_noise
@@ -41,13 +40,6 @@ class Rasters:
     palette: np.ndarray  # float64 (N_PALETTE, 10)
 
 
-def rng_for(style: str, seed: int, stream: str) -> np.random.Generator:
-    """An independent, reproducible numpy stream per (style, seed, purpose)."""
-    return np.random.default_rng(
-        [zlib.crc32(style.encode()), int(seed), zlib.crc32(stream.encode())]
-    )
-
-
 def facade_palette(S: Style, rng: np.random.Generator) -> np.ndarray:
     """(N_PALETTE, 10): wall rgb, window rgb, floor height, window spacing, window w/h fractions."""
     pal = np.zeros((N_PALETTE, 10))
@@ -64,26 +56,6 @@ def facade_palette(S: Style, rng: np.random.Generator) -> np.ndarray:
     pal[:, 8] = rng.uniform(0.35, 0.7, N_PALETTE)
     pal[:, 9] = rng.uniform(0.4, 0.65, N_PALETTE)
     return np.clip(pal, 0.0, None)
-
-
-def _grid_lines(rng, lo: float, hi: float, pitch: tuple[float, float]) -> np.ndarray:
-    start = lo - pitch[1] - rng.uniform(0, pitch[1])
-    n = int((hi - start) / pitch[0]) + 3
-    lines = start + np.concatenate([[0.0], np.cumsum(rng.uniform(*pitch, n))])
-    return lines.astype(np.float32)  # float32 keeps the per-texel temporaries small
-
-
-def _axis(coord, lines, widths):
-    """Per texel: index of the line below, distance to the nearest line, that road's half width."""
-    k = np.clip(np.searchsorted(lines, coord, side="right") - 1, 0, len(lines) - 2).astype(np.int32)
-    lo = lines[k]
-    hi = lines[k + 1]
-    dlo = coord - lo
-    dhi = hi - coord
-    near_lo = dlo < dhi
-    dist = np.where(near_lo, dlo, dhi)
-    half = np.where(near_lo, widths[k], widths[k + 1]) * 0.5
-    return k, lo, hi, dist, half
 
 
 def generate(
@@ -104,35 +76,38 @@ def generate(
     ground = terrain(rng("terrain"), shape, mpp, S)
     grain = fine_grain(rng("grain"), shape)
 
-    # Street grid in warped, rotated coordinates.
-    r = rng("streets")
-    ang = r.uniform(0, math.pi / 2)
-    u = E * math.cos(ang) + N * math.sin(ang)
-    v = -E * math.sin(ang) + N * math.cos(ang)
-    if S.warp_amp > 0:
-        u += S.warp_amp * smooth_noise(rng("warp_u"), shape, S.warp_cell / mpp)
-        v += S.warp_amp * smooth_noise(rng("warp_v"), shape, S.warp_cell / mpp)
+    # Street network: districts with their own grids (city_districts.py).
+    F = street_fields(
+        S,
+        seed,
+        E,
+        N,
+        mpp,
+        lambda keys, ce, cn: _block_types(S, seed, change, keys, ce, cn),
+        BLOCK_TYPES.index("park"),
+    )
     # Wall direction (mod 90 deg) = direction of grad u, quantised to 2.8 deg steps so a parcel's
-    # walls share one direction (the window grid is laid out along it).
-    gu_e = np.gradient(u, axis=1)
-    gu_n = np.gradient(u, axis=0)
-    theta = np.mod(np.arctan2(gu_n, gu_e), math.pi / 2)
+    # walls share one direction (the window grid is laid out along it). Across district
+    # boundaries grad u is meaningless, but those texels are arterial roads, never walls.
+    gu_n, gu_e = np.gradient(F.u)
+    theta_u = np.arctan2(gu_n, gu_e).astype(np.float32)
+    del gu_e, gu_n
+    theta = np.mod(theta_u, math.pi / 2)
     orient = ((np.round(theta / (math.pi / 2) * 32.0) % 32) * 8).astype(np.uint8)
-    del gu_e, gu_n, theta
-    ul = _grid_lines(r, float(u.min()), float(u.max()), S.block_u)
-    vl = _grid_lines(r, float(v.min()), float(v.max()), S.block_v)
-    off_u, off_v = r.integers(0, S.major_every, 2)
-    wu = np.where((np.arange(len(ul)) + off_u) % S.major_every == 0, S.road_major, S.road_minor)
-    wv = np.where((np.arange(len(vl)) + off_v) % S.major_every == 0, S.road_major, S.road_minor)
-    wu = wu.astype(np.float32)
-    wv = wv.astype(np.float32)
-    ku, ulo, uhi, du, hu = _axis(u, ul, wu)
-    kv, vlo, vhi, dv, hv = _axis(v, vl, wv)
+    del theta
+    du, dv, hu, hv = F.du, F.dv, F.hu, F.hv
     on_u = du < hu  # on a street running along v (constant u)
     on_v = dv < hv
-    road = on_u | on_v
+    on_a = F.art < F.art_half  # on a district-boundary arterial
     sw = S.sidewalk
-    walk = ~road & ((du < hu + sw) | (dv < hv + sw))
+    # The carriageway of an irregular edge (arterial, or a circus' outer ring seen from the
+    # grid outside it) is everything beyond its pavement.
+    road = on_u | on_v | on_a | (F.edge < -sw)
+    walk = ~road & ((du < hu + sw) | (dv < hv + sw) | (F.edge < 0))
+    # Slivers between a grid street and the arterial too narrow to build on become pavement.
+    dgrid = np.minimum(np.minimum(F.lu, F.lv), np.minimum(F.bw - F.lu, F.bh - F.lv))
+    walk |= ~road & (F.edge < 9.0) & (F.edge + dgrid < 14.0)
+    del dgrid
 
     rgb = np.empty((H, W, 3), np.float32)
     mat = np.zeros((H, W), np.uint8)
@@ -149,74 +124,68 @@ def generate(
         N_PALETTE,
     )
 
-    # Carriageway, kerbs and pavements.
+    # Carriageway, kerbs and pavements; boulevard trees along the arterials.
     asph = np.asarray(S.asphalt, np.float32)
     rgb[:] = asph * (1.0 + 0.05 * grain[..., None])
     pav = np.asarray(S.pavement, np.float32)
     rgb[walk] = pav * (1.0 + 0.04 * grain[walk][:, None])
     tree[walk] = S.tree_street
+    tree[walk & (F.edge < 0)] = min(1.0, 3.0 * S.tree_street + 0.05)
     no_parking = np.zeros((H, W), bool)
     if S.bus_lanes:
-        no_parking |= cd.bus_lanes(rgb, on_u & ~on_v, du, hu, dv, hv, wu[ku], S)
-        no_parking |= cd.bus_lanes(rgb, on_v & ~on_u, dv, hv, du, hu, wv[kv], S)
-    _markings(rgb, u, v, du, hu, dv, hv, on_u, on_v, wu[ku], wv[kv], S)
+        no_parking |= cd.bus_lanes(rgb, on_u & ~on_v & ~on_a, du, hu, dv, hv, 2 * hu, S)
+        no_parking |= cd.bus_lanes(rgb, on_v & ~on_u & ~on_a, dv, hv, du, hu, 2 * hv, S)
+    _markings(rgb, F, on_u & ~on_a, on_v & ~on_a, S)
+    _arterial_markings(rgb, F, on_a)
+    near_a = F.art < F.art_half + 6.0
     _street_cars(
-        cv, u, v, du, hu, dv, hv, on_u & ~no_parking, on_v & ~no_parking, ku, kv, seed, change
+        cv,
+        F,
+        on_u & ~no_parking & ~near_a,
+        on_v & ~no_parking & ~near_a,
+        seed,
+        change,
     )
-    del no_parking
+    del no_parking, near_a
 
     # Blocks.
-    lu = u - ulo - 0.5 * wu[ku] - sw
-    lv = v - vlo - 0.5 * wv[kv] - sw
-    bw = (uhi - ulo) - 0.5 * (wu[ku] + wu[ku + 1]) - 2 * sw
-    bh = (vhi - vlo) - 0.5 * (wv[kv] + wv[kv + 1]) - 2 * sw
     inner = ~road & ~walk
-    bkey = ku.astype(np.int64) * 100003 + kv.astype(np.int64)
-    btable, dtable = _block_types(S, seed, change, ul, vl, ang)
-    btype = btable[ku, kv]
-    district = dtable[ku, kv]
     park_a = smooth_noise(rng("park_a"), shape, 60.0 / mpp)
     park_b = smooth_noise(rng("park_b"), shape, 90.0 / mpp)
     flat = np.flatnonzero(inner.ravel())
-    bt = btype.ravel()[flat]
-    # Texels are independent given their block keys, so each type is filled in chunks of 1M
-    # texels: same result, a fraction of the temporary memory.
-    jobs = [
-        (t, name, sel)
-        for t, name in enumerate(BLOCK_TYPES)
-        for sel in np.array_split(flat[bt == t], max(1, int(np.ceil(np.sum(bt == t) / 1e6))))
-    ]
-    for _t, name, sel in jobs:
-        if sel.size == 0:
+    bt = F.btype.ravel()[flat]
+    bkey_all = (F.ksu.ravel()[flat].astype(np.int64) * KEY_BASE) + (F.ksv.ravel()[flat] % KEY_BASE)
+    # Texels are independent given their block keys (parcel-level choices only look at texels
+    # of the same block), so each type is filled in chunks of about 1M texels split by block
+    # key: same result, a fraction of the temporary memory.
+    for t, name in enumerate(BLOCK_TYPES):
+        sel_t = flat[bt == t]
+        if sel_t.size == 0:
             continue
-        P = cb.BlockPixels(
-            sel,
-            lu.ravel()[sel],
-            lv.ravel()[sel],
-            bw.ravel()[sel],
-            bh.ravel()[sel],
-            bkey.ravel()[sel],
-            district.ravel()[sel],
-        )
-        if name in ("terrace", "slab"):
-            cb.fill_terrace(S, cv, P, high=name == "slab")
-        elif name == "detached":
-            cb.fill_detached(S, cv, P)
-        elif name == "warehouse":
-            ci.fill_warehouse(S, cv, P)
-        elif name == "park":
-            cb.fill_park(S, cv, P, park_a.ravel()[sel], park_b.ravel()[sel])
-        elif name == "parking":
-            cb.fill_parking(S, cv, P)
-        elif name == "lawn":
-            cd.fill_lawn(S, cv, P)
-        else:
-            cd.fill_plaza(S, cv, P)
-    del lu, lv, bw, bh, park_a, park_b, district
+        keys_t = bkey_all[bt == t]
+        n_chunks = max(1, int(np.ceil(sel_t.size / 1e6)))
+        chunk = keys_t % n_chunks
+        for c in range(n_chunks):
+            sel = sel_t[chunk == c]
+            if sel.size == 0:
+                continue
+            P = cb.BlockPixels(
+                sel,
+                F.lu.ravel()[sel],
+                F.lv.ravel()[sel],
+                F.bw.ravel()[sel],
+                F.bh.ravel()[sel],
+                keys_t[chunk == c],
+                F.dens.ravel()[sel],
+                F.edge.ravel()[sel],
+                F.art_along.ravel()[sel],
+            )
+            _fill(S, cv, P, name, park_a.ravel()[sel], park_b.ravel()[sel])
+    del park_a, park_b, flat, bt, bkey_all
 
     rail = np.zeros((H, W), bool)
     if S.railway:
-        major = (on_u & (wu[ku] >= S.road_major)) | (on_v & (wv[kv] >= S.road_major))
+        major = (on_u & (hu >= 0.5 * S.road_major)) | (on_v & (hv >= 0.5 * S.road_major)) | on_a
         rail = cd.add_railway(rng("railway"), cv, E, N, major.ravel(), 0.5 * H * mpp, S)
         rail = rail.reshape(H, W)
         del major
@@ -228,12 +197,12 @@ def generate(
         valley = np.exp(-((d / (3.0 * S.river_width)) ** 2)).astype(np.float32)
         ground -= 3.0 * valley
         bank = (d < half + 14.0) & (d >= half)
-        # Bridges: every other major street of the family that crosses the river most squarely.
-        cross_u = abs(math.cos(ang + math.pi / 2 - ang_r)) < abs(math.cos(ang - ang_r))
-        if cross_u:
-            lines = on_u & (wu[ku] >= S.road_major) & (hash01(ku, seed, 61) < 0.5)
-        else:
-            lines = on_v & (wv[kv] >= S.road_major) & (hash01(kv, seed, 61) < 0.5)
+        # Bridges: every other major street of the family that crosses the river most squarely
+        # in its district (grad u along the river: the constant-u streets cross it).
+        cross_u = np.abs(np.cos(theta_u - ang_r)) > np.abs(np.sin(theta_u - ang_r))
+        major_u = on_u & (hu >= 0.5 * S.road_major) & (hash01(F.ksu, seed, 61) < 0.5)
+        major_v = on_v & (hv >= 0.5 * S.road_major) & (hash01(F.ksv, seed, 61) < 0.5)
+        lines = np.where(cross_u, major_u, major_v) & ~on_a
         bridge = (d < half + 14.0) & (lines | rail)
         water = (d < half) & ~bridge
         grass = np.asarray(S.grass, np.float32)
@@ -250,6 +219,7 @@ def generate(
         struct[water] = -1.2
         tree[water] = 0.0
         struct[bridge & (d < half + 2.0)] = 1.0
+    del F, theta_u
     tint = np.asarray(SEASON_GRASS[season], np.float32)
     green = (mat == MAT_GROUND) & (rgb[..., 1] > rgb[..., 0] * 1.15)
     rgb[green] *= tint
@@ -261,18 +231,33 @@ def generate(
     return Rasters(height.astype(np.float32), ground, rgb, mat, orient, pal)
 
 
-def _block_types(S: Style, seed: int, change: int, ul, vl, ang: float):
-    """Block type and district value per (ku, kv) grid cell.
+def _fill(S: Style, cv: cb.Canvas, P: cb.BlockPixels, name: str, park_a, park_b) -> None:
+    if name in ("terrace", "slab"):
+        cb.fill_terrace(S, cv, P, high=name == "slab")
+    elif name == "detached":
+        cb.fill_detached(S, cv, P)
+    elif name == "warehouse":
+        ci.fill_warehouse(S, cv, P)
+    elif name == "park":
+        cb.fill_park(S, cv, P, park_a, park_b)
+    elif name == "parking":
+        cb.fill_parking(S, cv, P)
+    elif name == "lawn":
+        cd.fill_lawn(S, cv, P)
+    else:
+        cd.fill_plaza(S, cv, P)
 
-    The district value in [0, 1] is a smooth field (three random plane waves, ~1-2 km) evaluated
+
+def _block_types(S: Style, seed: int, change: int, keys, ce, cn):
+    """Block type and density value of blocks from their int64 keys and centres (E, N metres).
+
+    The density value in [0, 1] is a smooth field (three random plane waves, ~1-2 km) evaluated
     at the block centre: high = dense and tall (slabs, terraces), low = green (parks, lawns,
     houses). It gives the city large-scale structure instead of i.i.d. blocks.
     """
     r = rng_for(S.name, seed, "district")
-    cu = 0.5 * (ul[:-1] + ul[1:])[:, None]
-    cvv = 0.5 * (vl[:-1] + vl[1:])[None, :]
-    E = cu * math.cos(ang) - cvv * math.sin(ang)
-    N = cu * math.sin(ang) + cvv * math.cos(ang)
+    E = np.asarray(ce, np.float64)
+    N = np.asarray(cn, np.float64)
     acc = np.zeros(np.broadcast(E, N).shape)
     for _ in range(3):
         k = 2 * math.pi / r.uniform(1200.0, 2400.0)
@@ -307,8 +292,7 @@ def _block_types(S: Style, seed: int, change: int, ul, vl, ang: float):
     )
     w = base * gain
     cum = np.cumsum(w / w.sum(axis=-1, keepdims=True), axis=-1)
-    ku, kv = np.meshgrid(np.arange(len(ul) - 1), np.arange(len(vl) - 1), indexing="ij")
-    key = ku.astype(np.int64) * 100003 + kv
+    key = np.broadcast_to(np.asarray(keys, np.int64), dist.shape)
     u = hash01(key, seed, 7)
     btype = (u[..., None] > cum).sum(axis=-1).clip(0, len(base) - 1)
     if change:  # open land built on by the later date is still open in the earlier image, etc.
@@ -317,22 +301,23 @@ def _block_types(S: Style, seed: int, change: int, ul, vl, ang: float):
     return btype, dist
 
 
-def _markings(rgb, u, v, du, hu, dv, hv, on_u, on_v, w_u, w_v, S: Style) -> None:
+def _markings(rgb, F: Streets, on_u, on_v, S: Style) -> None:
     """Dashed centre lines, lane lines on major roads, zebra crossings; 0.15 m lines are drawn with
     their texel coverage (anti-aliased), so they read as faint lines at 1 m/px, as in real
     imagery."""
     white = np.float32(235.0)
     mpp_cov = 1.0
+    u, v, du, hu, dv, hv = F.u, F.v, F.du, F.hu, F.dv, F.hv
 
     def cover(dist, width):
         return np.clip(0.5 + (0.5 * width - dist) / mpp_cov, 0.0, 1.0)
 
     only_u = on_u & ~on_v & (dv > hv + 3.0)
     only_v = on_v & ~on_u & (du > hu + 3.0)
-    for only, d, half, along, width in ((only_u, du, hu, v, w_u), (only_v, dv, hv, u, w_v)):
+    for only, d, half, along in ((only_u, du, hu, v), (only_v, dv, hv, u)):
         dash = ((along / 9.0) % 1.0) < 0.4
         c = cover(d, 0.3) * dash
-        major = width >= S.road_major
+        major = half >= 0.5 * S.road_major
         lane = np.abs(d - 0.5 * half)
         c = np.maximum(c, cover(lane, 0.3) * dash * major)
         edge = np.abs(d - (half - 0.6))
@@ -341,32 +326,41 @@ def _markings(rgb, u, v, du, hu, dv, hv, on_u, on_v, w_u, w_v, S: Style) -> None
         sel = c > 0
         rgb[sel] = rgb[sel] * (1.0 - c[sel, None]) + white * c[sel, None]
     # Zebra crossings just before intersections on major roads.
-    for on, d, half, dist_other, half_other, width in (
-        (on_u, du, hu, dv, hv, w_u),
-        (on_v, dv, hv, du, hu, w_v),
-    ):
+    for on, d, half, dist_other, half_other in ((on_u, du, hu, dv, hv), (on_v, dv, hv, du, hu)):
         band = (
             on
             & (dist_other > half_other + S.sidewalk + 0.5)
             & (dist_other < half_other + S.sidewalk + 3.5)
-            & (width >= S.road_major)
+            & (half >= 0.5 * S.road_major)
         )
         stripe = band & ((d % 1.2) < 0.6) & (d < half - 0.4)
         rgb[stripe] = white * 0.95
 
 
-def _street_cars(cv, u, v, du, hu, dv, hv, on_u, on_v, ku, kv, seed, change) -> None:
+def _arterial_markings(rgb, F: Streets, on_a) -> None:
+    """District-boundary arterials: dashed centre line, lane lines and solid edge lines."""
+    half = F.art_half
+    d = F.art[on_a]
+    dash = ((F.art_along[on_a] / 9.0) % 1.0) < 0.4
+    c = np.clip(0.5 + 0.15 - d, 0.0, 1.0) * dash
+    c = np.maximum(c, np.clip(0.5 + 0.15 - np.abs(d - 0.5 * half), 0.0, 1.0) * dash)
+    c = np.maximum(c, np.clip(0.5 + 0.15 - np.abs(d - (half - 0.6)), 0.0, 1.0))
+    cols = rgb[on_a]
+    rgb[on_a] = cols * (1.0 - c[:, None]) + np.float32(235.0) * c[:, None]
+
+
+def _street_cars(cv, F: Streets, on_u, on_v, seed, change) -> None:
     """Cars parked along the kerbs, 6 m slots, the occupancy re-drawn in a changed city."""
     for on, d, half, along, other, half_o, k in (
-        (on_u, du, hu, v, dv, hv, ku),
-        (on_v, dv, hv, u, du, hu, kv),
+        (on_u, F.du, F.hu, F.v, F.dv, F.hv, F.ksu),
+        (on_v, F.dv, F.hv, F.u, F.du, F.hu, F.ksv),
     ):
         lane = on & (d > half - 2.3) & (d < half - 0.4) & (other > half_o + 6.0)
         slot = np.floor(along / 6.0).astype(np.int64)
         pos = along - (slot + 0.5) * 6.0
         side = (d > 0).astype(np.int64)
         idx = np.flatnonzero((lane & (np.abs(pos) < 2.25)).ravel())
-        key = k.ravel()[idx] * 7919 + slot.ravel()[idx] * 2 + side.ravel()[idx]
+        key = k.ravel()[idx].astype(np.int64) * 7919 + slot.ravel()[idx] * 2 + side.ravel()[idx]
         occ = hash01(key, seed, change, 31) < 0.45
         idx = idx[occ]
         key = key[occ]

@@ -1,14 +1,21 @@
 """The four city styles: street network, block programme, building and colour parameters.
 
 Distinct on purpose (a model trained on oxford + cambridge is tested on the unseen london):
-- ``oxford``: dense old town, curved streets (a strongly warped grid), terraces of 2-4 storeys with
-  gabled slate/stone roofs round small blocks, squares, honey-coloured limestone facades.
-- ``cambridge``: leafy suburb on a straight grid, detached houses with red-tile gables in gardens,
-  hedges, street trees, striped college lawns and parks.
-- ``london``: taller and denser, big blocks of 6-14-storey flat-roofed slabs with rooftop plant,
-  brick and Portland-stone/glass facades, a darker grey palette, wider roads with bus lanes.
-- ``industrial``: big flat warehouses with metal roofs and skylight strips, concrete yards with
-  trailers and trucks, large parking lots, few trees.
+- ``oxford``: dense old town, curved streets (a strongly warped grid, an organic old core),
+  terraces of 2-4 storeys with gabled slate/stone roofs round small blocks, squares,
+  honey-coloured limestone facades.
+- ``cambridge``: leafy suburb on straight grids (and radial streets round greens), detached houses
+  with red-tile gables in gardens, hedges, street trees, striped college lawns and parks.
+- ``london``: taller and denser (an irregular, organic medieval core), big blocks of 6-14-storey
+  flat-roofed slabs with rooftop plant, brick and Portland-stone/glass facades, a darker grey
+  palette, wider roads with bus lanes.
+- ``industrial``: grids only (at different angles per district), big flat warehouses with metal
+  roofs and skylight strips, concrete yards with trailers and trucks, large parking lots, few
+  trees.
+
+Every city is a patchwork of districts, each with its own street-grid angle and pitches (see
+``city_districts``), so no street direction dominates a city; the styles differ in the district
+kinds they mix (``p_organic``, ``p_radial``, ``old_town``).
 
 Colours are sRGB 0..255 albedos (before sun shading). Lengths in metres.
 """
@@ -68,6 +75,13 @@ class Style:
     solar_prob: float = 0.0  # share of gabled parcels with solar panels
     railway: bool = False
     bus_lanes: bool = False
+    # Districts (city_districts.py): size range, metres; shares of organic (strongly warped, finer)
+    # and radial (rings and spokes round a green) districts, the rest are grids; the kind of the
+    # district nearest the tile centre ("grid" = no special old core).
+    district_m: tuple[float, float] = (500.0, 800.0)
+    p_organic: float = 0.0
+    p_radial: float = 0.0
+    old_town: str = "grid"
 
 
 STYLE_TABLE: dict[str, Style] = {
@@ -115,6 +129,10 @@ STYLE_TABLE: dict[str, Style] = {
         river_width=34.0,
         church_prob=0.7,
         solar_prob=0.06,
+        district_m=(450.0, 750.0),
+        p_organic=0.3,
+        p_radial=0.08,
+        old_town="organic",
     ),
     "cambridge": Style(
         name="cambridge",
@@ -160,6 +178,10 @@ STYLE_TABLE: dict[str, Style] = {
         river_width=24.0,
         church_prob=0.5,
         solar_prob=0.15,
+        district_m=(500.0, 800.0),
+        p_organic=0.12,
+        p_radial=0.1,
+        old_town="radial",
     ),
     "london": Style(
         name="london",
@@ -216,6 +238,10 @@ STYLE_TABLE: dict[str, Style] = {
         solar_prob=0.04,
         railway=True,
         bus_lanes=True,
+        district_m=(550.0, 900.0),
+        p_organic=0.25,
+        p_radial=0.1,
+        old_town="organic",
     ),
     "industrial": Style(
         name="industrial",
@@ -260,6 +286,7 @@ STYLE_TABLE: dict[str, Style] = {
         terrain_amp=4.0,
         river_width=0.0,
         railway=True,
+        district_m=(650.0, 1000.0),
     ),
 }
 
