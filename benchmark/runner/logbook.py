@@ -17,6 +17,7 @@ from typing import Any
 
 from benchmark.config import flatten
 from benchmark.models.registry import head_versions
+from benchmark.runner.execute import eval_keys
 from benchmark.runner.plan import Unit, job_key
 from benchmark.runner.specs import Job
 from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
@@ -51,7 +52,9 @@ class Logbook:
         return self.parents[table]
 
     def finished(self, job: Job, unit: Unit) -> tuple[dict[str, dict[str, float]], float] | None:
-        """``(per-split metrics, unit seconds)`` of this job's FINISHED run in the store, or None.
+        """``(per eval-key metrics, unit seconds)`` of this job's FINISHED run in the store, or
+        None. Eval keys are the job's splits and their ``/swap`` probes (``execute.eval_key``); a
+        run that lacks any of them is not finished for this code.
 
         The seconds are the unit's training and evaluation time when it ran (0 for runs logged
         before this was recorded), so re-reporting keeps ``train_seconds``."""
@@ -60,12 +63,13 @@ class Logbook:
         )
         if info is None:
             return None
+        wanted = set(eval_keys(job.eval_splits))
         out: dict[str, dict[str, float]] = {}
         for key, value in info.metrics.items():
             split, sep, metric = key.rpartition("/")
-            if sep and split in job.eval_splits:
+            if sep and split in wanted:
                 out.setdefault(split, {})[metric] = float(value)
-        if set(out) != set(job.eval_splits):
+        if set(out) != wanted:
             return None
         return out, float(info.metrics.get(SECONDS_METRIC, 0.0))
 
@@ -86,6 +90,7 @@ class Logbook:
             "x": job.x if job.x is not None else "",
             "head": cfg.model.attitude,
             "translation_head": cfg.model.translation,
+            "satellite_input": cfg.model.satellite_input,
             "head_versions": json.dumps(head_versions(cfg.model.attitude, cfg.model.translation)),
             "encoder": f"{cfg.model.encoder} {cfg.model.variant} w{cfg.model.width:g}",
             "seed": cfg.seed,
@@ -108,9 +113,9 @@ class Logbook:
                 epoch = int(record.get("epoch", 0))
                 values = {f"train/{k}": v for k, v in record.items() if k != "epoch" and _finite(v)}
                 run.log_metrics(values, step=epoch)
-            for split in job.eval_splits:
-                summary = metrics.get(split, {})
-                run.log_metrics({f"{split}/{k}": v for k, v in summary.items() if _finite(v)})
+            for key in eval_keys(job.eval_splits):
+                summary = metrics.get(key, {})
+                run.log_metrics({f"{key}/{k}": v for k, v in summary.items() if _finite(v)})
             if _finite(seconds):
                 run.log_metrics({SECONDS_METRIC: seconds})
             for path in artifacts:

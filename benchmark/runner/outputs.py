@@ -1,5 +1,10 @@
 """Write a reproduction's reports: raw CSV, one Markdown file per table/figure, figures, Table 6
-costs and the claim-by-claim summary ``README.md``."""
+costs and the claim-by-claim summary ``README.md``.
+
+``results.csv`` has one row per (table, model, sweep value, split, satellite mode, seed); the
+column ``satellite`` says whether the row was measured with each pair's true satellite image
+(``true``) or with another place's (``swap``, the satellite-swap probe), see
+``benchmark.runner.report`` for the other columns."""
 
 from __future__ import annotations
 
@@ -13,7 +18,7 @@ import pandas as pd
 import torch
 
 from benchmark.runner.claims import evaluate_claims, render_claims
-from benchmark.runner.execute import UnitResult
+from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.logbook import Logbook
 from benchmark.runner.plan import Unit
 from benchmark.runner.profiles import ReproProfile
@@ -31,6 +36,8 @@ CONSTANT_LABEL = "Constant (train mean)"
 REPORT_METRICS = [
     "dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg",
     "median_dphi_deg", "acc5", "acc10", "acc30", "loglik", "spearman_unc_err",
+    "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
+    "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
 ]  # fmt: skip
 EXTRA_METRICS = ["median_dphi_deg", "acc10", "acc30", "loglik", "spearman_unc_err"]
 
@@ -43,14 +50,17 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
             continue
         for job in unit.jobs:
             for split in job.eval_splits:
-                metrics = result.metrics.get(split)
-                if metrics is None:
-                    continue
-                rows.append(
-                    {"table": job.table, "label": job.label, "paper_model": job.paper_model,
-                     "x": job.x, "split": split, "seed": unit.cfg.seed, "unit": unit.key,
-                     "train_seconds": result.seconds, **metrics}
-                )  # fmt: skip
+                for satellite in SATELLITE_MODES:
+                    metrics = result.metrics.get(eval_key(split, satellite))
+                    if metrics is None:
+                        continue
+                    rows.append(
+                        {"table": job.table, "label": job.label, "paper_model": job.paper_model,
+                         "x": job.x, "split": split, "satellite": satellite,
+                         "satellite_input": job.variant.satellite_input,
+                         "train_split": job.train_split, "seed": unit.cfg.seed, "unit": unit.key,
+                         "train_seconds": result.seconds, **metrics}
+                    )  # fmt: skip
     return pd.DataFrame(rows)
 
 
@@ -122,12 +132,20 @@ def write_reports(
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
     frame = results_frame(units, results)
     baseline_rows = []
+    constants: dict[tuple[str, str], dict[str, float]] = {}
     for spec in specs:
         if spec.kind == "table":
-            for split in spec.eval_splits:
-                metrics = constant_baseline(data_root, spec.train_split, split)
-                row = {"table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None}
-                baseline_rows.append({**row, "split": split, "seed": 0, **metrics})
+            for split in spec.all_eval_splits():
+                train = spec.train_split_for(split)
+                if (train, split) not in constants:
+                    constants[train, split] = constant_baseline(data_root, train, split)
+                row = {
+                    "table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None,
+                    "split": split, "satellite_input": "none", "train_split": train, "seed": 0,
+                }  # fmt: skip
+                # It reads no image: its error with the swapped satellite image is the same.
+                for satellite in SATELLITE_MODES:
+                    baseline_rows.append({**row, "satellite": satellite, **constants[train, split]})
     everything = pd.concat([frame, pd.DataFrame(baseline_rows)], ignore_index=True)
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
@@ -203,5 +221,9 @@ def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, runs: l
     ]
     lines += [f"- [{s.name}]({s.name}.md): {s.title}" for s in specs]
     lines += ["", "Raw numbers: [results.csv](results.csv) (one row per table, model, sweep value, "
-              "split and seed)."]  # fmt: skip
+              "split, satellite mode and seed; column `satellite`: `true` = each pair's own "
+              "satellite image, `swap` = another place's, the satellite-swap probe; the `swap` "
+              "rows hold the paired swap effect `swap_dpsi_diff_deg`, `swap_dphi_diff_deg` with "
+              "their 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, `swap_*_boot_hi_deg`; "
+              "column `satellite_input`: `blank` marks the UAV-only control)."]  # fmt: skip
     return "\n".join(lines) + "\n"

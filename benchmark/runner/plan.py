@@ -96,6 +96,7 @@ def train_config(
             width=profile.width,
             attitude=v.attitude,
             translation=v.translation,
+            satellite_input=v.satellite_input,
         ),
         optim=OptimConfig(
             name=profile.optimizer,

@@ -1,7 +1,12 @@
 """Render results next to the paper's numbers: Markdown tables, CSV and figures.
 
-Input is the long results table the runner writes (one row per table, variant, sweep value, split
-and seed; metric columns named as in ``reports/paper_tables.csv``: ``dE_m``, ``dtheta_deg``...).
+Input is the long results table the runner writes (one row per table, variant, sweep value, split,
+satellite mode and seed; metric columns named as in ``reports/paper_tables.csv``: ``dE_m``,
+``dtheta_deg``...). ``satellite`` is ``true`` (each pair's own satellite image) or ``swap`` (the
+satellite-swap probe: another place's image); the ``swap`` rows of trained models also hold the
+paired swap effect ``swap_<dpsi|dphi>_diff_deg`` with its 95% flight-bootstrap interval
+``swap_<e>_boot_lo_deg`` / ``_hi_deg``. ``satellite_input`` is ``image``, ``blank`` (the UAV-only
+control) or ``none`` (the constant predictor); ``train_split`` the split a row was trained on.
 Across seeds we report the mean and a 95% Student-t interval; with one seed only the value.
 """
 
@@ -33,7 +38,12 @@ METRIC_LABELS: dict[str, str] = {
     "size_MB": "size (MB)",
     "MFLOPs": "MFLOPs",
 }
-GROUP_KEYS = ["table", "label", "paper_model", "x", "split"]
+GROUP_KEYS = [
+    "table", "label", "paper_model", "x", "split", "satellite", "satellite_input", "train_split",
+]  # fmt: skip
+SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))
+ONE_FLIGHT = "one flight: no interval"
+MIN_RISE_DEG = 1.0  # smallest mean error rise under the swap that counts as using the image
 
 
 def interval95(values: np.ndarray) -> tuple[float, float, float]:
@@ -91,43 +101,134 @@ def load_paper(path: str | Path) -> pd.DataFrame:
     return pd.read_csv(path)
 
 
+def pick(
+    summary: pd.DataFrame,
+    label: str,
+    split: str,
+    satellite: str = "true",
+    train_split: str | None = None,
+) -> pd.Series | None:
+    """The summary row of (label, split, satellite mode[, train split]), or None."""
+    if summary.empty or "label" not in summary:
+        return None
+    rows = summary[(summary["label"] == label) & (summary["split"] == split)]
+    if "satellite" in rows:
+        rows = rows[rows["satellite"] == satellite]
+    if train_split is not None and "train_split" in rows:
+        rows = rows[rows["train_split"] == train_split]
+    return rows.iloc[0] if len(rows) else None
+
+
+def uses_satellite(swap_row: pd.Series | None) -> str | None:
+    """Verdict of the swap probe for one model. An error "rises" when the 95% flight-bootstrap
+    interval of its per-frame difference (swapped minus true) lies above zero and the mean rise is
+    at least ``MIN_RISE_DEG`` (a statistically clear rise of 0.01 deg is no use of the image).
+    ``yes`` when the yaw and the geodesic errors both rise, ``yaw only`` / ``geodesic only`` when
+    one does, ``no`` otherwise; ``one flight`` when the test set holds a single flight (no interval
+    over flights); None without the numbers."""
+    if swap_row is None:
+        return None
+    if swap_row.get("swap_groups", 2) < 2:
+        return ONE_FLIGHT
+    keys = [(f"swap_{e}_boot_lo_deg", f"swap_{e}_diff_deg") for e, _ in SWAP_EFFECTS]
+    values = [(swap_row.get(lo, math.nan), swap_row.get(d, math.nan)) for lo, d in keys]
+    if not all(isinstance(x, float | int) and math.isfinite(x) for v in values for x in v):
+        return None
+    yaw, geo = (lo > 0 and d >= MIN_RISE_DEG for lo, d in values)
+    return {(True, True): "yes", (True, False): "yaw only", (False, True): "geodesic only"}.get(
+        (yaw, geo), "no"
+    )
+
+
+def _cell(row: pd.Series | None, m: str) -> str:
+    if row is None or m not in row:
+        return "not run"
+    return format_value(row[m], row[f"{m}_lo"], row[f"{m}_hi"])
+
+
+def table_rows(spec: TableSpec, split: str, extra_labels: list[str]) -> list[tuple[str, str, str]]:
+    """``(label, paper model, train split)`` of every row evaluated on ``split``."""
+    rows = [(j.label, j.paper_model, j.train_split) for j in spec.jobs() if split in j.eval_splits]
+    rows += [(x, "", spec.train_split_for(split)) for x in extra_labels]
+    return list(dict.fromkeys(rows))
+
+
 def markdown_table(
     spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame, extra_labels: list[str] = ()
 ) -> str:
-    """A Markdown table of one paper table: per metric, the paper's number and ours."""
+    """A Markdown table of one table spec: per metric, the paper's number (paper tables only) and
+    ours; then each ``swap_metrics`` entry measured with the swapped satellite image."""
     lines = [
         f"## {spec.title}",
         "",
         f"Source spec: `{spec.source.name}`. {_seed_note(summary)}",
         "",
     ]
-    split_names = spec.paper_splits or (spec.paper_split,) * len(spec.eval_splits)
-    multi = len(spec.eval_splits) > 1
-    header = (["split"] if multi else []) + ["model"]
+    splits = spec.all_eval_splits()
+    names = spec.paper_splits or (spec.paper_split,) * len(spec.eval_splits)
+    paper_split = dict(zip(spec.eval_splits, names, strict=True))
+    with_paper = spec.paper_table is not None
+    multi = len(splits) > 1
+    trained_on = len(spec.train_splits()) > 1
+    header = (["split"] if multi else []) + ["model"] + (["trained on"] if trained_on else [])
     for m in spec.metrics:
         label = METRIC_LABELS.get(m, m)
-        header += [f"{label} paper", f"{label} ours"]
+        header += [f"{label} paper", f"{label} ours"] if with_paper else [label]
+    header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    rows = [(v.label, v.paper_model) for v in spec.variants] + [(x, "") for x in extra_labels]
-    for split, paper_split in zip(spec.eval_splits, split_names, strict=True):
-        for label, paper_model in rows:
-            if summary.empty:
-                row = summary
-            else:
-                row = summary[(summary["label"] == label) & (summary["split"] == split)]
+    for split in splits:
+        for label, paper_model, train in table_rows(spec, split, list(extra_labels)):
+            row = pick(summary, label, split, "true", train)
+            swap = pick(summary, label, split, "swap", train)
             cells = ([f"`{split}`"] if multi else []) + [label]
+            cells += [f"`{train}`"] if trained_on else []
             for m in spec.metrics:
-                pv = paper_value(paper, spec.paper_table, paper_split, paper_model, m)
-                cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
-                if len(row) and m in row:
-                    r = row.iloc[0]
-                    cells.append(format_value(r[m], r[f"{m}_lo"], r[f"{m}_hi"]))
-                else:
-                    cells.append("not run")
+                if with_paper:
+                    ps = paper_split.get(split)
+                    pv = paper_value(paper, spec.paper_table, ps, paper_model, m)
+                    cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
+                cells.append(_cell(row, m))
+            cells += [_cell(swap, m) for m in spec.swap_metrics]
             lines.append("| " + " | ".join(cells) + " |")
+    if spec.swap_metrics:
+        lines += ["", swap_probe_table(spec, summary)]
     if spec.note:
         lines += ["", spec.note.strip()]
     return "\n".join(lines) + "\n"
+
+
+def swap_probe_table(spec: TableSpec, summary: pd.DataFrame) -> str:
+    """Per trained row: the paired per-frame effect of swapping the satellite image."""
+    lines = [
+        "Satellite-swap probe: each pair's satellite image replaced by another place's (another "
+        "centre of the same city; for `generalized/test` another city; for `towns/*` another "
+        "town; rules in `benchmark/data/swap.py`), labels unchanged. Δ = swapped minus true "
+        "error on the same frames, mean and 95% interval from 2000 bootstrap resamples of whole "
+        "flights. A model uses the satellite image when both intervals lie above zero and both "
+        f"mean rises are at least {MIN_RISE_DEG:g}°.",
+        "",
+        "| split | model | δψ true | δψ swapped | Δδψ [95% CI] | δφ true | δφ swapped "
+        "| Δδφ [95% CI] | uses the satellite image |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for split in spec.all_eval_splits():
+        for label, _, train in table_rows(spec, split, []):
+            row = pick(summary, label, split, "true", train)
+            swap = pick(summary, label, split, "swap", train)
+            cells = [f"`{split}`", label]
+            for e, _ in SWAP_EFFECTS:
+                cells += [_cell(row, f"{e}_deg"), _cell(swap, f"{e}_deg"), _effect(swap, e)]
+            cells.append(uses_satellite(swap) or "not run")
+            lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _effect(swap: pd.Series | None, e: str) -> str:
+    keys = [f"swap_{e}_diff_deg", f"swap_{e}_boot_lo_deg", f"swap_{e}_boot_hi_deg"]
+    if swap is None or not all(k in swap and math.isfinite(swap[k]) for k in keys):
+        return "not run"
+    mean, lo, hi = (float(swap[k]) for k in keys)
+    return f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
 def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[str]) -> str:
@@ -136,9 +237,11 @@ def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[st
     if not present:
         return ""
     header = ["split", "model", *(METRIC_LABELS.get(m, m) for m in present)]
+    if "satellite" in summary:
+        summary = summary[summary["satellite"] == "true"]
     lines = [
         "",
-        "Further metrics (ours only):",
+        "Further metrics (ours only, true satellite image):",
         "",
         "| " + " | ".join(header) + " |",
         "|" + "---|" * len(header),
@@ -159,12 +262,20 @@ def sweep_table(spec: TableSpec, summary: pd.DataFrame) -> str:
         "",
     ]
     header = ["split", "model", spec.sweep or "x", *(METRIC_LABELS.get(m, m) for m in spec.metrics)]
+    header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for _, r in summary.iterrows():
+    true = summary[summary["satellite"] == "true"] if "satellite" in summary else summary
+    for _, r in true.iterrows():
         cells = [f"`{r['split']}`", str(r["label"]), str(r["x"])]
         cells += [
             format_value(r[m], r[f"{m}_lo"], r[f"{m}_hi"]) if m in r else "–" for m in spec.metrics
         ]
+        if spec.swap_metrics:
+            swap = summary[
+                (summary["label"] == r["label"]) & (summary["split"] == r["split"])
+                & (summary["x"].astype(str) == str(r["x"])) & (summary["satellite"] == "swap")
+            ]  # fmt: skip
+            cells += [_cell(swap.iloc[0] if len(swap) else None, m) for m in spec.swap_metrics]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -177,6 +288,8 @@ def sweep_figure(spec: TableSpec, summary: pd.DataFrame, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     metrics = [m for m in spec.metrics if m in summary.columns]
+    if "satellite" in summary:
+        summary = summary[summary["satellite"] == "true"]
     cols = min(4, len(metrics))
     rows = math.ceil(len(metrics) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.2 * rows), squeeze=False)

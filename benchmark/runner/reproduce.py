@@ -20,7 +20,7 @@ from pathlib import Path
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress, format_duration
-from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
+from benchmark.runner.execute import UnitResult, UnitTask, eval_keys, run_unit, worker_init
 from benchmark.runner.logbook import Logbook, write_config
 from benchmark.runner.plan import Unit, plan_units
 from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
@@ -167,8 +167,9 @@ def run(args: argparse.Namespace) -> int:
         config_path = write_config(unit, unit_dir / "config.json") if unit_dir.is_dir() else None
         for job in unit.jobs:
             paths = [
-                Path(result.predictions[s]) for s in job.eval_splits if s in result.predictions
-            ]
+                Path(result.predictions[k]) for k in eval_keys(job.eval_splits)
+                if k in result.predictions
+            ]  # fmt: skip
             if config_path is not None:
                 paths.append(config_path)
             logbook.log_job(

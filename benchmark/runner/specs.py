@@ -1,9 +1,23 @@
 """Table and figure specs: ``reports/configs/*.yaml``, one file per paper table or figure.
 
 Each file's first line cites what it reproduces (``# Paper Table 1: ...`` or ``# Paper Fig. 7:
-...``); the loader checks that. A spec names its variants (which heads and encoder variant), the
-split they train on and the splits they are evaluated on. Sweep specs (figures) repeat the variants
-for every ``sweep_values`` entry, substituting ``{x}`` in split names and variant fields.
+...``), or says it goes beyond the paper (``# Beyond the paper: ...``, e.g. the leakage audit);
+the loader checks that. A spec names its variants (which heads and encoder variant), the split they
+train on and the splits they are evaluated on. Sweep specs (figures) repeat the variants for every
+``sweep_values`` entry, substituting ``{x}`` in split names and variant fields.
+
+Per variant (row), optional fields:
+
+- ``satellite_input: blank``: the UAV-only control (the model sees grey instead of the satellite
+  image, ``benchmark.models.pair``); default ``image``.
+- ``train_split`` / ``eval_splits``: override the table's, for tables whose rows train on different
+  splits (the leakage audit trains on ``standard/train`` and on ``frames/train``). The table's
+  ``eval_splits`` may then be omitted; a rendered table lists every split some row evaluates on,
+  each with the rows that evaluate on it.
+
+``swap_metrics`` (table level): metrics shown a second time, measured with each pair's satellite
+image swapped for another place's (the satellite-swap probe, ``benchmark.data.swap``), beside the
+true ones. Every trained model is evaluated both ways whatever the spec says.
 """
 
 from __future__ import annotations
@@ -17,7 +31,8 @@ from typing import Any
 import yaml
 
 KINDS = ("table", "sweep", "cost")
-_FIRST_LINE = re.compile(r"^# Paper (Table|Fig\.) (\d+): .+")
+SATELLITE_INPUTS = ("image", "blank")  # benchmark.models.pair.SATELLITE_INPUTS
+_FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
 
 class SpecError(ValueError):
@@ -34,6 +49,9 @@ class VariantSpec:
     translation: str = "regression"
     encoder_variant: str = "/"
     kappa: float | None = None
+    satellite_input: str = "image"  # "blank": the UAV-only control
+    train_split: str | None = None  # None: the table's
+    eval_splits: tuple[str, ...] | None = None  # None: the table's
 
 
 @dataclass(frozen=True)
@@ -65,6 +83,7 @@ class TableSpec:
     metrics: tuple[str, ...] = ()
     sweep: str | None = None
     sweep_values: tuple[str, ...] = ()
+    swap_metrics: tuple[str, ...] = ()  # also shown with the swapped satellite image
     note: str = ""  # printed under the rendered table
 
     def jobs(self) -> list[Job]:
@@ -82,11 +101,31 @@ class TableSpec:
                         paper_model=v.paper_model,
                         x=x,
                         variant=_substitute_variant(v, x, self.source),
-                        train_split=_fill(self.train_split, x),
-                        eval_splits=tuple(_fill(s, x) for s in self.eval_splits),
+                        train_split=_fill(v.train_split or self.train_split, x),
+                        eval_splits=tuple(
+                            _fill(s, x)
+                            for s in (self.eval_splits if v.eval_splits is None else v.eval_splits)
+                        ),
                     )
                 )
         return out
+
+    def all_eval_splits(self) -> list[str]:
+        """Every split some job evaluates on, in order of first appearance."""
+        seen: dict[str, None] = {}
+        for job in self.jobs():
+            for split in job.eval_splits:
+                seen[split] = None
+        return list(seen)
+
+    def train_split_for(self, eval_split: str) -> str:
+        """The split the rows evaluated on ``eval_split`` train on (the constant predictor's
+        training set for that split); the table's own when rows disagree or none evaluates."""
+        found = {j.train_split for j in self.jobs() if eval_split in j.eval_splits}
+        return found.pop() if len(found) == 1 else self.train_split
+
+    def train_splits(self) -> list[str]:
+        return list(dict.fromkeys(j.train_split for j in self.jobs()))
 
 
 def _fill(text: str, x: str | None) -> str:
@@ -97,6 +136,12 @@ def _substitute_variant(v: VariantSpec, x: str | None, source: Path) -> VariantS
     changes: dict[str, Any] = {}
     for f in dataclasses.fields(v):
         value = getattr(v, f.name)
+        if isinstance(value, tuple) and any("{x}" in s for s in value):
+            if x is None:
+                raise SpecError(
+                    f"{source}: variant {v.label!r} field {f.name!r} uses {{x}} outside a sweep"
+                )
+            changes[f.name] = tuple(_fill(s, x) for s in value)
         if isinstance(value, str) and "{x}" in value:
             if x is None:
                 raise SpecError(
@@ -127,7 +172,18 @@ def _variant_from(raw: Any, source: Path, index: int) -> VariantSpec:
         if not isinstance(kappa, int | float) or kappa <= 0:
             raise SpecError(f"{where}: kappa must be a number > 0, got {kappa!r}")
         raw = {**raw, "kappa": float(kappa)}
-    return VariantSpec(**{k: (str(v) if k != "kappa" else v) for k, v in raw.items()})
+    if raw.get("satellite_input", "image") not in SATELLITE_INPUTS:
+        raise SpecError(
+            f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, "
+            f"got {raw['satellite_input']!r}"
+        )
+    if "eval_splits" in raw:
+        splits = raw["eval_splits"]
+        if not isinstance(splits, list) or not splits:
+            raise SpecError(f"{where}: eval_splits must be a non-empty list, got {splits!r}")
+        raw = {**raw, "eval_splits": tuple(str(s) for s in splits)}
+    keep = ("kappa", "eval_splits")
+    return VariantSpec(**{k: (str(v) if k not in keep else v) for k, v in raw.items()})
 
 
 def load_spec(path: str | Path) -> TableSpec:
@@ -162,15 +218,16 @@ def load_spec(path: str | Path) -> TableSpec:
     if not isinstance(raw["variants"], list) or not raw["variants"]:
         raise SpecError(f"{path}: variants must be a non-empty list")
     variants = tuple(_variant_from(v, path, i) for i, v in enumerate(raw["variants"]))
-    tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values")
+    tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values", "swap_metrics")
     values = {
         k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "variants"
     }
     spec = TableSpec(source=path, variants=variants, **values)
     if spec.kind == "sweep" and not (spec.sweep and spec.sweep_values):
         raise SpecError(f"{path}: a sweep needs 'sweep' and 'sweep_values'")
-    if spec.kind != "cost" and not spec.eval_splits:
-        raise SpecError(f"{path}: eval_splits must list at least one split")
+    if spec.kind != "cost" and any(v.eval_splits is None for v in variants):
+        if not spec.eval_splits:
+            raise SpecError(f"{path}: eval_splits must list at least one split")
     if spec.paper_splits and len(spec.paper_splits) != len(spec.eval_splits):
         raise SpecError(f"{path}: paper_splits must have one entry per eval_splits entry")
     spec.jobs()  # surfaces substitution errors now, not mid-run

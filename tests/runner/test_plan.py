@@ -15,6 +15,8 @@ SPLITS = (
     + [f"flight/pitch{p}" for p in (0, -10, -50)]
     + [f"height{h}/{part}" for h in (600, 800, 1000, 1200, 1400) for part in ("train", "test")]
     + [f"pitch{a}to{b}/test" for a, b in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50))]
+    + [f"frames/{part}" for part in ("train", "val", "test")]
+    + [f"towns/{part}" for part in ("train", "val", "test", "london")]
 )
 
 
@@ -25,10 +27,23 @@ def plan(seeds=(0,), root="/data/a", only=None):
 
 
 class TestPlanUnits:
-    def test_every_table_trains_26_models_per_seed(self):
+    def test_every_table_trains_32_models_per_seed(self):
         # 8 attitude heads + Re-Net-T + 2 heads x 5 heights + 4 other kappas + 3 other encoders
-        assert len(plan()) == 26
-        assert len(plan(seeds=(0, 1, 2))) == 78
+        # + the UAV-only control on standard/train (Tables 1-5 and leakage share it)
+        # + Pd/Re-Net and the control on frames/train (leakage) + 3 models on towns/train
+        assert len(plan()) == 32
+        assert len(plan(seeds=(0, 1, 2))) == 96
+
+    def test_control_is_its_own_unit(self):
+        units = plan()
+        blank = [u for u in units if u.cfg.model.satellite_input == "blank"]
+        assert {u.cfg.data.train_split for u in blank} == {
+            "standard/train", "frames/train", "towns/train"
+        }  # fmt: skip
+        std = next(u for u in blank if u.cfg.data.train_split == "standard/train")
+        assert {j.table for j in std.jobs} == {"table1", "table2", "table3", "table4", "table5",
+                                               "leakage"}  # fmt: skip
+        assert std.cfg.data.val_split == "standard/val"
 
     def test_pd_re_net_is_shared_across_tables(self):
         units = plan()
@@ -38,7 +53,7 @@ class TestPlanUnits:
         assert len(shared) == 1
         tables = {j.table for j in shared[0].jobs}
         # kappa 10 of Fig. 7 and variant "/" of Fig. 9 are the same model as Table 1's
-        assert tables == {"table1", "table2", "table3", "table4", "fig6", "fig7", "fig9"}
+        assert tables == {"table1", "table2", "table3", "table4", "fig6", "fig7", "fig9", "leakage"}
         assert shared[0].cfg.loss.kappa is None
 
     def test_eval_splits_are_the_union(self):
@@ -61,7 +76,7 @@ class TestPlanUnits:
             load_specs(only=["table1"]), PROFILES["quick"], [0], Path("/d"), SPLITS, "h2"
         )
         assert {u.key for u in a}.isdisjoint({u.key for u in b})
-        assert len({u.key for u in plan(seeds=(0, 1))}) == 52
+        assert len({u.key for u in plan(seeds=(0, 1))}) == 64
 
     def test_a_head_version_bump_changes_only_that_heads_keys(self, monkeypatch):
         from benchmark.models import get_head_class

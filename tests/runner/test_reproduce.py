@@ -50,7 +50,10 @@ class TestReproduceSmoke:
             if spec.kind == "sweep":
                 assert (reports / f"{spec.name}.png").stat().st_size > 0
         readme = (reports / "README.md").read_text()
-        assert readme.count("| **") == 10  # ten claims, each with a verdict
+        assert readme.count("| **") == 15  # fifteen claims, each with a verdict
+        table1 = (reports / "table1.md").read_text()
+        assert "| UAV-only control |" in table1 and "swapped sat." in table1
+        assert "Satellite-swap probe" in table1
 
     def test_results_cover_every_job_and_split(self, full_run):
         tmp, _ = full_run
@@ -61,11 +64,16 @@ class TestReproduceSmoke:
             for j in s.jobs()
             for split in j.eval_splits
         }
-        got = {
-            (r.table, r.label, str(r.x) if pd.notna(r.x) else "None", r.split)
-            for r in results.itertuples()
-        }
-        assert expected <= got
+        for satellite in ("true", "swap"):
+            got = {
+                (r.table, r.label, str(r.x) if pd.notna(r.x) else "None", r.split)
+                for r in results[results.satellite == satellite].itertuples()
+            }
+            assert expected <= got, satellite
+        swapped = results[(results.satellite == "swap") & (results.satellite_input != "none")]
+        assert swapped[["swap_dpsi_diff_deg", "swap_dphi_boot_lo_deg"]].notna().all().all()
+        control = swapped[swapped.satellite_input == "blank"]
+        assert len(control) and (control.swap_dpsi_diff_deg == 0).all()  # it sees no image
         trained = results[results.label != "Constant (train mean)"]
         assert trained[["dphi_deg", "dE_m"]].notna().all().all()
 
@@ -98,7 +106,7 @@ class TestReproduceSmoke:
         tmp, _ = full_run
         monkeypatch.chdir(tmp)
         assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
-        assert "26 training runs (26 already in the tracking store)" in capsys.readouterr().out
+        assert "32 training runs (32 already in the tracking store)" in capsys.readouterr().out
 
     def test_second_invocation_keeps_the_numbers_and_train_times(
         self, full_run, smoke_dataset, monkeypatch
@@ -110,7 +118,7 @@ class TestReproduceSmoke:
         first = pd.read_csv(tmp / "reports" / "results.csv")
         assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
         again = pd.read_csv(tmp / "reports" / "results.csv")
-        keys = ["table", "label", "x", "split", "seed"]
+        keys = ["table", "label", "x", "split", "satellite", "seed"]
         merged = first.merge(again, on=keys, suffixes=("", "_again"))
         assert len(merged) == len(first) == len(again)
         trained = merged[merged["unit"].notna()]  # the constant predictor rows train nothing

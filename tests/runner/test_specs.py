@@ -21,6 +21,7 @@ PAPER_ITEMS = {
     "fig7",
     "fig9",
 }
+BEYOND_PAPER = {"leakage", "towns"}  # issue 9
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:
@@ -43,7 +44,7 @@ variants:
 
 class TestRepositorySpecs:
     def test_every_paper_table_and_figure_has_a_spec(self):
-        assert {s.name for s in load_specs()} == PAPER_ITEMS
+        assert {s.name for s in load_specs()} == PAPER_ITEMS | BEYOND_PAPER
 
     def test_heads_exist_in_the_registry(self):
         attitude, translation = set(list_heads("attitude")), set(list_heads("translation"))
@@ -55,6 +56,9 @@ class TestRepositorySpecs:
     def test_first_line_cites_the_paper(self):
         for spec in load_specs():
             first = spec.source.read_text().splitlines()[0]
+            if spec.name in BEYOND_PAPER:
+                assert first.startswith("# Beyond the paper:")
+                continue
             number = spec.paper_table or spec.paper_figure
             assert first.startswith(f"# Paper {'Table' if spec.paper_table else 'Fig.'} {number}:")
 
@@ -64,6 +68,23 @@ class TestRepositorySpecs:
         fig5 = {s.name: s for s in load_specs()}["fig5"]
         assert fig5.jobs()[0].train_split == "height600/train"
         assert fig5.jobs()[0].eval_splits == ("height600/test",)
+
+
+class TestControlsInSpecs:
+    def test_attitude_tables_have_the_control_and_the_swap_columns(self):
+        specs = {s.name: s for s in load_specs()}
+        for name in ("table1", "table2", "table5", "leakage", "towns"):
+            spec = specs[name]
+            blank = [v for v in spec.variants if v.satellite_input == "blank"]
+            assert blank and all(v.attitude == "pd_re_net" for v in blank), name
+            assert {"dpsi_deg", "dphi_deg"} <= set(spec.swap_metrics), name
+
+    def test_leakage_rows_train_on_their_own_split(self):
+        leakage = {s.name: s for s in load_specs()}["leakage"]
+        pairs = {(j.train_split, j.eval_splits) for j in leakage.jobs()}
+        assert pairs == {("standard/train", ("standard/test",)), ("frames/train", ("frames/test",))}
+        assert leakage.all_eval_splits() == ["standard/test", "frames/test"]
+        assert leakage.train_split_for("frames/test") == "frames/train"
 
 
 class TestLoadSpec:
@@ -90,6 +111,16 @@ class TestLoadSpec:
                 r"variants\[0\]: unknown fields",
             ),
             ("eval_splits: [standard/test]", "eval_splits: []", "eval_splits must list"),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, satellite_input: grey}",
+                "satellite_input must be one of .*'grey'",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, eval_splits: standard/test}",
+                "eval_splits must be a non-empty list",
+            ),
         ],
     )
     def test_errors_name_file_and_field(self, tmp_path, old, new, message):
@@ -106,6 +137,18 @@ class TestLoadSpec:
         )
         with pytest.raises(SpecError, match="outside a sweep"):
             load_spec(path)
+
+    def test_per_variant_splits_and_beyond_the_paper(self, tmp_path):
+        text = GOOD.replace("# Paper Table 1: a test table.", "# Beyond the paper: an audit.")
+        text = text.replace("paper_table: 1\n", "").replace("eval_splits: [standard/test]\n", "")
+        text = text.replace(
+            "attitude: pd_re_net}",
+            "attitude: pd_re_net, train_split: frames/train, eval_splits: [frames/test],"
+            " satellite_input: blank}",
+        )
+        (job,) = load_spec(write(tmp_path, "t1", text)).jobs()
+        assert (job.train_split, job.eval_splits) == ("frames/train", ("frames/test",))
+        assert job.variant.satellite_input == "blank"
 
     def test_unknown_table_in_only(self):
         with pytest.raises(SpecError, match="unknown table"):
