@@ -107,14 +107,20 @@ def _sweep_visibility(h, t, drop, extra):
     else:
         m_lo = 0
         m_hi = math.floor(H - 1 - t * (W - 1)) + 1
+    shrink = 1e-9 if t >= 0.0 else -1e-9
     for m in range(m_lo, m_hi + 1):
         # Scan ray m from the sun side: u is the shadow height at column c cast by columns > c.
         u = -1e300
         for c in range(ncol - 1, -1, -1):
             if c < W:
                 cur[c] = u
-            row = math.floor(m + t * c + 0.5)
-            hv = h[_mirror(row, H), _mirror(c, W)]
+            # The ray crosses column c between y = m + t (c -+ 1/2): at most two rows (|t| <= 1),
+            # both of which it passes through (as an exact traversal of the texel squares would).
+            # (Shrunk by 1e-9 so a ray through a texel corner touches neither diagonal neighbour.)
+            cc = _mirror(c, W)
+            r0 = math.floor(m + t * (c - 0.5) + 0.5 + shrink)
+            r1 = math.floor(m + t * (c + 0.5) + 0.5 - shrink)
+            hv = max(h[_mirror(r0, H), cc], h[_mirror(r1, H), cc])
             u = max(u, hv) - drop
         if m > m_lo:
             for i in range(W):
