@@ -3,6 +3,9 @@
 Each pair shows the UAV image and its satellite image; on the satellite image the UAV position
 (from the translation label) is a red dot and its camera heading (yaw) a red arrow, so a glance
 tells whether labels and imagery agree: the arrow should point at what the UAV image shows.
+When the dataset records illumination (pairs columns ``sun_az`` and ``sat_sun_az``, radians
+clockwise from north), each image's sun azimuth is printed in degrees: the UAV frame and its
+satellite image are lit at independent times of day.
 """
 
 from __future__ import annotations
@@ -37,6 +40,19 @@ def sat_pixel(
     u = (dE / footprint[0] + 0.5) * size - 0.5
     v = (0.5 - dN / footprint[1]) * size - 0.5
     return u, v
+
+
+def sun_azimuth_deg(row, column: str) -> float | None:
+    """The sun azimuth of ``row[column]`` (radians clockwise from north) in degrees [0, 360), or
+    None when the dataset has no such column (or the value is missing)."""
+    v = getattr(row, column, None)
+    if v is None or not math.isfinite(float(v)):
+        return None
+    return math.degrees(float(v)) % 360.0
+
+
+def _sun_text(az_deg: float | None) -> str:
+    return "" if az_deg is None else f", sun az {az_deg:.0f} deg"
 
 
 def contact_sheet(ds, indices: list[int], out: Path, title: str) -> None:
@@ -80,8 +96,12 @@ def contact_sheet(ds, indices: list[int], out: Path, title: str) -> None:
         )
         ax_s.set_xlim(-0.5, size - 0.5)
         ax_s.set_ylim(size - 0.5, -0.5)
-        ax_u.set_title(f"#{i} {r.city} c{r.centre} f{r.flight} fr{r.frame}", fontsize=8)
-        ax_s.set_title(f"sat {int(r.sat_index)} ({s.variant}, {s.height_m:.0f} m)", fontsize=8)
+        uav_sun = _sun_text(sun_azimuth_deg(r, "sun_az"))
+        sat_sun = _sun_text(sun_azimuth_deg(r, "sat_sun_az"))
+        ax_u.set_title(f"#{i} {r.city} c{r.centre} f{r.flight} fr{r.frame}{uav_sun}", fontsize=8)
+        ax_s.set_title(
+            f"sat {int(r.sat_index)} ({s.variant}, {s.height_m:.0f} m){sat_sun}", fontsize=8
+        )
         ax_u.text(
             0.0,
             -0.02,

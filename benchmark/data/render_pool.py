@@ -62,8 +62,21 @@ def _worker_init(
     _CTX = RenderContext(root, profile, seed, city_factory(), uav, sat)
 
 
+def _light(r: Any) -> int:
+    """The row's illumination state (plan column ``light``; 0 for plans without it)."""
+    return int(getattr(r, "light", 0))
+
+
+def _visibility(r: Any) -> float | None:
+    """The row's fog distance in metres (plan column ``visibility_m``; None: the renderer's
+    default for plans without it)."""
+    v = getattr(r, "visibility_m", None)
+    return None if v is None else float(v)
+
+
 def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
-    """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects."""
+    """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects;
+    its columns ``light`` and ``visibility_m`` (when present) its illumination state and haze."""
     from benchmark.sim import Camera, render_uav, sample_seed
 
     p = ctx.profile
@@ -78,6 +91,8 @@ def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
             r.roll,
             camera,
             supersample=p.supersample,
+            light=_light(r),
+            visibility_m=_visibility(r),
         )
         if r.camera_effects:
             img = apply_camera_effects(
@@ -88,7 +103,8 @@ def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
 
 
 def render_sat_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
-    """Render satellite images; uint8 ``(n, S, S, 3)``."""
+    """Render satellite images; uint8 ``(n, S, S, 3)``, each under its row's ``light`` (0 when
+    the plan has no such column)."""
     from benchmark.sim import render_satellite
 
     p = ctx.profile
@@ -100,6 +116,7 @@ def render_sat_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
             height_m=r.height_m,
             footprint_m=(r.footprint_E_m, r.footprint_N_m),
             size=p.image_size,
+            light=_light(r),
         )
     return out
 
