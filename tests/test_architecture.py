@@ -24,7 +24,7 @@ ALLOWED: dict[str, set[str]] = {
     "data": {"geometry", "sim", "progress", "errors"},
     "models": {"geometry", "errors", "baselines"},  # baselines: the registry's plugin discovery
     "baselines": {"geometry", "models"},
-    "analysis": {"geometry", "errors"},
+    "analysis": {"geometry", "data", "errors"},  # heading_cue reads datasets (PairDataset)
     "evaluation": {"geometry", "data", "models", "progress", "errors"},
     "tracking": {"errors"},
     "training": {
