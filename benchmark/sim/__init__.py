@@ -8,25 +8,32 @@ Public API (paper Sec. 3.1 and 3.5; frames and conventions in DEVELOPERS.md):
 ``GENERATOR_VERSION``
     Bumped whenever generated pixels change; part of the city cache key and the dataset manifest.
 ``build_city(style, seed, *, cache_dir=None, size_m=(3584, 2560), metres_per_px=1.0,
-progress=False) -> City``
-    Deterministic; cached on disk under (style, seed, size, resolution, GENERATOR_VERSION) in
+n_lights=8, progress=False) -> City``
+    Deterministic; cached on disk under (style, seed, size, resolution, K, GENERATOR_VERSION) in
     ``cache_dir`` (default ``$UAVBENCH_CACHE`` or ``~/.cache/uavbench/cities``; False: no cache).
-    About 15 s and 1.7 GB peak to build a full tile; cached cities load memory-mapped (163 MB).
+    About 20 s and 1.7 GB peak to build a full tile with its 8 illumination states; cached cities
+    load memory-mapped (400 MB; costs in world.py).
 ``changed_city(city, seed, *, cache_dir=None) -> City``
-    The same place at an earlier time (Sec. 3.5): other sun and season (autumn colours or bare
-    winter trees), re-drawn cars, trailers, containers and trains, demolished and added buildings,
-    changed trees, solar panels not yet installed.
+    The same place at an earlier time (Sec. 3.5): another season with its own low suns (autumn
+    colours or bare winter trees), re-drawn cars, trailers, containers and trains, demolished and
+    added buildings, changed trees, solar panels not yet installed.
 ``City``
     ``extent`` (E_min, E_max, N_min, N_max), ``origin``, ``metres_per_px``,
     ``ground_height(E, N)`` (terrain), ``surface_height(E, N)`` (terrain + structures),
     ``clearance(E, N)`` (max surface height within 8 m), ``max_structure_height``,
-    ``flight_centres`` (6, 2), ``ortho_image()`` (north-up), ``with_rasters(...)`` (edited copy).
+    ``flight_centres`` (6, 2), ``ortho_image(light=0)`` (north-up), ``with_rasters(...)``
+    (edited copy). Illumination states: ``n_lights`` (K), ``light_suns`` (K, 3) unit ENU vectors
+    towards the sun, ``light_angles(k)`` (azimuth clockwise from north in [0, 2 pi), elevation),
+    radians, ``light_ortho(k)``; ``sun`` and ``ortho`` are state 0's.
 ``Camera(width, height, fov_deg)``, ``Camera.square(size, fov_deg)``
     Pinhole, horizontal FOV, square pixels, pixel centres on integer (u, v).
-``render_uav(city, position_enu, yaw, pitch, roll, camera, *, supersample=1) -> (H, W, 3) uint8``
-    About 25-30 ms per 224 px and 6 ms per 96 px frame on one core (CPU time).
-``render_satellite(city, centre_en, *, height_m=1000, footprint_m=(2000, 1000), size=224)``
-    North-up nadir perspective view squashed to ``size x size`` (INTER_AREA), ~0.2 s.
+``render_uav(city, position_enu, yaw, pitch, roll, camera, *, supersample=1, light=0,
+visibility_m=None) -> (H, W, 3) uint8``
+    Lit by illumination state ``light`` (texture and facade sun), fog distance ``visibility_m``
+    (None: 2600 m). About 25-30 ms per 224 px and 6-8 ms per 96 px frame on one core (CPU time).
+``render_satellite(city, centre_en, *, height_m=1000, footprint_m=(2000, 1000), size=224,
+light=0)``
+    North-up nadir perspective view squashed to ``size x size`` (INTER_AREA), ~0.2 s; no haze.
 ``satellite_pose(city, centre_en, *, height_m=1000) -> (position (3,), (yaw, pitch, roll))``
 ``project_enu_to_pixel(points_enu, position_enu, yaw, pitch, roll, camera) -> (uv (N, 2), mask)``
 

@@ -1,16 +1,33 @@
 """Procedural cities: ``build_city(style, seed)`` -> ``City``, cached on disk; ``changed_city``.
 
-A ``City`` is a 2.5D tile: an ortho texture (sun shading and shadows baked in) with its mip pyramid,
-an absolute surface height map (terrain + buildings + trees + cars) with its max-mip pyramid, a
-material grid, a facade palette and a coarse terrain grid, all on a regular grid of
-``metres_per_px`` texels centred on the ENU origin. The renderer mirror-tiles it to infinity.
+A ``City`` is a 2.5D tile: K illumination states (each a sun direction and the ortho texture with
+that sun's shading and shadows baked in, as a mip pyramid), an absolute surface height map
+(terrain + buildings + trees + cars) with its max-mip pyramid, a material grid, a facade palette
+and a coarse terrain grid, all on a regular grid of ``metres_per_px`` texels centred on the ENU
+origin. The renderer mirror-tiles it to infinity.
+
+Illumination (issue 9): ``K = N_LIGHTS = 8`` states per city (``build_city(n_lights=...)``
+changes it), so every flight and every satellite image can pick its own time of day
+(``render_uav(..., light=k)``, ``render_satellite(..., light=k)``). The flown city has summer suns
+stratified over azimuths 70-290 deg (always covering 90-270), elevation 15-65 deg tied to the
+azimuth (lighting.py); ``changed_city`` has its own K low winter (12-24 deg) or autumn (20-34 deg)
+suns. State order is shuffled per city; ``city.sun`` is state 0's.
+
+Cost of K = 8 (measured on the 2-core machine, CPU time of one process): baking the 8 states takes
+6.3 s for a full 3584 x 2560 m tile at 1 m/px (one state 1.1 s: shadow sweep 0.3-0.6 s, shading,
+pyramid; the former single-sun march took 4.1 s), so a full city builds in about 20 s (layout about
+14 s). Its cache is 400 MB (8 texture pyramids of 36.7 MB + 107 MB of the rest; the former
+single-sun cache: 171 MB). A 2048 x 1280 m town at 2 m/px (grid 1024 x 768) builds in 1.8 s CPU and
+caches 34 MB (K = 1: 0.8 s, 12 MB; former single-sun build: 1.3 s, 15 MB). Rendering cost does not
+change (same kernel, one texture per frame): ``uavbench bench simulate`` gave 239-240 pairs/s at 96
+px with 2 workers against 244-248 before, within the run-to-run noise.
 
 Sizes: the default tile is 3584 m x 2560 m (E x N) at 1 m/px, which holds the 2.8 km x 1.4 km
 satellite footprint of a 1400 m shooting height around every flight centre. ``size_m`` and
 ``metres_per_px`` make smaller cities for tests (e.g. ``size_m=(512, 512)``); the grid is rounded up
 to a multiple of 256 texels (the max-mip pyramid needs exact halvings).
 
-Cache: ``<cache_dir>/<style>-<seed>-c<change>-<W>x<H>-<mpp>-v<GENERATOR_VERSION>/`` with one
+Cache: ``<cache_dir>/<style>-<seed>-c<change>-<W>x<H>-<mpp>-L<K>-v<GENERATOR_VERSION>/`` with one
 ``.npy`` per array (loaded memory-mapped, so worker processes share the pages) and ``meta.json``.
 The default cache directory is ``$UAVBENCH_CACHE`` or ``~/.cache/uavbench/cities``;
 ``cache_dir=None`` in ``build_city`` means that default, ``cache_dir=False`` disables caching.
