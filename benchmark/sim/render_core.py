@@ -9,7 +9,8 @@ grid is mirror-tiled to infinity (texel index i maps to i mod 2W, reflected), so
 ends and a pitch-0 camera sees a horizon; with dimensions divisible by 2^L the mirror maps aligned
 level-k cells onto aligned cells and one pyramid serves every copy.
 
-A hit on a texel top is coloured by the ortho texture (baked sun shading and shadows), sampled
+A hit on a texel top is coloured by the ortho texture of the rendered illumination state (its
+baked sun shading and shadows; render.py passes that state's pyramid and sun), sampled
 trilinearly from its mip pyramid at the level matching the pixel footprint (footprint
 ``t * pixel_angle / sqrt(|cos incidence|)``), so distant ground does not shimmer. A hit on a texel's
 side is a wall: entering a building from outside gives a facade (palette colour + window grid +
