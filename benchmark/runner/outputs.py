@@ -18,6 +18,7 @@ import pandas as pd
 import torch
 
 from benchmark.runner.claims import evaluate_claims, render_claims
+from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
 from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.logbook import Logbook
 from benchmark.runner.plan import Unit
@@ -175,8 +176,13 @@ def write_reports(
         if logbook is not None:
             logbook.log_table_outputs(spec.name, paths)
     claims = evaluate_claims(summaries)
+    audit_md, audit_rows = heading_cue_report(data_root)
+    (out / "heading_cue.md").write_text(audit_md)
+    written.append(out / "heading_cue.md")
     readme = out / "README.md"
-    readme.write_text(_readme(profile, specs, claims, invocations or []))
+    readme.write_text(
+        _readme(profile, specs, claims, invocations or [], heading_cue_summary(audit_rows))
+    )
     written.append(readme)
     return written
 
@@ -187,7 +193,9 @@ def _input_size(data_root: Path) -> int:
     return int(read_manifest(Path(data_root))["image_size"])
 
 
-def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, runs: list[dict]) -> str:
+def _readme(
+    profile: ReproProfile, specs: list[TableSpec], claims: list, runs: list[dict], audit: str
+) -> str:
     cpu = platform.processor() or platform.machine()
     lines = [
         f"# uavbench reproduction: profile `{profile.name}`",
@@ -215,6 +223,8 @@ def _readme(profile: ReproProfile, specs: list[TableSpec], claims: list, runs: l
         "## Claims of the paper, checked",
         "",
         render_claims(claims),
+        "",
+        audit,
         "",
         "## Tables and figures",
         "",

@@ -5,9 +5,13 @@ texture with that sun's shading and shadows baked in, so a flight and a satellit
 rendered at independent times of day (issue 9: facade shading must not encode the heading).
 
 Sun directions are unit ENU vectors towards the sun; azimuth clockwise from north, elevation above
-the horizon. ``sample_suns`` stratifies the K azimuths over morning to afternoon (about 70-290 deg,
-so 90-270 deg is always covered) and ties each elevation to its azimuth the way the sun's daily
-path does: highest near south (azimuth 180 deg), low in the morning and evening.
+the horizon. ``sample_suns`` stratifies the K azimuths over the full circle and, independently,
+the K elevations over the season's band. Why the full circle: a sun confined to the southern sky
+(one mid-latitude town's morning-to-afternoon path, 70-290 deg, elevation highest near south) is a
+compass: with it, a linear probe on image-wide UAV statistics (``benchmark.analysis.heading_cue``)
+still read the heading at 0.80-0.86x the constant predictor's yaw error. The simulated towns may lie
+at any latitude of either hemisphere, where the sun can stand in any direction, and the elevation
+says nothing about the azimuth.
 
 Shadows (``sun_visibility``) are traced by a sweep, O(texels) per sun instead of a march per texel:
 parallel sun rays one texel apart are scanned from the sun side, carrying the height of the shadow
@@ -26,12 +30,8 @@ from scipy.ndimage import uniform_filter
 from benchmark.sim.textures import mean_pyramid
 
 N_LIGHTS = 8  # illumination states per city (see world.py for the cost)
-AZIMUTH_RANGE_DEG = (80.0, 280.0)  # centres of the first and last azimuth strata
-AZIMUTH_JITTER_DEG = 10.0  # at most; never more than 35 % of the strata spacing
 # Elevation bands (deg) by season: the flown city in summer, the earlier city in winter/autumn.
-ELEVATION_DEG = {"summer": (15.0, 62.0), "winter": (12.0, 24.0), "autumn": (20.0, 34.0)}
-ELEVATION_JITTER_DEG = {"summer": 4.0, "winter": 2.0, "autumn": 2.5}
-ELEVATION_LIMITS_DEG = {"summer": (15.0, 65.0), "winter": (12.0, 24.0), "autumn": (20.0, 34.0)}
+ELEVATION_DEG = {"summer": (15.0, 65.0), "winter": (12.0, 24.0), "autumn": (20.0, 34.0)}
 
 
 def sun_vector(azimuth: float, elevation: float) -> np.ndarray:
@@ -52,28 +52,21 @@ def sun_angles(sun: np.ndarray) -> tuple[float, float]:
 def sample_suns(rng: np.random.Generator, n: int, season: str) -> np.ndarray:
     """``(n, 3)`` float64 unit sun vectors of ``n`` illumination states, in random order.
 
-    Azimuths: ``n`` strata centred evenly on 80..280 deg, each jittered by up to
-    ``min(10 deg, 0.35 spacing)``, so the first lies in [70, 90] and the last in [270, 290] deg.
-    Elevation: ``lo + (hi - lo) cos(0.8 (az - 180 deg))`` plus a small jitter, clipped to the
-    season's limits (summer 15-65 deg: about 20 deg at azimuth 75, 30 at 90, 62 at 180; the
-    earlier city's winter/autumn suns stay low). ``n = 1`` draws one azimuth in 75..285 deg.
+    Azimuths: one in each of ``n`` equal sectors of the full circle (a random offset shared by
+    all, uniform in the first sector, plus ``k 360/n`` deg), so every direction is equally likely
+    and consecutive states are ``360/n`` deg apart (8 states: 45 deg; 90-270 deg always covered).
+    Elevations: one in each of ``n`` equal strata of the season's band (summer 15-65 deg, the
+    earlier city's winter 12-24 or autumn 20-34), uniform within its stratum, assigned to the
+    azimuths in random order (independent of them).
     """
     if not (isinstance(n, (int, np.integer)) and n >= 1):
         raise ValueError(f"n_lights must be an integer >= 1, got {n!r}")
     if season not in ELEVATION_DEG:
         raise ValueError(f"season must be one of {sorted(ELEVATION_DEG)}, got {season!r}")
-    a0, a1 = AZIMUTH_RANGE_DEG
-    if n == 1:
-        az = np.array([rng.uniform(75.0, 285.0)])
-    else:
-        spacing = (a1 - a0) / (n - 1)
-        jit = min(AZIMUTH_JITTER_DEG, 0.35 * spacing)
-        az = a0 + spacing * np.arange(n) + rng.uniform(-jit, jit, n)
+    sector = 360.0 / n
+    az = rng.uniform(0.0, sector) + sector * np.arange(n)
     lo, hi = ELEVATION_DEG[season]
-    emin, emax = ELEVATION_LIMITS_DEG[season]
-    j = ELEVATION_JITTER_DEG[season]
-    el = lo + (hi - lo) * np.cos(np.radians(0.8 * (az - 180.0))) + rng.uniform(-j, j, n)
-    el = np.clip(el, emin, emax)
+    el = lo + (hi - lo) * (rng.permutation(n) + rng.uniform(0.0, 1.0, n)) / n
     order = rng.permutation(n)
     return np.stack([sun_vector(math.radians(az[k]), math.radians(el[k])) for k in order])
 

@@ -9,9 +9,9 @@ origin. The renderer mirror-tiles it to infinity.
 Illumination (issue 9): ``K = N_LIGHTS = 8`` states per city (``build_city(n_lights=...)``
 changes it), so every flight and every satellite image can pick its own time of day
 (``render_uav(..., light=k)``, ``render_satellite(..., light=k)``). The flown city has summer suns
-stratified over azimuths 70-290 deg (always covering 90-270), elevation 15-65 deg tied to the
-azimuth (lighting.py); ``changed_city`` has its own K low winter (12-24 deg) or autumn (20-34 deg)
-suns. State order is shuffled per city; ``city.sun`` is state 0's.
+stratified over the full circle of azimuths and, independently, over elevations 15-65 deg
+(lighting.py says why not only the southern sky); ``changed_city`` has its own K low winter
+(12-24 deg) or autumn (20-34 deg) suns. State order is shuffled per city; ``city.sun`` is state 0's.
 
 Cost of K = 8 (measured on the 2-core machine, CPU time of one process): baking the 8 states takes
 6.3 s for a full 3584 x 2560 m tile at 1 m/px (one state 1.1 s: shadow sweep 0.3-0.6 s, shading,

@@ -54,6 +54,13 @@ class TestReproduceSmoke:
         table1 = (reports / "table1.md").read_text()
         assert "| UAV-only control |" in table1 and "swapped sat." in table1
         assert "Satellite-swap probe" in table1
+        # the data audit: one row per audited split (val and test of both families) with ratios
+        audit = (reports / "heading_cue.md").read_text()
+        for split in ("standard/val", "standard/test", "generalized/test", "towns/test"):
+            row = next(line for line in audit.splitlines() if f"| {split} |" in line)
+            ratio = float(row.rstrip(" |").rsplit("|", 1)[1])
+            assert 0.0 < ratio < 10.0, row
+        assert "Heading-cue audit" in readme and "heading_cue.md" in readme
 
     def test_results_cover_every_job_and_split(self, full_run):
         tmp, _ = full_run
