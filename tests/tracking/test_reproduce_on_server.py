@@ -57,7 +57,7 @@ class TestReproduceAgainstServer:
         parents = [r for r in runs if "mlflow.parentRunId" not in tags(r)]
         children = [r for r in runs if "mlflow.parentRunId" in tags(r)]
         assert len(parents) == 1 and parents[0]["info"]["status"] == "FINISHED"
-        assert len(children) == 2  # Pd/Re-Net and Re-Net-T, one seed
+        assert len(children) == 3  # Pd/Re-Net, Re-Net-T and the UAV-only control, one seed
         for child in children:
             t = tags(child)
             assert child["info"]["status"] == "FINISHED"
@@ -69,9 +69,9 @@ class TestReproduceAgainstServer:
             params = {p["key"] for p in child["data"]["params"]}
             assert {"optim.lr", "optim.batch_size", "model.attitude", "seed"} <= params
         translations = sorted(tags(c)["translation_head"] for c in children)
-        assert translations == ["re_net_t", "regression"]
+        assert translations == ["re_net_t", "regression", "regression"]
 
-        # Idempotent: the second invocation finds both runs in the store and adds no nested run.
+        # Idempotent: the second invocation finds the runs in the store and adds no nested run.
         assert main(argv) == 0
         again = rest(base, "runs/search", {"experiment_ids": [exp_id], "max_results": 100})["runs"]
-        assert len([r for r in again if "mlflow.parentRunId" in tags(r)]) == 2
+        assert len([r for r in again if "mlflow.parentRunId" in tags(r)]) == 3
