@@ -62,21 +62,10 @@ def _worker_init(
     _CTX = RenderContext(root, profile, seed, city_factory(), uav, sat)
 
 
-def _light(r: Any) -> int:
-    """The row's illumination state (plan column ``light``; 0 for plans without it)."""
-    return int(getattr(r, "light", 0))
-
-
-def _visibility(r: Any) -> float | None:
-    """The row's fog distance in metres (plan column ``visibility_m``; None: the renderer's
-    default for plans without it)."""
-    v = getattr(r, "visibility_m", None)
-    return None if v is None else float(v)
-
-
 def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
     """Render UAV samples; uint8 ``(n, S, S, 3)``. Each row's own seed drives its camera effects;
-    its columns ``light`` and ``visibility_m`` (when present) its illumination state and haze."""
+    its columns ``light`` and ``visibility_m`` (written by the plan) its illumination state and
+    haze."""
     from benchmark.sim import Camera, render_uav, sample_seed
 
     p = ctx.profile
@@ -91,8 +80,8 @@ def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
             r.roll,
             camera,
             supersample=p.supersample,
-            light=_light(r),
-            visibility_m=_visibility(r),
+            light=int(r.light),
+            visibility_m=float(r.visibility_m),
         )
         if r.camera_effects:
             img = apply_camera_effects(
@@ -103,8 +92,7 @@ def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
 
 
 def render_sat_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
-    """Render satellite images; uint8 ``(n, S, S, 3)``, each under its row's ``light`` (0 when
-    the plan has no such column)."""
+    """Render satellite images; uint8 ``(n, S, S, 3)``, each under its row's ``light``."""
     from benchmark.sim import render_satellite
 
     p = ctx.profile
@@ -116,7 +104,7 @@ def render_sat_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
             height_m=r.height_m,
             footprint_m=(r.footprint_E_m, r.footprint_N_m),
             size=p.image_size,
-            light=_light(r),
+            light=int(r.light),
         )
     return out
 

@@ -1,8 +1,7 @@
 """Render workers honour the plan's illumination columns; the preview prints sun azimuths.
 
 The reference for every rendered row is a direct call of the public renderer with the row's
-``light`` and ``visibility_m``; plans written before those columns existed render light 0 with the
-default haze.
+``light`` and ``visibility_m`` (every plan has them; plans of older versions are refused).
 """
 
 from __future__ import annotations
@@ -65,11 +64,6 @@ class TestRenderRowsLights:
         # Rows 0 and 3 share the pose but not the light: the images differ.
         assert out[0].tobytes() != out[3].tobytes()
 
-    def test_plan_without_columns_renders_light_0_default_haze(self, ctx):
-        out = render_uav_rows(ctx, ctx.uav)
-        for j, r in enumerate(ctx.uav.itertuples(index=False)):
-            assert out[j].tobytes() == direct_uav(ctx, r, light=0).tobytes()
-
     def test_sat_rows_use_light_column(self, ctx):
         with_light = render_sat_rows(ctx, ctx.sat.assign(light=[0, 6]))
         city = ctx.cities[("oxford", "now")]
@@ -78,12 +72,10 @@ class TestRenderRowsLights:
                                    light=k)  # fmt: skip
             assert with_light[j].tobytes() == ref.tobytes()
         assert with_light[0].tobytes() != with_light[1].tobytes()
-        without = render_sat_rows(ctx, ctx.sat)
-        assert without[1].tobytes() == with_light[0].tobytes()
 
     def test_bad_light_in_plan_is_named(self, ctx):
         with pytest.raises(ValueError, match="light"):
-            render_uav_rows(ctx, ctx.uav.iloc[:1].assign(light=99))
+            render_uav_rows(ctx, ctx.uav.iloc[:1].assign(light=99, visibility_m=2600.0))
 
 
 class TestPreviewSun:
