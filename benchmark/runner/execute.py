@@ -26,9 +26,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.config import to_dict
+from benchmark.data.swap import SATELLITE_MODES
 from benchmark.training.config import TrainConfig
 
-SATELLITE_MODES = ("true", "swap")  # benchmark.data.swap.SATELLITE_MODES
 SWAP_SUFFIX = "/swap"
 
 

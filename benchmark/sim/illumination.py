@@ -32,11 +32,6 @@ def _rng(seed: int, stream: int, index: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(stream, int(index))))
 
 
-def _angles(city: Any, lights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    az, el = zip(*(city.light_angles(int(k)) for k in lights), strict=True)
-    return np.asarray(az, np.float64), np.asarray(el, np.float64)
-
-
 def assign_illumination(
     uav: pd.DataFrame, sat: pd.DataFrame, cities: Mapping[tuple[str, str], Any], seed: int
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -50,20 +45,15 @@ def assign_illumination(
     """
     uav = uav.copy()
     light = np.zeros(len(uav), np.int64)
-    vis = np.zeros(len(uav), np.float64)
+    vis, az, el = (np.zeros(len(uav)) for _ in range(3))
     lo, hi = (math.log(v) for v in VISIBILITY_RANGE_M)
     for flight, rows in uav.groupby("flight", sort=True).indices.items():
         city = cities[(uav.city.iloc[rows[0]], "now")]
         r = _rng(seed, FLIGHT_LIGHT_STREAM, flight)
-        light[rows] = r.integers(city.n_lights)
-        vis[rows] = math.exp(r.uniform(lo, hi))
-    uav["light"] = light
-    uav["visibility_m"] = vis
-    uav["sun_az"], uav["sun_el"] = np.zeros(len(uav)), np.zeros(len(uav))
-    for name, rows in uav.groupby("city", sort=True).indices.items():
-        az, el = _angles(cities[(name, "now")], light[rows])
-        uav.iloc[rows, uav.columns.get_loc("sun_az")] = az
-        uav.iloc[rows, uav.columns.get_loc("sun_el")] = el
+        k = int(r.integers(city.n_lights))
+        light[rows], vis[rows] = k, math.exp(r.uniform(lo, hi))
+        az[rows], el[rows] = city.light_angles(k)
+    uav["light"], uav["visibility_m"], uav["sun_az"], uav["sun_el"] = light, vis, az, el
 
     sat = sat.copy()
     sat_light = np.zeros(len(sat), np.int64)
