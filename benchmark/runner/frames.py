@@ -1,0 +1,221 @@
+"""Per-frame errors of a reproduction, aligned over seeds and models, for paired statistics.
+
+The claims compare two models on the *same* test frames (``benchmark.evaluation.paired``), so they
+need every frame's error, not the per-table means. A :class:`FrameStore` reads them from the files
+each unit wrote (``<workdir>/units/<unit.key>/eval/<split_filename(split)>[__swap].csv``, columns of
+``benchmark.evaluation.metrics.predictions_frame``; see ``benchmark.runner.execute``) and computes
+the constant (training-mean) predictor's per-frame errors from the dataset, exactly as
+``benchmark.evaluation.reference.constant_predictor`` does for the reported constant row.
+
+Alignment. Rows are sorted by the frame ``index`` (the row of the pair in its split); every seed
+of a model and every model evaluated on a split then holds the same frames in the same order, which
+is checked (a mismatch raises ``ValueError`` naming the files). Units: the CSV columns as written
+(degrees ``*_deg``, metres ``*_m``).
+
+Files are read lazily and cached; a planned unit whose file is missing raises
+``FileNotFoundError`` naming the file.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.runner.execute import eval_key, split_filename
+from benchmark.runner.plan import Unit
+
+
+@dataclass(frozen=True)
+class FrameErrors:
+    """One model's per-frame values on one split, over its seeds.
+
+    Attributes:
+        values: ``(S, N)`` float64, row ``s`` = seed ``seeds[s]``, column ``n`` = frame
+            ``index[n]`` (unit of the column: degrees or metres).
+        index: ``(N,)`` int64 frame index within the split, increasing.
+        flight: ``(N,)`` flight id of each frame (the bootstrap's resampling unit).
+        seeds: ``(S,)`` training seeds, increasing.
+    """
+
+    values: np.ndarray
+    index: np.ndarray
+    flight: np.ndarray
+    seeds: tuple[int, ...]
+
+    @property
+    def seed_mean(self) -> np.ndarray:
+        """``(N,)`` mean over seeds of each frame's value."""
+        return self.values.mean(axis=0)
+
+
+def _norm_x(x: object) -> str | None:
+    return None if x is None else str(x)
+
+
+class FrameStore:
+    """Per-frame errors of the planned units of one reproduction.
+
+    Args:
+        workdir: the reproduction's work directory (holds ``units/<key>/eval/*.csv``).
+        data_root: the dataset directory (for the constant predictor's labels and flight ids).
+        units: the planned units (``benchmark.runner.plan.plan_units``); a model is identified by
+            ``(table, label, x)`` of its jobs, its seeds by the units' ``cfg.seed``.
+    """
+
+    def __init__(self, workdir: str | Path, data_root: str | Path, units: Sequence[Unit]):
+        self.workdir = Path(workdir)
+        self.data_root = Path(data_root)
+        # (table, label, x) -> {seed: (unit key, job)}, in plan order
+        self._models: dict[tuple[str, str, str | None], dict[int, tuple[str, object]]] = {}
+        for unit in units:
+            for job in unit.jobs:
+                model = (job.table, job.label, _norm_x(job.x))
+                self._models.setdefault(model, {})[int(unit.cfg.seed)] = (unit.key, job)
+        self._csv: dict[Path, pd.DataFrame] = {}
+        self._constant: dict[tuple[str, str], pd.DataFrame] = {}
+
+    # ------------------------------------------------------------------ what was planned
+    def labels(
+        self, table: str, split: str | None = None, control: bool | None = None
+    ) -> list[str]:
+        """Model labels of ``table`` in plan order (one per label, whatever ``x``), restricted to
+        those evaluated on ``split`` if given; ``control=True`` keeps only the UAV-only controls
+        (``satellite_input == "blank"``), ``False`` drops them, None keeps all."""
+        out: dict[str, None] = {}
+        for (t, label, _), by_seed in self._models.items():
+            job = next(iter(by_seed.values()))[1]
+            if t != table or (split is not None and split not in job.eval_splits):
+                continue
+            blank = job.variant.satellite_input == "blank"
+            if control is None or control == blank:
+                out[label] = None
+        return list(out)
+
+    def xs(self, table: str, label: str) -> list[str]:
+        """Sweep values (as strings) planned for ``(table, label)``, in plan order."""
+        return [x for (t, lb, x) in self._models if t == table and lb == label and x is not None]
+
+    def splits(self, table: str, label: str, x: object = None) -> list[str]:
+        """Splits the model ``(table, label, x)`` is evaluated on ([] if not planned)."""
+        by_seed = self._models.get((table, label, _norm_x(x)))
+        return list(next(iter(by_seed.values()))[1].eval_splits) if by_seed else []
+
+    def has(self, table: str, label: str, split: str, x: object = None) -> bool:
+        """Whether the model is planned and evaluated on ``split``."""
+        return split in self.splits(table, label, x)
+
+    def seeds(self, table: str, label: str, x: object = None) -> list[int]:
+        return sorted(self._models.get((table, label, _norm_x(x)), {}))
+
+    def train_split(self, table: str, label: str, x: object = None) -> str:
+        """The split the model trains on (the constant predictor it is compared with trains on
+        the same one)."""
+        _seed, (_key, job) = self._jobs(table, label, x)[0]
+        return job.train_split
+
+    def _jobs(self, table: str, label: str, x: object) -> list[tuple[int, tuple[str, object]]]:
+        by_seed = self._models.get((table, label, _norm_x(x)))
+        if not by_seed:
+            known = sorted({lb for (t, lb, _) in self._models if t == table})
+            raise KeyError(
+                f"no planned model ({table!r}, {label!r}, x={x!r}); {table} has {known or 'none'}"
+            )
+        return sorted(by_seed.items())
+
+    # ------------------------------------------------------------------ per-frame values
+    def csv_path(self, unit_key: str, split: str, satellite: str = "true") -> Path:
+        """``<workdir>/units/<key>/eval/<split_filename(eval_key(split, satellite))>.csv``."""
+        name = split_filename(eval_key(split, satellite)) + ".csv"
+        return self.workdir / "units" / unit_key / "eval" / name
+
+    def _read(self, path: Path) -> pd.DataFrame:
+        if path not in self._csv:
+            if not path.is_file():
+                raise FileNotFoundError(f"predictions file missing: {path}")
+            frame = pd.read_csv(path)
+            if "index" not in frame or "flight" not in frame:
+                raise ValueError(f"{path}: needs columns 'index' and 'flight', has {list(frame)}")
+            frame = frame.sort_values("index", kind="stable").reset_index(drop=True)
+            if frame["index"].duplicated().any():
+                raise ValueError(f"{path}: duplicate frame 'index' values")
+            self._csv[path] = frame
+        return self._csv[path]
+
+    def errors(
+        self,
+        table: str,
+        label: str,
+        split: str,
+        metric: str,
+        x: object = None,
+        satellite: str = "true",
+    ) -> FrameErrors:
+        """Per-frame ``metric`` (any numeric column of the predictions CSV: ``dphi_deg``,
+        ``dE_m``, ``uncertainty``, ...) of model ``(table, label, x)`` on ``split``.
+
+        Returns:
+            :class:`FrameErrors` with ``values (S, N)`` over the model's seeds.
+        Raises:
+            KeyError: the model is not planned or not evaluated on ``split``.
+            FileNotFoundError: a planned unit's predictions file is missing (named).
+            ValueError: the column is absent, or seeds disagree on the frames.
+        """
+        jobs = self._jobs(table, label, x)
+        if split not in jobs[0][1][1].eval_splits:
+            raise KeyError(
+                f"model ({table!r}, {label!r}, x={x!r}) is not evaluated on {split!r}; "
+                f"its splits: {list(jobs[0][1][1].eval_splits)}"
+            )
+        rows, index, flight, first = [], None, None, None
+        for _seed, (key, _job) in jobs:
+            path = self.csv_path(key, split, satellite)
+            frame = self._read(path)
+            if metric not in frame:
+                raise ValueError(f"{path}: no column {metric!r}")
+            if index is None:
+                index, flight, first = frame["index"].to_numpy(np.int64), frame["flight"], path
+            elif not np.array_equal(frame["index"].to_numpy(np.int64), index):
+                raise ValueError(f"{path} and {first} hold different frames of {split!r}")
+            rows.append(frame[metric].to_numpy(np.float64))
+        return FrameErrors(
+            values=np.stack(rows),
+            index=index,
+            flight=flight.to_numpy(),
+            seeds=tuple(seed for seed, _ in jobs),
+        )
+
+    def _constant_frame(self, split: str, train_split: str) -> pd.DataFrame:
+        if (train_split, split) not in self._constant:
+            from benchmark.data import PairDataset
+            from benchmark.evaluation.reference import constant_predictor
+
+            train = PairDataset(self.data_root, train_split, verify="size")
+            test = PairDataset(self.data_root, split, verify="size")
+            _, frame = constant_predictor(train, test)
+            frame = frame.assign(flight=test.poses["flight"].to_numpy()[frame["index"]])
+            frame = frame.sort_values("index", kind="stable").reset_index(drop=True)
+            self._constant[train_split, split] = frame
+        return self._constant[train_split, split]
+
+    def constant_errors(self, split: str, metric: str, train_split: str) -> np.ndarray:
+        """``(N,)`` per-frame ``metric`` of the constant predictor (the mean pose of
+        ``train_split``) on ``split``, frames in increasing ``index`` (the order of
+        :meth:`errors`)."""
+        frame = self._constant_frame(split, train_split)
+        if metric not in frame:
+            raise ValueError(f"constant predictor has no column {metric!r}")
+        return frame[metric].to_numpy(np.float64)
+
+    def constant(self, split: str, metric: str, train_split: str) -> FrameErrors:
+        """The constant predictor as a one-"seed" :class:`FrameErrors` (``values (1, N)``)."""
+        frame = self._constant_frame(split, train_split)
+        return FrameErrors(
+            values=self.constant_errors(split, metric, train_split)[None, :],
+            index=frame["index"].to_numpy(np.int64),
+            flight=frame["flight"].to_numpy(),
+            seeds=(0,),
+        )
