@@ -8,6 +8,13 @@ per-frame difference ``err_b - err_a``; the interval is the percentile interval 
 The satellite-swap probe (:func:`swap_effect`) uses it on the yaw and geodesic errors of a model
 evaluated with the true and with a swapped satellite image: a model that uses the satellite image
 gets worse when the image shows another place, so its difference is clearly above zero.
+
+With several training seeds, :func:`pooled_bootstrap` resamples seeds as well as flights: a
+replicate draws the flights with replacement and, independently for each model, its seeds with
+replacement, and compares the two models' seed-mean errors on the drawn frames. The interval then
+covers both the test-set sampling (which flights) and the training noise (which seed), the two
+sources a rerun on another machine changes. :func:`spearman_bootstrap` does the same for a rank
+correlation (a head's uncertainty against its error).
 """
 
 from __future__ import annotations
@@ -110,3 +117,167 @@ def swap_effect(
         out[f"swap_{short}_boot_lo_deg"] = lo
         out[f"swap_{short}_boot_hi_deg"] = hi
     return out
+
+
+def _as_seed_matrix(x: np.ndarray, name: str) -> np.ndarray:
+    """``(N,)`` or ``(S, N)`` -> ``(S, N)`` float64, checked finite and non-empty."""
+    m = np.asarray(x, dtype=np.float64)
+    m = m[None, :] if m.ndim == 1 else m
+    if m.ndim != 2 or m.shape[0] < 1 or m.shape[1] < 1:
+        raise ValueError(f"{name} must have shape (N,) or (S, N) with S, N >= 1, got {m.shape}")
+    if not np.isfinite(m).all():
+        raise ValueError(f"{name} must be finite")
+    return m
+
+
+def _check_boot(n_boot: int, confidence: float, caller: str) -> None:
+    if int(n_boot) != n_boot or n_boot < 1:
+        raise ValueError(f"{caller}: n_boot must be an integer >= 1, got {n_boot!r}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"{caller}: confidence must be in (0, 1), got {confidence}")
+
+
+def pooled_replicates(
+    err_a: np.ndarray,
+    err_b: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> tuple[float, np.ndarray]:
+    """The point estimate and the bootstrap replicates behind :func:`pooled_bootstrap`.
+
+    Args:
+        err_a, err_b: ``(S_a, N)`` and ``(S_b, N)`` errors of models a and b on the same N frames,
+            one row per training seed (``(N,)`` = one seed; the seed counts may differ, e.g. the
+            constant predictor has one).
+        groups: ``(N,)`` flight id of each frame.
+        n_boot: number of replicates (>= 1).
+        seed: seed of ``numpy.random.default_rng``.
+    Returns:
+        ``(mean_diff, replicates (n_boot,))``: ``mean_diff`` = mean over all frames of
+        ``mean_s err_b[s] - mean_s err_a[s]``. Replicate r draws G of the G flights with
+        replacement (first generator call, ``integers(0, G, (n_boot, G))``, the same draws as
+        :func:`paired_bootstrap`), then ``S_a`` seeds of a and ``S_b`` seeds of b with replacement;
+        its value is the mean over the drawn flights' frames of (mean over b's drawn seeds minus
+        mean over a's drawn seeds). With one seed each it equals :func:`paired_bootstrap`.
+    """
+    a = _as_seed_matrix(err_a, "err_a")
+    b = _as_seed_matrix(err_b, "err_b")
+    g = np.asarray(groups).reshape(-1)
+    if not a.shape[1] == b.shape[1] == g.shape[0]:
+        raise ValueError(
+            f"pooled_bootstrap: err_a, err_b and groups must hold the same frames, got N = "
+            f"{a.shape[1]}, {b.shape[1]}, {g.shape[0]}"
+        )
+    _check_boot(n_boot, 0.5, "pooled_bootstrap")
+    _, inverse = np.unique(g, return_inverse=True)
+    n_groups = int(inverse.max()) + 1
+    sizes = np.bincount(inverse, minlength=n_groups).astype(np.float64)
+
+    def group_sums(m: np.ndarray) -> np.ndarray:  # (S, N) -> (S, G) per-seed sums per flight
+        return np.stack([np.bincount(inverse, weights=row, minlength=n_groups) for row in m])
+
+    sums_a, sums_b = group_sums(a), group_sums(b)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, n_groups, size=(int(n_boot), n_groups))
+    seeds_a = rng.integers(0, a.shape[0], size=(int(n_boot), a.shape[0]))
+    seeds_b = rng.integers(0, b.shape[0], size=(int(n_boot), b.shape[0]))
+    # Linear in everything: the drawn frames' mean of (seed-mean b - seed-mean a) is
+    # sum_g c_g (w_b . sums_b[:, g] - w_a . sums_a[:, g]) / sum_g c_g size_g, with c_g the times
+    # flight g was drawn and w the seed-draw frequencies (counts / S).
+    counts = _row_counts(draws, n_groups)
+
+    def freq(d: np.ndarray, s: int) -> np.ndarray:
+        return _row_counts(d, s) / s
+
+    per_group = freq(seeds_b, b.shape[0]) @ sums_b - freq(seeds_a, a.shape[0]) @ sums_a
+    replicates = (counts * per_group).sum(axis=1) / (counts @ sizes)
+    return float((b.mean(axis=0) - a.mean(axis=0)).mean()), replicates
+
+
+def _row_counts(draws: np.ndarray, k: int) -> np.ndarray:
+    """``(R, m)`` ints in [0, k) -> ``(R, k)`` float64 counts of each value per row."""
+    rows = draws.shape[0]
+    flat = (draws + k * np.arange(rows)[:, None]).ravel()
+    return np.bincount(flat, minlength=rows * k).reshape(rows, k).astype(np.float64)
+
+
+def percentile_interval(replicates: np.ndarray, confidence: float = 0.95) -> tuple[float, float]:
+    """The ``(1 - confidence) / 2`` and ``(1 + confidence) / 2`` quantiles of ``replicates``."""
+    _check_boot(1, confidence, "percentile_interval")
+    tail = (1.0 - confidence) / 2.0
+    lo, hi = np.quantile(np.asarray(replicates, dtype=np.float64), [tail, 1.0 - tail])
+    return float(lo), float(hi)
+
+
+def pooled_bootstrap(
+    err_a: np.ndarray,
+    err_b: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    confidence: float = 0.95,
+) -> tuple[float, float, float]:
+    """Mean paired difference b - a over frames and seeds with its flight-and-seed bootstrap
+    percentile interval (see :func:`pooled_replicates` for shapes and the resampling).
+
+    Returns:
+        ``(mean_diff, lo, hi)`` in the unit of the errors.
+    """
+    _check_boot(n_boot, confidence, "pooled_bootstrap")
+    mean, replicates = pooled_replicates(err_a, err_b, groups, n_boot=n_boot, seed=seed)
+    return (mean, *percentile_interval(replicates, confidence))
+
+
+def spearman_bootstrap(
+    x: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    confidence: float = 0.95,
+) -> tuple[float, float, float]:
+    """Spearman correlation of x and y per seed, averaged over seeds, with a flight-and-seed
+    bootstrap percentile interval.
+
+    Args:
+        x, y: ``(S, N)`` (or ``(N,)``) paired values per seed and frame (e.g. a head's predicted
+            uncertainty and its geodesic error).
+        groups: ``(N,)`` flight id of each frame.
+    Returns:
+        ``(rho, lo, hi)``: ``rho`` = mean over seeds of ``spearmanr(x[s], y[s])`` on all frames
+        (what the per-seed summaries average); a replicate draws the flights as
+        :func:`pooled_replicates` does, then S seeds with replacement, and averages the drawn
+        seeds' Spearman correlations over the drawn flights' frames (ties get average ranks).
+        NaN when a correlation is undefined (a constant input).
+    """
+    from scipy import stats
+
+    xs, ys = _as_seed_matrix(x, "x"), _as_seed_matrix(y, "y")
+    g = np.asarray(groups).reshape(-1)
+    if xs.shape != ys.shape or xs.shape[1] != g.shape[0]:
+        raise ValueError(
+            f"spearman_bootstrap: x {xs.shape}, y {ys.shape} and groups {g.shape} must agree"
+        )
+    _check_boot(n_boot, confidence, "spearman_bootstrap")
+
+    def rho(u: np.ndarray, v: np.ndarray) -> float:
+        if np.ptp(u) == 0 or np.ptp(v) == 0:
+            return np.nan
+        ru, rv = stats.rankdata(u), stats.rankdata(v)
+        return float(np.corrcoef(ru, rv)[0, 1])  # Pearson of the ranks = Spearman
+
+    point = float(np.mean([rho(xs[s], ys[s]) for s in range(xs.shape[0])]))
+    labels, inverse = np.unique(g, return_inverse=True)
+    members = [np.flatnonzero(inverse == k) for k in range(len(labels))]
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, len(labels), size=(int(n_boot), len(labels)))
+    seed_draws = rng.integers(0, xs.shape[0], size=(int(n_boot), xs.shape[0]))
+    replicates = np.empty(int(n_boot))
+    for r in range(int(n_boot)):
+        frames = np.concatenate([members[k] for k in draws[r]])
+        per_seed = np.array([rho(xs[s, frames], ys[s, frames]) for s in range(xs.shape[0])])
+        replicates[r] = per_seed[seed_draws[r]].mean()
+    if not np.isfinite(replicates).all():
+        return point, np.nan, np.nan
+    return (point, *percentile_interval(replicates, confidence))

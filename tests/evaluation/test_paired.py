@@ -7,7 +7,12 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from benchmark.evaluation.paired import paired_bootstrap, swap_effect
+from benchmark.evaluation.paired import (
+    paired_bootstrap,
+    pooled_bootstrap,
+    spearman_bootstrap,
+    swap_effect,
+)
 
 
 def naive_bootstrap(a, b, groups, n_boot, seed, confidence=0.95):
@@ -112,3 +117,134 @@ class TestSwapEffect:
             swap_effect(true, swap.iloc[1:])
         with pytest.raises(ValueError, match=r"lacks columns \['flight'\]"):
             swap_effect(true, swap.drop(columns="flight"))
+
+
+def naive_pooled(a, b, groups, n_boot, seed, confidence=0.95):
+    """Reference by explicit loops: the same generator calls (flights, then a's seeds, then b's),
+    then frame by frame the mean over b's drawn seeds minus the mean over a's drawn seeds."""
+    labels = np.unique(groups)
+    rng = np.random.default_rng(seed)
+    flights = rng.integers(0, len(labels), size=(n_boot, len(labels)))
+    seeds_a = rng.integers(0, a.shape[0], size=(n_boot, a.shape[0]))
+    seeds_b = rng.integers(0, b.shape[0], size=(n_boot, b.shape[0]))
+    means = []
+    for r in range(n_boot):
+        diffs = []
+        for k in flights[r]:
+            for n in np.flatnonzero(groups == labels[k]):
+                mb = sum(b[s, n] for s in seeds_b[r]) / len(seeds_b[r])
+                ma = sum(a[s, n] for s in seeds_a[r]) / len(seeds_a[r])
+                diffs.append(mb - ma)
+        means.append(np.mean(diffs))
+    tail = (1 - confidence) / 2
+    point = np.mean(b.mean(axis=0) - a.mean(axis=0))
+    return point, np.percentile(means, 100 * tail), np.percentile(means, 100 * (1 - tail))
+
+
+def seeded(n_seeds_a=3, n_seeds_b=2, seed=0):
+    """Clustered frames plus per-seed training noise (one offset per seed and flight)."""
+    a, b, g = clustered(n_groups=12, seed=seed)
+    rng = np.random.default_rng(seed + 100)
+    _, inv = np.unique(g, return_inverse=True)
+    noise_a = rng.normal(0, 4, (n_seeds_a, inv.max() + 1))[:, inv]
+    noise_b = rng.normal(0, 4, (n_seeds_b, inv.max() + 1))[:, inv]
+    return a[None, :] + noise_a, b[None, :] + noise_b, g
+
+
+class TestPooledBootstrap:
+    @pytest.mark.parametrize(("sa", "sb"), [(1, 1), (3, 2), (1, 3)])
+    def test_matches_naive_loops(self, sa, sb):
+        a, b, g = seeded(sa, sb)
+        got = pooled_bootstrap(a, b, g, n_boot=60, seed=7)
+        np.testing.assert_allclose(got, naive_pooled(a, b, g, 60, 7), rtol=1e-12)
+
+    def test_one_seed_equals_flight_bootstrap(self):
+        a, b, g = clustered()
+        assert pooled_bootstrap(a, b, g, n_boot=500, seed=2) == pytest.approx(
+            paired_bootstrap(a, b, g, n_boot=500, seed=2), rel=1e-12
+        )
+        # (N,) and (1, N) are the same single seed
+        assert pooled_bootstrap(a[None], b, g, n_boot=50) == pooled_bootstrap(a, b, g, n_boot=50)
+
+    def test_constant_difference_gives_zero_width(self):
+        """Seed-invariant errors and b = a + c: every replicate is exactly c."""
+        a, _, g = clustered()
+        a3 = np.repeat(a[None], 3, axis=0)
+        mean, lo, hi = pooled_bootstrap(a3, a3[:2] + 1.25, g, n_boot=300)
+        assert (mean, lo, hi) == pytest.approx((1.25, 1.25, 1.25), abs=1e-12)
+
+    def test_closed_form_seed_resampling(self):
+        """One flight (nothing to draw there), a's S seeds each a constant alpha_s, b = 0: a
+        replicate is minus the mean of S iid draws of the alpha_s, so the interval is
+        -mean(alpha) +- z sd(alpha)/sqrt(S) (normal limit, S large)."""
+        rng = np.random.default_rng(3)
+        n_seeds, n = 400, 6
+        alpha = rng.normal(5.0, 2.0, n_seeds)
+        a = np.repeat(alpha[:, None], n, axis=1)
+        mean, lo, hi = pooled_bootstrap(a, np.zeros(n), np.zeros(n), n_boot=20000, seed=1)
+        assert mean == pytest.approx(-alpha.mean(), rel=1e-12)
+        half = stats.norm.ppf(0.975) * alpha.std(ddof=0) / np.sqrt(n_seeds)
+        assert lo == pytest.approx(mean - half, abs=0.06 * half)
+        assert hi == pytest.approx(mean + half, abs=0.06 * half)
+
+    def test_seed_noise_widens_the_interval(self):
+        """Averaging the seeds first and bootstrapping flights only ignores the training noise."""
+        a, b, g = seeded(3, 3)
+        _, lo, hi = pooled_bootstrap(a, b, g, n_boot=4000, seed=0)
+        _, flo, fhi = paired_bootstrap(a.mean(0), b.mean(0), g, n_boot=4000, seed=0)
+        assert hi - lo > 1.1 * (fhi - flo)
+
+    @pytest.mark.parametrize(
+        ("kwargs", "match"),
+        [
+            ({"err_b": np.zeros((2, 3))}, "same frames, got N = 4, 3, 4"),
+            ({"err_a": np.array([0, 1, np.nan, 2])}, "err_a must be finite"),
+            ({"err_a": np.zeros((0, 4))}, r"err_a must have shape \(N,\) or \(S, N\)"),
+            ({"n_boot": 0}, "n_boot must be an integer >= 1, got 0"),
+            ({"confidence": 0.0}, r"confidence must be in \(0, 1\), got 0.0"),
+        ],
+    )
+    def test_bad_input_named(self, kwargs, match):
+        args = {"err_a": np.zeros((2, 4)), "err_b": np.ones(4), "groups": np.arange(4), **kwargs}
+        with pytest.raises(ValueError, match=match):
+            pooled_bootstrap(**args)
+
+
+class TestSpearmanBootstrap:
+    def data(self, n_seeds=2):
+        rng = np.random.default_rng(4)
+        g = np.repeat(np.arange(10), 6)
+        x = rng.normal(size=(n_seeds, g.size))
+        return x, x + rng.normal(0, 1.5, x.shape), g
+
+    def test_point_is_mean_of_scipy_per_seed(self):
+        x, y, g = self.data(3)
+        rho, lo, hi = spearman_bootstrap(x, y, g, n_boot=200)
+        ref = np.mean([stats.spearmanr(x[s], y[s]).statistic for s in range(3)])
+        assert rho == pytest.approx(ref, rel=1e-12)
+        assert lo < rho < hi
+
+    def test_replicates_match_scipy_loop(self):
+        """Same draws as the pooled bootstrap; each replicate = mean over drawn seeds of scipy's
+        spearmanr on the drawn flights' frames."""
+        x, y, g = self.data(2)
+        n_boot = 40
+        rng = np.random.default_rng(9)
+        flights = rng.integers(0, 10, size=(n_boot, 10))
+        seeds = rng.integers(0, 2, size=(n_boot, 2))
+        reps = []
+        for r in range(n_boot):
+            frames = np.concatenate([np.flatnonzero(g == k) for k in flights[r]])
+            reps.append(np.mean([stats.spearmanr(x[s, frames], y[s, frames]).statistic
+                                 for s in seeds[r]]))  # fmt: skip
+        _, lo, hi = spearman_bootstrap(x, y, g, n_boot=n_boot, seed=9)
+        assert (lo, hi) == pytest.approx((np.percentile(reps, 2.5), np.percentile(reps, 97.5)))
+
+    def test_monotone_gives_one(self):
+        x, _, g = self.data(2)
+        assert spearman_bootstrap(x, np.exp(x), g, n_boot=50) == pytest.approx((1.0, 1.0, 1.0))
+
+    def test_shapes_checked(self):
+        x, y, g = self.data(2)
+        with pytest.raises(ValueError, match="must agree"):
+            spearman_bootstrap(x, y[:1], g)
