@@ -53,8 +53,9 @@ class Logbook:
 
     def finished(self, job: Job, unit: Unit) -> tuple[dict[str, dict[str, float]], float] | None:
         """``(per eval-key metrics, unit seconds)`` of this job's FINISHED run in the store, or
-        None. Eval keys are the job's splits and their ``/swap`` probes (``execute.eval_key``); a
-        run that lacks any of them is not finished for this code.
+        None. Eval keys are the job's splits and the unit's validation split (``Unit.job_splits``)
+        with their ``/swap`` probes (``execute.eval_key``); a run that lacks any of them is not
+        finished for this code.
 
         The seconds are the unit's training and evaluation time when it ran (0 for runs logged
         before this was recorded), so re-reporting keeps ``train_seconds``."""
@@ -63,7 +64,7 @@ class Logbook:
         )
         if info is None:
             return None
-        wanted = set(eval_keys(job.eval_splits))
+        wanted = set(eval_keys(unit.job_splits(job)))
         out: dict[str, dict[str, float]] = {}
         for key, value in info.metrics.items():
             split, sep, metric = key.rpartition("/")
@@ -113,7 +114,7 @@ class Logbook:
                 epoch = int(record.get("epoch", 0))
                 values = {f"train/{k}": v for k, v in record.items() if k != "epoch" and _finite(v)}
                 run.log_metrics(values, step=epoch)
-            for key in eval_keys(job.eval_splits):
+            for key in eval_keys(unit.job_splits(job)):
                 summary = metrics.get(key, {})
                 run.log_metrics({f"{key}/{k}": v for k, v in summary.items() if _finite(v)})
             if _finite(seconds):

@@ -38,10 +38,25 @@ class Unit:
     jobs: list[Job] = field(default_factory=list)
 
     @property
+    def val_split(self) -> str | None:
+        """The validation split of the training family (``standard/val`` for ``standard/train``),
+        or None (height splits have none). Every unit is evaluated on it as well: learning rates,
+        loss terms and profile settings are chosen on these numbers, never on the test splits."""
+        return self.cfg.data.val_split
+
+    def job_splits(self, job: Job) -> list[str]:
+        """The splits whose numbers a job's tracked run holds: its test splits, then the unit's
+        validation split."""
+        splits = list(job.eval_splits)
+        if self.val_split is not None and self.val_split not in splits:
+            splits.append(self.val_split)
+        return splits
+
+    @property
     def eval_splits(self) -> list[str]:
         seen: dict[str, None] = {}
         for job in self.jobs:
-            for split in job.eval_splits:
+            for split in self.job_splits(job):
                 seen[split] = None
         return list(seen)
 
@@ -72,7 +87,8 @@ def loss_config(variant: VariantSpec) -> LossConfig:
 
 
 def val_split_for(train_split: str, available: list[str]) -> str | None:
-    """``X/val`` for ``X/train`` when the dataset has it (only ``standard`` does)."""
+    """``X/val`` for ``X/train`` when the dataset has it (standard, frames and towns do; the
+    height splits do not)."""
     if train_split.endswith("/train"):
         candidate = train_split[: -len("train")] + "val"
         if candidate in available:

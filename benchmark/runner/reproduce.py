@@ -34,7 +34,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--only", default="", help="comma-separated tables/figures, e.g. table1,fig7 (default: all)"
     )
-    parser.add_argument("--seeds", type=int, default=None, help="seeds per variant (default: 1)")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=None,
+        help="training seeds per variant, on one dataset (default: the profile's, quick 3)",
+    )
     parser.add_argument("--out", type=Path, default=None, help="reports dir (reports/<profile>)")
     parser.add_argument(
         "--workdir", type=Path, default=None, help="checkpoints etc. (runs/<profile>)"
@@ -167,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
         config_path = write_config(unit, unit_dir / "config.json") if unit_dir.is_dir() else None
         for job in unit.jobs:
             paths = [
-                Path(result.predictions[k]) for k in eval_keys(job.eval_splits)
+                Path(result.predictions[k]) for k in eval_keys(unit.job_splits(job))
                 if k in result.predictions
             ]  # fmt: skip
             if config_path is not None:

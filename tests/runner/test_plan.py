@@ -65,6 +65,21 @@ class TestPlanUnits:
         assert "generalized/test" in unit.eval_splits and "pitch0to-10/test" in unit.eval_splits
         assert "flight/pitch0" in unit.eval_splits  # Re-Net of Table 5
 
+    def test_every_unit_is_evaluated_on_its_validation_split(self):
+        # Choices are made on validation numbers, so each run carries them beside its test ones.
+        expected = {
+            "standard/train": "standard/val", "frames/train": "frames/val",
+            "towns/train": "towns/val",
+        }  # fmt: skip
+        for unit in plan():
+            val = expected.get(unit.cfg.data.train_split)
+            assert unit.val_split == val
+            for job in unit.jobs:
+                splits = unit.job_splits(job)
+                assert splits[: len(job.eval_splits)] == list(job.eval_splits)
+                assert splits[len(job.eval_splits) :] == ([val] if val else [])
+            assert (val in unit.eval_splits) == (val is not None)
+
     def test_keys_do_not_depend_on_the_data_path(self):
         assert [u.key for u in plan(root="/a")] == [u.key for u in plan(root="/elsewhere/b")]
 
