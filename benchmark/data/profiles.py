@@ -144,14 +144,18 @@ PROFILES: dict[str, Profile] = {
     "quick": Profile(
         name="quick",
         image_size=96,
-        n_standard=3000,
-        n_generalized_test=300,
-        n_flight_per_pitch=100,
-        n_pitch_per_bin=60,
-        n_height_train=1200,
+        # Held-out sets are large enough for flight-bootstrap intervals (issue 10): standard
+        # 2400/600/600 pairs (150/38/38 flights), london 1200 (75 flights); training sets as
+        # before, the height training sets cut to 800 pairs to fit 3 seeds into 90 minutes.
+        n_standard=3600,
+        standard_fractions=(2 / 3, 1 / 6, 1 / 6),
+        n_generalized_test=1200,
+        n_flight_per_pitch=200,
+        n_pitch_per_bin=160,
+        n_height_train=800,
         n_height_test=300,
         n_towns=(40, 4, 8, 6),
-        n_town_pairs=(1600, 160, 320, 320),
+        n_town_pairs=(1600, 160, 480, 1200),
         samples_per_flight=16,
         shard_size=256,
     ),

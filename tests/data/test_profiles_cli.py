@@ -26,9 +26,9 @@ class TestProfiles:
             PROFILES["quick"].image_size = 1
 
     def test_size_override_scales_every_set(self):
-        p = get_profile("quick", 300)
         q = PROFILES["quick"]
-        assert p.n_standard == 300 and p.image_size == q.image_size
+        p = get_profile("quick", q.n_standard // 10)
+        assert p.n_standard == q.n_standard // 10 and p.image_size == q.image_size
         assert p.n_generalized_test == q.n_generalized_test // 10
         assert p.n_height_train == q.n_height_train // 10
 
