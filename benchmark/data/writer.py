@@ -66,11 +66,14 @@ class ConfigMismatchError(ValueError):
 
 
 def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
-    from benchmark.sim import GENERATOR_VERSION
+    from benchmark.sim import GENERATOR_VERSION, source_digest
 
     config = {
         "format_version": FORMAT_VERSION,
         "generator_version": str(GENERATOR_VERSION),
+        # The simulator's code itself: a dataset rendered by other code is never resumed or
+        # reused as if it were this code's (issue 10, reproducibility across machines).
+        "generator_source": source_digest(),
         "plan_version": PLAN_VERSION,
         "profile": profile.to_dict(),
         "seed": int(seed),

@@ -7,6 +7,10 @@ Public API (paper Sec. 3.1 and 3.5; frames and conventions in DEVELOPERS.md):
     (generalized split); industrial is the flight-test analogue.
 ``GENERATOR_VERSION``
     Bumped whenever generated pixels change; part of the city cache key and the dataset manifest.
+``source_digest(modules=None) -> str``
+    sha256 (12 hex) of the simulator's source; the city-building modules' digest is part of the
+    city cache key, the whole package's is part of the dataset config, so neither a cached city
+    nor a dataset outlives the code that made it.
 ``build_city(style, seed, *, cache_dir=None, size_m=(3584, 2560), metres_per_px=1.0,
 n_lights=8, progress=False) -> City``
     Deterministic; cached on disk under (style, seed, size, resolution, K, GENERATOR_VERSION) in
@@ -55,7 +59,14 @@ from typing import Any
 from benchmark.sim.camera import Camera, euler_to_rotmat_np, project_enu_to_pixel
 from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.render import render_satellite, render_uav, satellite_camera, satellite_pose
-from benchmark.sim.world import GENERATOR_VERSION, STYLES, City, build_city, changed_city
+from benchmark.sim.world import (
+    GENERATOR_VERSION,
+    STYLES,
+    City,
+    build_city,
+    changed_city,
+    source_digest,
+)
 
 __all__ = [
     "GENERATOR_VERSION",
@@ -78,6 +89,7 @@ __all__ = [
     "sample_seed",
     "satellite_camera",
     "satellite_pose",
+    "source_digest",
     "town_list",
 ]
 

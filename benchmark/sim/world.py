@@ -27,14 +27,20 @@ satellite footprint of a 1400 m shooting height around every flight centre. ``si
 ``metres_per_px`` make smaller cities for tests (e.g. ``size_m=(512, 512)``); the grid is rounded up
 to a multiple of 256 texels (the max-mip pyramid needs exact halvings).
 
-Cache: ``<cache_dir>/<style>-<seed>-c<change>-<W>x<H>-<mpp>-L<K>-v<GENERATOR_VERSION>/`` with one
-``.npy`` per array (loaded memory-mapped, so worker processes share the pages) and ``meta.json``.
+Cache: ``<cache_dir>/<style>-<seed>-c<change>-<W>x<H>-<mpp>-L<K>-v<GENERATOR_VERSION>-<source>/``
+with one ``.npy`` per array (loaded memory-mapped, so worker processes share the pages) and
+``meta.json``.
 The default cache directory is ``$UAVBENCH_CACHE`` or ``~/.cache/uavbench/cities``;
 ``cache_dir=None`` in ``build_city`` means that default, ``cache_dir=False`` disables caching.
+``<source>`` is :func:`source_digest` of the modules that build a city: a cache never outlives the
+code that built it, even when a change forgot to bump GENERATOR_VERSION (issue 10 traced numbers
+that differed between machines to exactly such stale caches being possible).
 """
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import math
 import os
@@ -54,6 +60,31 @@ from benchmark.sim.world_city import City, dilate3
 from benchmark.sim.world_styles import STYLES, get_style
 
 GENERATOR_VERSION = "16"
+# The modules whose code decides a city's arrays (world.py and everything it builds with).
+CITY_MODULES = (
+    "city_blocks", "city_details", "city_districts", "city_industry", "city_layout",
+    "city_nature", "lighting", "render_core", "textures", "world", "world_city", "world_styles",
+)  # fmt: skip
+
+
+@functools.cache
+def source_digest(modules: tuple[str, ...] | None = None) -> str:
+    """First 12 hex digits of the sha256 of the simulator's source: the named ``benchmark.sim``
+    modules (default: every module of the package), in sorted order, name and bytes.
+
+    Any edit of that code, comments included, changes the digest: cached cities and datasets are
+    rebuilt rather than silently mixed with the output of other code."""
+    folder = Path(__file__).resolve().parent
+    names = sorted(modules) if modules is not None else sorted(p.stem for p in folder.glob("*.py"))
+    digest = hashlib.sha256()
+    for name in names:
+        path = folder / f"{name}.py"
+        if not path.is_file():
+            raise ValueError(f"source_digest: no module {path}")
+        digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()[:12]
+
+
 DEFAULT_SIZE_M = (3584.0, 2560.0)
 SAT_MARGIN_M = (1400.0, 700.0)  # half of the largest satellite footprint (1400 m sweep)
 _ARRAYS = (
@@ -163,7 +194,8 @@ def _finish(style, seed, change, shape, mpp, R, texture, suns, season) -> City:
 
 def _key(style, seed, change, shape, mpp, n_lights) -> str:
     size = f"{shape[1]}x{shape[0]}-{mpp:g}"
-    return f"{style}-{seed}-c{change}-{size}-L{n_lights}-v{GENERATOR_VERSION}"
+    source = source_digest(CITY_MODULES)
+    return f"{style}-{seed}-c{change}-{size}-L{n_lights}-v{GENERATOR_VERSION}-{source}"
 
 
 def _save(city: City, path: Path) -> None:
@@ -323,4 +355,5 @@ __all__ = [
     "City",
     "build_city",
     "changed_city",
+    "source_digest",
 ]

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from benchmark.sim import GENERATOR_VERSION, STYLES, build_city, changed_city
+import benchmark.sim
+from benchmark.sim import GENERATOR_VERSION, STYLES, build_city, changed_city, source_digest
 from benchmark.sim.render_core import MAT_BUILDING, MAT_TREE, MAT_WATER
+from benchmark.sim.world import CITY_MODULES
 
 SMALL = (512.0, 512.0)
 
@@ -14,6 +19,32 @@ SMALL = (512.0, 512.0)
 @pytest.fixture(scope="module")
 def city():
     return build_city("oxford", 5, cache_dir=False, size_m=SMALL)
+
+
+class TestSourceDigest:
+    def test_matches_an_independent_hash_of_the_files(self):
+        folder = Path(benchmark.sim.__file__).parent
+        names = sorted(p.stem for p in folder.glob("*.py"))
+        ref = hashlib.sha256()
+        for name in names:
+            ref.update(name.encode() + b"\0" + (folder / f"{name}.py").read_bytes() + b"\0")
+        assert source_digest() == ref.hexdigest()[:12]
+
+    def test_city_modules_are_a_real_subset_with_their_own_digest(self):
+        folder = Path(benchmark.sim.__file__).parent
+        assert all((folder / f"{m}.py").is_file() for m in CITY_MODULES)
+        assert source_digest(CITY_MODULES) != source_digest()
+        assert source_digest(tuple(reversed(CITY_MODULES))) == source_digest(CITY_MODULES)
+
+    def test_unknown_module_is_named(self):
+        with pytest.raises(ValueError, match="nosuchmodule"):
+            source_digest(("nosuchmodule",))
+
+    def test_dataset_config_records_it(self):
+        from benchmark.data import get_profile
+        from benchmark.data.writer import dataset_config
+
+        assert dataset_config(get_profile("smoke"), 0)["generator_source"] == source_digest()
 
 
 class TestBuildCity:
@@ -30,7 +61,8 @@ class TestBuildCity:
     def test_cache_round_trip(self, city, tmp_path):
         first = build_city("oxford", 5, cache_dir=tmp_path, size_m=SMALL)
         dirs = list(tmp_path.iterdir())
-        assert len(dirs) == 1 and dirs[0].name.endswith(f"-v{GENERATOR_VERSION}")
+        source = source_digest(CITY_MODULES)
+        assert len(dirs) == 1 and dirs[0].name.endswith(f"-v{GENERATOR_VERSION}-{source}")
         second = build_city("oxford", 5, cache_dir=tmp_path, size_m=SMALL)  # loaded, memory-mapped
         for c in (first, second):
             for name in ("height", "ortho", "mat", "hpyr", "tex", "flight_centres", "clear"):
