@@ -4,8 +4,9 @@ The claims compare two models on the *same* test frames (``benchmark.evaluation.
 need every frame's error, not the per-table means. A :class:`FrameStore` reads them from the files
 each unit wrote (``<workdir>/units/<unit.key>/eval/<split_filename(split)>[__swap].csv``, columns of
 ``benchmark.evaluation.metrics.predictions_frame``; see ``benchmark.runner.execute``) and computes
-the constant (training-mean) predictor's per-frame errors from the dataset, exactly as
-``benchmark.evaluation.reference.constant_predictor`` does for the reported constant row.
+the constant (training-mean) predictor's per-frame errors from the dataset's labels
+(``pairs.parquet``) with ``benchmark.evaluation.reference.constant_predictor``, the function
+behind the reported constant row.
 
 Alignment. Rows are sorted by the frame ``index`` (the row of the pair in its split); every seed
 of a model and every model evaluated on a split then holds the same frames in the same order, which
@@ -52,6 +53,17 @@ class FrameErrors:
         return self.values.mean(axis=0)
 
 
+class _Poses:
+    """A split's label rows in the shape ``benchmark.evaluation.reference.dataset_labels`` reads
+    (``.poses``: ``R00..R22``, ``dE dN dU``; item i = row i, as in ``PairDataset``)."""
+
+    def __init__(self, poses: pd.DataFrame):
+        self.poses = poses
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+
 def _norm_x(x: object) -> str | None:
     return None if x is None else str(x)
 
@@ -77,6 +89,7 @@ class FrameStore:
                 self._models.setdefault(model, {})[int(unit.cfg.seed)] = (unit.key, job)
         self._csv: dict[Path, pd.DataFrame] = {}
         self._constant: dict[tuple[str, str], pd.DataFrame] = {}
+        self._pairs: pd.DataFrame | None = None
 
     # ------------------------------------------------------------------ what was planned
     def labels(
@@ -188,14 +201,26 @@ class FrameStore:
             seeds=tuple(seed for seed, _ in jobs),
         )
 
+    def _split_poses(self, split: str) -> _Poses:
+        """The split's rows of ``pairs.parquet`` (what ``PairDataset(root, split).poses`` holds),
+        read without loading or verifying images: the constant predictor needs labels only."""
+        if self._pairs is None:
+            path = self.data_root / "pairs.parquet"
+            if not path.is_file():
+                raise FileNotFoundError(f"dataset labels missing: {path}")
+            self._pairs = pd.read_parquet(path)
+        rows = self._pairs[self._pairs["split"] == split].reset_index(drop=True)
+        if rows.empty:
+            known = sorted(self._pairs["split"].unique())
+            raise ValueError(f"{self.data_root}: no split {split!r}; it has {known}")
+        return _Poses(rows)
+
     def _constant_frame(self, split: str, train_split: str) -> pd.DataFrame:
         if (train_split, split) not in self._constant:
-            from benchmark.data import PairDataset
             from benchmark.evaluation.reference import constant_predictor
 
-            train = PairDataset(self.data_root, train_split, verify="size")
-            test = PairDataset(self.data_root, split, verify="size")
-            _, frame = constant_predictor(train, test)
+            test = self._split_poses(split)
+            _, frame = constant_predictor(self._split_poses(train_split), test)
             frame = frame.assign(flight=test.poses["flight"].to_numpy()[frame["index"]])
             frame = frame.sort_values("index", kind="stable").reset_index(drop=True)
             self._constant[train_split, split] = frame
