@@ -23,15 +23,15 @@ from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.logbook import Logbook
 from benchmark.runner.plan import Unit
 from benchmark.runner.profiles import ReproProfile
-from benchmark.runner.report import (
-    extra_metrics_table,
-    load_paper,
-    markdown_table,
-    summarize,
-    sweep_figure,
-    sweep_table,
+from benchmark.runner.provenance_report import (
+    collect_provenance,
+    provenance_summary,
+    write_provenance,
 )
+from benchmark.runner.report import extra_metrics_table, load_paper, markdown_table, summarize
 from benchmark.runner.specs import TableSpec, default_spec_dir
+from benchmark.runner.spread import cell_interval
+from benchmark.runner.sweeps import sweep_figure, sweep_table
 
 CONSTANT_LABEL = "Constant (train mean)"
 REPORT_METRICS = [
@@ -44,13 +44,20 @@ EXTRA_METRICS = ["median_dphi_deg", "acc10", "acc30", "loglik", "spearman_unc_er
 
 
 def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataFrame:
+    """One row per (job, split, satellite mode) of every finished unit. ``role`` is ``test`` for
+    the job's evaluation splits and ``val`` for the unit's validation split
+    (``unit.cfg.data.val_split``, when the unit was evaluated on it): choices are made on those."""
     rows = []
     for unit in units:
         result = results.get(unit.key)
         if result is None or not result.ok:
             continue
+        val = unit.cfg.data.val_split
         for job in unit.jobs:
-            for split in job.eval_splits:
+            splits = [(split, "test") for split in job.eval_splits]
+            if val is not None and val not in job.eval_splits:
+                splits.append((val, "val"))
+            for split, role in splits:
                 for satellite in SATELLITE_MODES:
                     metrics = result.metrics.get(eval_key(split, satellite))
                     if metrics is None:
@@ -59,20 +66,61 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
                         {"table": job.table, "label": job.label, "paper_model": job.paper_model,
                          "x": job.x, "split": split, "satellite": satellite,
                          "satellite_input": job.variant.satellite_input,
-                         "train_split": job.train_split, "seed": unit.cfg.seed, "unit": unit.key,
-                         "train_seconds": result.seconds, **metrics}
+                         "train_split": job.train_split, "role": role, "seed": unit.cfg.seed,
+                         "unit": unit.key, "train_seconds": result.seconds, **metrics}
                     )  # fmt: skip
     return pd.DataFrame(rows)
 
 
-def constant_baseline(data_root: Path, train_split: str, eval_split: str) -> dict[str, float]:
-    """Errors of always predicting the training set's mean pose (no image is read)."""
+def constant_baseline(
+    data_root: Path, train_split: str, eval_split: str
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Errors of always predicting the training set's mean pose (no image is read): the summary
+    and the per-frame table, with each frame's ``flight`` (for the flight bootstrap)."""
     from benchmark.data.dataset import PairDataset
+    from benchmark.evaluation.evaluate import pair_columns
     from benchmark.evaluation.reference import constant_predictor
 
     train = PairDataset(data_root, train_split, verify="size")
-    summary, _ = constant_predictor(train, PairDataset(data_root, eval_split, verify="size"))
-    return summary
+    evaluated = PairDataset(data_root, eval_split, verify="size")
+    summary, frame = constant_predictor(train, evaluated)
+    flights = pair_columns(evaluated).get("flight")  # item order, as the frame's rows
+    if flights is not None:
+        frame = frame.assign(flight=list(flights))
+    return summary, frame
+
+
+def constant_rows(
+    specs: list[TableSpec], data_root: Path, val_of: dict[str, str] | None = None
+) -> tuple[list[dict], dict[tuple[str, str], pd.DataFrame]]:
+    """The constant predictor's results rows of every table spec (its test splits and, for each
+    training split in ``val_of``, that validation split) and its per-frame tables keyed
+    ``(train split, split)``."""
+    val_of = val_of or {}
+    rows, frames = [], {}
+    summaries: dict[tuple[str, str], dict[str, float]] = {}
+    for spec in specs:
+        if spec.kind != "table":
+            continue
+        splits = [(s, spec.train_split_for(s), "test") for s in spec.all_eval_splits()]
+        for train in dict.fromkeys(t for _, t, _ in splits):
+            val = val_of.get(train)
+            if val is not None and val not in spec.all_eval_splits():
+                splits.append((val, train, "val"))
+        for split, train, role in splits:
+            if (train, split) not in summaries:
+                summaries[train, split], frames[train, split] = constant_baseline(
+                    data_root, train, split
+                )
+            row = {
+                "table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None,
+                "split": split, "satellite_input": "none", "train_split": train, "role": role,
+                "seed": 0,
+            }  # fmt: skip
+            # It reads no image: its error with the swapped satellite image is the same.
+            for satellite in SATELLITE_MODES:
+                rows.append({**row, "satellite": satellite, **summaries[train, split]})
+    return rows, frames
 
 
 def cost_table(
@@ -128,34 +176,34 @@ def write_reports(
     out: Path,
     logbook: Logbook | None,
     invocations: list[dict] | None = None,
+    workdir: Path | None = None,
 ) -> list[Path]:
+    """Write every report file under ``out``; return their paths.
+
+    ``workdir`` (the reproduction's, holding ``units/<key>/``) gives the per-frame predictions
+    for the flight x seed bootstrap intervals and the per-unit digests of ``provenance.md``.
+    Without it the cells keep the Student-t interval over seeds and the provenance records the
+    dataset and software only (it says so)."""
     out.mkdir(parents=True, exist_ok=True)
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
     frame = results_frame(units, results)
-    baseline_rows = []
-    constants: dict[tuple[str, str], dict[str, float]] = {}
-    for spec in specs:
-        if spec.kind == "table":
-            for split in spec.all_eval_splits():
-                train = spec.train_split_for(split)
-                if (train, split) not in constants:
-                    constants[train, split] = constant_baseline(data_root, train, split)
-                row = {
-                    "table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None,
-                    "split": split, "satellite_input": "none", "train_split": train, "seed": 0,
-                }  # fmt: skip
-                # It reads no image: its error with the swapped satellite image is the same.
-                for satellite in SATELLITE_MODES:
-                    baseline_rows.append({**row, "satellite": satellite, **constants[train, split]})
+    # Validation rows of the constant predictor only where trained models have them too.
+    val = frame[frame["role"] == "val"] if len(frame) else frame
+    val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
+    baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
     everything = pd.concat([frame, pd.DataFrame(baseline_rows)], ignore_index=True)
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
     summaries: dict[str, pd.DataFrame] = {}
     input_size = _input_size(data_root)
+
+    def resolve(part: pd.DataFrame) -> dict | None:
+        return cell_interval(part, metrics, workdir, constant_frames)
+
     for spec in specs:
         part = everything[everything["table"] == spec.name] if len(everything) else everything
-        summary = summarize(part, metrics) if len(part) else pd.DataFrame()
+        summary = summarize(part, metrics, resolve) if len(part) else pd.DataFrame()
         summaries[spec.name] = summary
         md_path = out / f"{spec.name}.md"
         paths = [md_path]
@@ -166,7 +214,7 @@ def write_reports(
             text = sweep_table(spec, summary)
             if len(summary):
                 png = out / f"{spec.name}.png"
-                sweep_figure(spec, summary, png)
+                sweep_figure(spec, summary, png, per_seed=part)
                 paths.append(png)
                 text += f"\n![{spec.name}]({png.name})\n"
         else:
@@ -179,9 +227,12 @@ def write_reports(
     audit_md, audit_rows = heading_cue_report(data_root)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
+    record = collect_provenance(units, results, data_root, workdir)
+    written += write_provenance(record, out)
     readme = out / "README.md"
     readme.write_text(
         _readme(profile, specs, claims, invocations or [], heading_cue_summary(audit_rows))
+        + provenance_summary(record)
     )
     written.append(readme)
     return written

@@ -6,13 +6,19 @@ satellite mode and seed; metric columns named as in ``reports/paper_tables.csv``
 satellite-swap probe: another place's image); the ``swap`` rows of trained models also hold the
 paired swap effect ``swap_<dpsi|dphi>_diff_deg`` with its 95% flight-bootstrap interval
 ``swap_<e>_boot_lo_deg`` / ``_hi_deg``. ``satellite_input`` is ``image``, ``blank`` (the UAV-only
-control) or ``none`` (the constant predictor); ``train_split`` the split a row was trained on.
-Across seeds we report the mean and a 95% Student-t interval; with one seed only the value.
+control) or ``none`` (the constant predictor); ``train_split`` the split a row was trained on;
+``role`` is ``test`` or ``val`` (the unit's validation split, on which choices are made; the tables
+show it beside the test numbers).
+
+A cell is the mean over seeds. Its 95% interval is the flight x seed bootstrap of
+``benchmark.runner.spread`` when the caller passes per-frame errors (``summarize(..., resolve=)``),
+else the Student-t interval over seeds; with one seed and no per-frame errors, only the value.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +46,11 @@ METRIC_LABELS: dict[str, str] = {
 }
 GROUP_KEYS = [
     "table", "label", "paper_model", "x", "split", "satellite", "satellite_input", "train_split",
+    "role",
 ]  # fmt: skip
+# Metrics shown on the validation split beside the test numbers (those of a spec's metrics).
+VAL_METRICS = ("dpsi_deg", "dphi_deg", "dE_m", "dN_m")
+NO_VAL = "–"  # a model whose training split has no validation split (the height splits)
 SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))
 ONE_FLIGHT = "one flight: no interval"
 MIN_RISE_DEG = 1.0  # smallest mean error rise under the swap that counts as using the image
@@ -57,8 +67,17 @@ def interval95(values: np.ndarray) -> tuple[float, float, float]:
     return interval.mean, interval.low, interval.high
 
 
-def summarize(results: pd.DataFrame, metrics: list[str]) -> pd.DataFrame:
-    """One row per (table, label, x, split): ``<m>``, ``<m>_lo``, ``<m>_hi``, ``n_seeds``."""
+Resolver = Callable[[pd.DataFrame], "dict[str, float | str] | None"]
+
+
+def summarize(
+    results: pd.DataFrame, metrics: list[str], resolve: Resolver | None = None
+) -> pd.DataFrame:
+    """One row per (table, label, x, split, satellite, ..., role): ``<m>`` (mean over seeds),
+    ``<m>_lo``, ``<m>_hi`` (95% Student-t interval over seeds), ``n_seeds`` and ``interval``
+    (``seed t`` or ``none``). ``resolve(part)``, given a row's results (one per seed), may return
+    better bounds (``<m>_lo``/``<m>_hi``, ``interval``, ``n_flights``) that replace these, e.g.
+    :func:`benchmark.runner.spread.cell_interval`."""
     rows = []
     keys = [k for k in GROUP_KEYS if k in results.columns]
     for group, part in results.groupby(keys, dropna=False, sort=False):
@@ -67,6 +86,9 @@ def summarize(results: pd.DataFrame, metrics: list[str]) -> pd.DataFrame:
         for m in metrics:
             if m in part:
                 row[m], row[f"{m}_lo"], row[f"{m}_hi"] = interval95(part[m].to_numpy())
+        row["interval"] = "seed t" if row["n_seeds"] > 1 else "none"
+        better = resolve(part) if resolve is not None else None
+        row.update(better or {})
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -107,8 +129,9 @@ def pick(
     split: str,
     satellite: str = "true",
     train_split: str | None = None,
+    role: str = "test",
 ) -> pd.Series | None:
-    """The summary row of (label, split, satellite mode[, train split]), or None."""
+    """The summary row of (label, split, satellite mode[, train split], role), or None."""
     if summary.empty or "label" not in summary:
         return None
     rows = summary[(summary["label"] == label) & (summary["split"] == split)]
@@ -116,7 +139,50 @@ def pick(
         rows = rows[rows["satellite"] == satellite]
     if train_split is not None and "train_split" in rows:
         rows = rows[rows["train_split"] == train_split]
+    if "role" in rows:
+        rows = rows[rows["role"].fillna("test") == role]
     return rows.iloc[0] if len(rows) else None
+
+
+def pick_val(
+    summary: pd.DataFrame, label: str, train_split: str, x: object = None
+) -> pd.Series | None:
+    """The validation row (true satellite image) of the model ``label`` trained on
+    ``train_split`` (at sweep value ``x``), or None when there is none."""
+    if summary.empty or "role" not in summary:
+        return None
+    rows = summary[
+        (summary["role"] == "val") & (summary["label"] == label)
+        & (summary["train_split"] == train_split) & (summary["satellite"] == "true")
+    ]  # fmt: skip
+    if x is not None:
+        rows = rows[rows["x"].astype(str) == str(x)]
+    return rows.iloc[0] if len(rows) else None
+
+
+def has_val(summary: pd.DataFrame) -> bool:
+    """Whether any validation rows were measured (older runs evaluated test splits only)."""
+    return not summary.empty and "role" in summary and bool((summary["role"] == "val").any())
+
+
+def val_metrics(spec: TableSpec, summary: pd.DataFrame) -> list[str]:
+    """The metrics shown on the validation split beside the test numbers (none without any)."""
+    return [m for m in spec.metrics if m in VAL_METRICS] if has_val(summary) else []
+
+
+def val_cell(row: pd.Series | None, m: str, train_split: str, val_splits: dict[str, str]) -> str:
+    """A validation cell: the value, ``–`` when ``train_split`` has no validation split."""
+    if row is None:
+        return "not run" if train_split in val_splits else NO_VAL
+    return cell_text(row, m)
+
+
+def val_splits_of(summary: pd.DataFrame) -> dict[str, str]:
+    """``train split -> its validation split`` as measured (``standard/train -> standard/val``)."""
+    if not has_val(summary):
+        return {}
+    rows = summary[summary["role"] == "val"]
+    return dict(zip(rows["train_split"], rows["split"], strict=True))
 
 
 def uses_satellite(swap_row: pd.Series | None) -> str | None:
@@ -140,7 +206,8 @@ def uses_satellite(swap_row: pd.Series | None) -> str | None:
     )
 
 
-def _cell(row: pd.Series | None, m: str) -> str:
+def cell_text(row: pd.Series | None, m: str) -> str:
+    """``mean ± half-width`` of metric ``m`` in a summary row; ``not run`` without the row."""
     if row is None or m not in row:
         return "not run"
     return format_value(row[m], row[f"{m}_lo"], row[f"{m}_hi"])
@@ -161,9 +228,13 @@ def markdown_table(
     lines = [
         f"## {spec.title}",
         "",
-        f"Source spec: `{spec.source.name}`. {_seed_note(summary)}",
+        f"Source spec: `{spec.source.name}`. {interval_note(summary)}",
         "",
     ]
+    vals = val_metrics(spec, summary)
+    val_splits = val_splits_of(summary)
+    if vals:
+        lines += [val_note(val_splits), ""]
     splits = spec.all_eval_splits()
     names = spec.paper_splits or (spec.paper_split,) * len(spec.eval_splits)
     paper_split = dict(zip(spec.eval_splits, names, strict=True))
@@ -174,6 +245,7 @@ def markdown_table(
     for m in spec.metrics:
         label = METRIC_LABELS.get(m, m)
         header += [f"{label} paper", f"{label} ours"] if with_paper else [label]
+        header += [f"{label} val"] if m in vals else []
     header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for split in splits:
@@ -187,8 +259,10 @@ def markdown_table(
                     ps = paper_split.get(split)
                     pv = paper_value(paper, spec.paper_table, ps, paper_model, m)
                     cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
-                cells.append(_cell(row, m))
-            cells += [_cell(swap, m) for m in spec.swap_metrics]
+                cells.append(cell_text(row, m))
+                if m in vals:
+                    cells.append(val_cell(pick_val(summary, label, train), m, train, val_splits))
+            cells += [cell_text(swap, m) for m in spec.swap_metrics]
             lines.append("| " + " | ".join(cells) + " |")
     if spec.swap_metrics:
         lines += ["", swap_probe_table(spec, summary)]
@@ -217,7 +291,7 @@ def swap_probe_table(spec: TableSpec, summary: pd.DataFrame) -> str:
             swap = pick(summary, label, split, "swap", train)
             cells = [f"`{split}`", label]
             for e, _ in SWAP_EFFECTS:
-                cells += [_cell(row, f"{e}_deg"), _cell(swap, f"{e}_deg"), _effect(swap, e)]
+                cells += [cell_text(row, f"{e}_deg"), cell_text(swap, f"{e}_deg"), _effect(swap, e)]
             cells.append(uses_satellite(swap) or "not run")
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -253,80 +327,36 @@ def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[st
     return "\n".join(lines) + "\n"
 
 
-def sweep_table(spec: TableSpec, summary: pd.DataFrame) -> str:
-    """Markdown for a figure: one row per (split, variant, x)."""
-    lines = [
-        f"## {spec.title}",
-        "",
-        f"Source spec: `{spec.source.name}`. {_seed_note(summary)}",
-        "",
-    ]
-    header = ["split", "model", spec.sweep or "x", *(METRIC_LABELS.get(m, m) for m in spec.metrics)]
-    header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    true = summary[summary["satellite"] == "true"] if "satellite" in summary else summary
-    for _, r in true.iterrows():
-        cells = [f"`{r['split']}`", str(r["label"]), str(r["x"])]
-        cells += [
-            format_value(r[m], r[f"{m}_lo"], r[f"{m}_hi"]) if m in r else "–" for m in spec.metrics
-        ]
-        if spec.swap_metrics:
-            swap = summary[
-                (summary["label"] == r["label"]) & (summary["split"] == r["split"])
-                & (summary["x"].astype(str) == str(r["x"])) & (summary["satellite"] == "swap")
-            ]  # fmt: skip
-            cells += [_cell(swap.iloc[0] if len(swap) else None, m) for m in spec.swap_metrics]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def sweep_figure(spec: TableSpec, summary: pd.DataFrame, path: Path) -> None:
-    """One panel per metric: error against the sweep value, a line per (variant, split)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    metrics = [m for m in spec.metrics if m in summary.columns]
-    if "satellite" in summary:
-        summary = summary[summary["satellite"] == "true"]
-    cols = min(4, len(metrics))
-    rows = math.ceil(len(metrics) / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.2 * rows), squeeze=False)
-    order = {str(x): i for i, x in enumerate(spec.sweep_values)}
-    # A line per variant and evaluated split; when the split itself follows the sweep value
-    # (Fig. 5's height{x}/test, Fig. 6's pitch{x}/test) a line per variant.
-    split_follows_x = any("{x}" in s for s in spec.eval_splits)
-    template = next((s for s in spec.eval_splits if "{x}" in s), "")
-    series = summary.assign(series=template if split_follows_x else summary["split"])
-    for ax, m in zip(axes.flat, metrics, strict=False):
-        for (label, split), part in series.groupby(["label", "series"], sort=False):
-            part = part.assign(_pos=part["x"].astype(str).map(order)).sort_values("_pos")
-            xs = part["_pos"].to_numpy()
-            ys = part[m].to_numpy(dtype=float)
-            lo, hi = part[f"{m}_lo"].to_numpy(dtype=float), part[f"{m}_hi"].to_numpy(dtype=float)
-            line = ax.plot(xs, ys, marker="o", label=f"{label} [{split}]")[0]
-            if np.isfinite(lo).any():
-                ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)
-        ax.set_xticks(
-            range(len(spec.sweep_values)), [str(x) for x in spec.sweep_values], rotation=30
-        )
-        ax.set_xlabel(spec.sweep or "x")
-        ax.set_title(METRIC_LABELS.get(m, m))
-        ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(metrics) :]:
-        ax.axis("off")
-    axes.flat[0].legend(fontsize=7)
-    fig.suptitle(f"Paper Fig. {spec.paper_figure}: {spec.title}", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def _seed_note(summary: pd.DataFrame) -> str:
+def interval_note(summary: pd.DataFrame) -> str:
+    """What a cell's number and its ± mean, from the summary's ``n_seeds`` and ``interval``."""
     if summary.empty or "n_seeds" not in summary:
         return "No results yet."
     n = int(summary["n_seeds"].max())
-    if n <= 1:
-        return "One seed: single values, no interval."
-    return f"Mean ± half-width of the 95% Student-t interval over {n} seeds."
+    kinds = set(summary["interval"].dropna()) if "interval" in summary else set()
+    seeds = f"over {n} training seeds" if n > 1 else "of one training seed"
+    parts = [f"Each cell: the mean {seeds} ± the half-width of its 95% interval."]
+    if "flight×seed bootstrap" in kinds:
+        parts.append(
+            "Mean errors (δE ... δφ): percentile interval of 2000 bootstrap replicates that "
+            "resample the test flights (frames of a flight are correlated) and the seeds, both "
+            "with replacement; the constant predictor, which has no seed, resamples flights only. "
+            "A test set of one flight gives no flight spread: with one seed no interval."
+        )
+    if n > 1:
+        parts.append(
+            "Other metrics"
+            + (" (and rows without per-frame files)" if "seed t" in kinds else "")
+            + f": Student-t interval over the {n} seeds' values."
+        )
+    elif "flight×seed bootstrap" not in kinds:
+        parts.append("One seed and no per-frame errors: single values, no interval.")
+    return " ".join(parts)
+
+
+def val_note(val_splits: dict[str, str]) -> str:
+    pairs = ", ".join(f"`{v}` for `{t}`" for t, v in val_splits.items())
+    return (
+        "Columns *val*: the same model on the validation split of its training data "
+        f"({pairs}); profile settings, learning rates and loss terms are chosen on these numbers, "
+        f"never on the test splits. `{NO_VAL}`: the training split has no validation split."
+    )

@@ -1,0 +1,281 @@
+"""Report cells: mean over seeds and the flight x seed bootstrap interval, validation beside test.
+
+Inputs are real-format predictions CSVs written in ``tmp_path`` (the columns and paths the runner
+writes), summarised by the report code and compared with naive computations.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmark.evaluation.paired import paired_bootstrap
+from benchmark.runner.execute import UnitResult
+from benchmark.runner.outputs import REPORT_METRICS, results_frame
+from benchmark.runner.plan import plan_units
+from benchmark.runner.profiles import get_repro_profile
+from benchmark.runner.report import interval_note, load_paper, markdown_table, pick, summarize
+from benchmark.runner.specs import default_spec_dir, load_specs
+from benchmark.runner.spread import (
+    FLIGHT_BOOT,
+    cell_interval,
+    read_frames,
+    seed_flight_bootstrap,
+)
+from benchmark.runner.sweeps import sweep_figure, sweep_table
+
+SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
+SPLITS += [f"height{h}/{p}" for h in (600, 800, 1000, 1200, 1400) for p in ("train", "test")]
+FRAME_COLS = ["dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg"]
+
+
+def naive_bootstrap(errors: np.ndarray, groups: np.ndarray, n_boot: int, seed: int) -> np.ndarray:
+    """Replicates by explicit concatenation, with the random draws of the paired module's pooled
+    bootstrap against a zero-error model (flights first, then that model's one seed, then the
+    seeds), each replicate built frame by frame."""
+    rng = np.random.default_rng(seed)
+    flights = np.unique(groups)
+    draws_f = rng.integers(0, len(flights), size=(n_boot, len(flights)))
+    rng.integers(0, 1, size=(n_boot, 1))  # the zero model's single seed
+    draws_s = rng.integers(0, errors.shape[0], size=(n_boot, errors.shape[0]))
+    out = []
+    for fb, sb in zip(draws_f, draws_s, strict=True):
+        means = []
+        for s in sb:
+            frames = np.concatenate([errors[s][groups == flights[f]] for f in fb])
+            means.append(frames.mean())
+        out.append(np.mean(means))
+    return np.asarray(out)
+
+
+class TestSeedFlightBootstrap:
+    @pytest.mark.parametrize("n_seeds", [1, 3, 8])
+    def test_matches_naive_replicates(self, n_seeds):
+        rng = np.random.default_rng(1)
+        groups = np.repeat([3, 7, 8, 11], [5, 2, 9, 4])
+        errors = rng.gamma(2.0, 10.0, size=(n_seeds, groups.size))
+        mean, lo, hi = seed_flight_bootstrap(errors, groups, n_boot=300, seed=5)
+        reps = naive_bootstrap(errors, groups, 300, 5)
+        assert mean == pytest.approx(errors.mean(), rel=1e-12)
+        assert (lo, hi) == pytest.approx(tuple(np.quantile(reps, [0.025, 0.975])), rel=1e-12)
+
+    def test_one_seed_is_the_flight_bootstrap_of_the_paired_module(self):
+        rng = np.random.default_rng(2)
+        groups = np.repeat(np.arange(6), 7)
+        errors = rng.uniform(0, 90, size=groups.size)
+        ours = seed_flight_bootstrap(errors, groups, n_boot=500, seed=3)
+        ref = paired_bootstrap(np.zeros_like(errors), errors, groups, n_boot=500, seed=3)
+        assert ours == pytest.approx(ref, rel=1e-12)
+
+    def test_one_flight_resamples_seeds_only(self):
+        errors = np.array([[1.0, 3.0], [5.0, 7.0], [9.0, 11.0]])  # seed means 2, 6, 10
+        mean, lo, hi = seed_flight_bootstrap(errors, np.zeros(2), n_boot=4000, seed=0)
+        assert mean == pytest.approx(6.0)
+        # replicate means are means of 3 draws from {2, 6, 10}: within [2, 10], never beyond
+        assert 2.0 <= lo < 6.0 < hi <= 10.0
+
+    def test_nothing_to_resample(self):
+        mean, lo, hi = seed_flight_bootstrap(np.array([[4.0, 6.0]]), np.array([1, 1]))
+        assert mean == 5.0 and math.isnan(lo) and math.isnan(hi)
+
+    def test_deterministic(self):
+        groups = np.repeat(np.arange(4), 3)
+        errors = np.arange(24.0).reshape(2, 12)
+        assert seed_flight_bootstrap(errors, groups) == seed_flight_bootstrap(errors, groups)
+
+    @pytest.mark.parametrize(
+        "errors, groups, match",
+        [
+            (np.ones((2, 3)), np.zeros(4), "N = len"),
+            (np.array([[1.0, np.nan]]), np.zeros(2), "finite"),
+            (np.ones((2, 0)), np.zeros(0), "S, N >= 1"),
+        ],
+    )
+    def test_bad_input(self, errors, groups, match):
+        with pytest.raises(ValueError, match=match):
+            seed_flight_bootstrap(errors, groups)
+
+
+def write_predictions(path: Path, errors: dict[str, np.ndarray], flights: np.ndarray) -> None:
+    """A predictions CSV with the runner's columns that the report reads (others are ignored)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n = flights.size
+    frame = pd.DataFrame({"index": np.arange(n), **errors, "flight": flights, "city": "oxford"})
+    frame.iloc[::-1].to_csv(path, index=False, float_format="%.10g")  # row order must not matter
+
+
+PAPER = load_paper(default_spec_dir().parent / "paper_tables.csv")
+
+
+@pytest.fixture(scope="module")
+def synthetic(tmp_path_factory):
+    """Units of table1 and fig5 on 3 seeds with metrics and predictions CSVs as the runner writes
+    them (``<workdir>/units/<key>/eval/<split>.csv``), standard/val evaluated too."""
+    tmp_path = tmp_path_factory.mktemp("synthetic")
+    specs = load_specs(None, ["table1", "fig5"])
+    profile = get_repro_profile("smoke")
+    units = plan_units(specs, profile, [0, 1, 2], tmp_path / "data", SPLITS, "d" * 64)
+    rng = np.random.default_rng(0)
+    flights = {"standard/test": np.repeat([4, 5, 9], 6), "standard/val": np.repeat([1, 2], 5)}
+    results, errors = {}, {}
+    for unit in units:
+        metrics = {}
+        for split in unit.eval_splits + ([unit.cfg.data.val_split] * bool(unit.cfg.data.val_split)):
+            for suffix in ("", "/swap"):
+                key = split + suffix
+                g = flights.get(split, np.repeat([0, 1], 3))
+                e = {c: rng.gamma(2.0, 5.0 + unit.cfg.seed, size=g.size) for c in FRAME_COLS}
+                name = key.replace("/", "__") + ".csv"
+                write_predictions(tmp_path / "runs" / "units" / unit.key / "eval" / name, e, g)
+                metrics[key] = {c: float(v.mean()) for c, v in e.items()}
+                errors[unit.key, key] = (e, g)
+        results[unit.key] = UnitResult(unit.key, True, metrics=metrics, seconds=1.0)
+    return specs, units, results, errors, tmp_path / "runs"
+
+
+class TestResultsFrame:
+    def test_val_rows_marked(self, synthetic):
+        _, units, results, _, _ = synthetic
+        frame = results_frame(units, results)
+        val = frame[frame.role == "val"]
+        assert set(val.split) == {"standard/val"}
+        assert set(frame[frame.role == "test"].split) >= {"standard/test", "height600/test"}
+        # height units have no validation split: no val rows for them
+        assert not val.train_split.str.startswith("height").any()
+        # one val row per (job, seed, satellite mode) of the standard-trained jobs
+        jobs = [j for u in units for j in u.jobs if j.train_split == "standard/train"]
+        assert len(val) == 2 * len(jobs)
+
+
+class TestCells:
+    def test_bootstrap_cell_against_naive(self, synthetic):
+        specs, units, results, errors, workdir = synthetic
+        frame = results_frame(units, results)
+        part = frame[
+            (frame.table == "table1") & (frame.label == "Pd/Re-Net")
+            & (frame.split == "standard/test") & (frame.satellite == "true")
+        ]  # fmt: skip
+        assert len(part) == 3  # three seeds
+        got = cell_interval(part, ["dphi_deg", "acc10"], workdir)
+        assert got["interval"] == FLIGHT_BOOT and got["n_flights"] == 3
+        assert "acc10_lo" not in got  # not a per-frame mean: keeps the seed interval
+        e = np.stack([errors[u, "standard/test"][0]["dphi_deg"] for u in part.unit])
+        g = errors[part.unit.iloc[0], "standard/test"][1]
+        reps = naive_bootstrap(e, g, 2000, 0)
+        lo, hi = np.quantile(reps, [0.025, 0.975])
+        assert (got["dphi_deg_lo"], got["dphi_deg_hi"]) == pytest.approx((lo, hi), rel=1e-8)
+
+        # the rendered Markdown cell: mean over seeds ± half-width of that interval
+        metrics = [m for m in REPORT_METRICS if m in frame.columns]
+        table1 = frame[frame.table == "table1"]
+        summary = summarize(table1, metrics, lambda p: cell_interval(p, metrics, workdir))
+        text = markdown_table(specs[0], summary, PAPER)
+        line = next(x for x in text.splitlines() if x.startswith("| Pd/Re-Net |"))
+        expected = f"{e.mean():.2f} ± {(hi - lo) / 2:.2f}"
+        assert expected in line.split(" | ")
+        assert "2000 bootstrap replicates that resample the test flights" in text
+
+    def test_without_per_frame_files_the_seed_t_interval(self, synthetic):
+        from scipy import stats
+
+        _specs, units, results, _errors, _ = synthetic
+        frame = results_frame(units, results)
+        table1 = frame[frame.table == "table1"]
+        summary = summarize(table1, ["dphi_deg"], lambda p: cell_interval(p, ["dphi_deg"], None))
+        row = pick(summary, "Pd-Net-E", "standard/test")
+        values = table1[(table1.label == "Pd-Net-E") & (table1.split == "standard/test")
+                        & (table1.satellite == "true")]["dphi_deg"].to_numpy()  # fmt: skip
+        half = stats.t.ppf(0.975, 2) * values.std(ddof=1) / math.sqrt(3)
+        assert row["interval"] == "seed t"
+        assert row["dphi_deg_hi"] - row["dphi_deg"] == pytest.approx(half, rel=1e-10)
+        assert "Student-t interval over the 3 seeds" in interval_note(summary)
+
+    def test_read_frames_refuses_other_frames(self, tmp_path):
+        e = {c: np.ones(4) for c in FRAME_COLS}
+        write_predictions(tmp_path / "a.csv", e, np.array([0, 0, 1, 1]))
+        write_predictions(tmp_path / "b.csv", e, np.array([0, 1, 1, 1]))
+        with pytest.raises(ValueError, match="other frames"):
+            read_frames([tmp_path / "a.csv", tmp_path / "b.csv"])
+
+
+class TestValidationBesideTest:
+    def test_table_val_columns(self, synthetic):
+        specs, units, results, errors, _workdir = synthetic
+        frame = results_frame(units, results)
+        summary = summarize(frame[frame.table == "table1"], ["dpsi_deg", "dphi_deg"])
+        text = markdown_table(specs[0], summary, PAPER)
+        header = next(x for x in text.splitlines() if x.startswith("| model |"))
+        cols = [c.strip() for c in header.strip("|").split("|")]
+        i = cols.index("δφ geodesic (°) val")
+        assert cols[i - 1] == "δφ geodesic (°) ours"  # beside the test number
+        line = next(x for x in text.splitlines() if x.startswith("| Re-Net-Q |"))
+        cell = [c.strip() for c in line.strip("|").split("|")][i]
+        unit_keys = frame[(frame.table == "table1") & (frame.label == "Re-Net-Q")].unit.unique()
+        vals = [errors[u, "standard/val"][0]["dphi_deg"].mean() for u in unit_keys]
+        assert re.match(rf"{np.mean(vals):.2f} ± \d", cell)
+        assert "`standard/val` for `standard/train`" in text
+
+    def test_sweep_without_val_split_shows_dash(self, synthetic, tmp_path):
+        specs, units, results, _, _workdir = synthetic
+        frame = results_frame(units, results)
+        fig5 = frame[frame.table == "fig5"]
+        # a table that has validation rows elsewhere: the height rows show "-"
+        both = pd.concat([fig5, frame[frame.role == "val"].assign(table="fig5")])
+        summary = summarize(both, ["dphi_deg", "dE_m"])
+        text = sweep_table(specs[1], summary)
+        header = next(x for x in text.splitlines() if x.startswith("| split |"))
+        cols = [c.strip() for c in header.strip("|").split("|")]
+        i = cols.index("δφ geodesic (°) val")
+        rows = [x for x in text.splitlines() if x.startswith("| `height")]
+        assert len(rows) == 10  # two models x five heights
+        for r in rows:
+            cells = [c.strip() for c in r.strip("|").split("|")]
+            assert cells[i] == "–" and re.match(r"\d+\.\d\d ± ", cells[i - 1])
+        assert "not run" not in text
+
+    def test_no_val_rows_no_val_columns(self, synthetic):
+        specs, units, results, _, _ = synthetic
+        frame = results_frame(units, results)
+        test_only = frame[(frame.table == "table1") & (frame.role == "test")]
+        assert " val |" not in markdown_table(specs[0], summarize(test_only, ["dphi_deg"]), PAPER)
+
+
+class TestSweepFigure:
+    def test_draws_every_seed(self, synthetic, tmp_path, monkeypatch):
+        import matplotlib.axes
+
+        specs, units, results, _, workdir = synthetic
+        frame = results_frame(units, results)
+        fig5 = frame[frame.table == "fig5"]
+        metrics = ["dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m"]
+        summary = summarize(fig5, metrics, lambda p: cell_interval(p, metrics, workdir))
+        dots, bands = [], []
+        original_scatter = matplotlib.axes.Axes.scatter
+        original_fill = matplotlib.axes.Axes.fill_between
+
+        def scatter(self, x, y, *args, **kwargs):
+            dots.append(np.asarray(y, dtype=float))
+            return original_scatter(self, x, y, *args, **kwargs)
+
+        def fill_between(self, x, lo, hi, *args, **kwargs):
+            bands.append((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
+            return original_fill(self, x, lo, hi, *args, **kwargs)
+
+        monkeypatch.setattr(matplotlib.axes.Axes, "scatter", scatter)
+        monkeypatch.setattr(matplotlib.axes.Axes, "fill_between", fill_between)
+        png = tmp_path / "fig5.png"
+        sweep_figure(specs[1], summary, png, per_seed=fig5)
+        assert png.stat().st_size > 0
+        # per metric and line (two models): 5 sweep values x 3 seeds dots, and a band
+        lines = 2 * len(metrics)
+        assert len(dots) == lines and all(d.size == 15 for d in dots)
+        assert len(bands) == lines and all(np.isfinite(lo).all() for lo, _ in bands)
+        true = fig5[(fig5.satellite == "true")]
+        assert np.sort(np.concatenate(dots)).tolist() == pytest.approx(
+            np.sort(np.concatenate([true[m].to_numpy() for m in metrics])).tolist()
+        )
