@@ -1,29 +1,40 @@
 """Pd-Net-Q: a lattice distribution over unit quaternions on S^3 (paper Sec. 3.3.1, "16^3").
 
+This is the paper's Pd-Net-Q (the Table 1 row), with the paper's label, which is *not* antipodally
+symmetric; the q / -q symmetric variant is the separately named head ``pd_net_q_sym``.
+
+Label (paper Eq. 3-5), quaternions ``(w, x, y, z)``, w first::
+
+    Q_uav^n   = Eq. 3 (R_uav^n),  R_uav^n = R_uav^sat R_sat^n   (the head's label is R_uav^sat)
+    Q_uav^sat = Q_uav^n (x) conj(Q_sat^n),  Q_sat^n = [-0.7071, 0.7071, 0, 0]   (Eq. 4, Eq. 5)
+
+Eq. 3 (``rotmat_to_quat_paper``) takes the first of its four cases that holds and makes that
+case's pivot component positive; Eq. 5 is used with the sign the paper prints. Hemisphere
+convention: there is no fixed hemisphere (not ``w >= 0``); the sign is "pivot of Eq. 3 on the UAV
+attitude is positive", carried through Eq. 4. When the case changes, the label jumps to (nearly)
+its antipode: for UAV pitch -20 deg and roll -10 deg at heading ~ -63.03 deg (Eq. 6, Fig. 2). In
+this dataset (UAV pitch in [-50, 0] deg, small roll) the cases are w (|heading| below ~60 deg) and
+z (above), so the jump is crossed by a fraction of the training labels. That discontinuity is the
+one the paper blames on quaternions; it is inherent to this target and stays.
+
 Grid: ``super_fibonacci(4096)``, nearly uniform on all of S^3, so every rotation appears twice
-(``q`` and ``-q``).
+(``q`` and ``-q``). Target: ``p*_k = softmax_k(kappa q*.x_k)`` (a vMF on S^3 around the label).
+Prediction: softmax over the lattice (sum 1). Decoding: the normalised expectation (Eq. 9),
+``sum p x / |sum p x|``, as a quaternion; a prediction that spreads its mass over both ``q`` and
+``-q`` (what a network does near the jump) has a short, unreliable mean: that is the cost of the
+discontinuity. Loss: ``1 - cos(sum p x, q*) + alpha * s * sum (p - p*)^2`` (Eq. 13 + Eq. 14,
+``s = distribution_loss_scale(n, dim=4)``, alpha in DirectionNet's units), mean over the batch.
 
-q / -q symmetry (default ``symmetric=True``): the target is the antipodal vMF mixture
-``p*_k ∝ exp(kappa q*.x_k) + exp(-kappa q*.x_k)`` (normalised to sum 1), which is the same for
-``q*`` and ``-q*``, so the label's sign (the Eq. 3 case split) cannot matter. Decoding takes the
-principal eigenvector of the scatter matrix ``M = sum_k p_k x_k x_k^T`` (the axis of a Bingham-like
-distribution); its sign is irrelevant. The Eq. 13 analogue in the loss folds the predicted
-distribution onto the label's hemisphere, ``m = sum_k p_k sign(q*.x_k) x_k``, and uses
-``1 - cos(m, q*)``: it needs no eigen-decomposition, whose gradient blows up for the nearly
-isotropic ``M`` of an untrained network.
+Uncertainty: ``1 - |sum p x|`` in [0, 1].
 
-``symmetric=False`` reproduces the paper literally: a vMF target around the Eq. 3 label
-``rotmat_to_quat_paper(R)`` (whose sign jumps between cases), decoded by the normalised
-expectation (Eq. 9), loss ``1 - cos(sum p x, q*)``.
+``log_prob``: log density of the rotation R w.r.t. the normalised Haar measure on SO(3). A density
+``g`` on S^3 w.r.t. surface measure (total ``2 pi^2``) gives the rotation density
+``pi^2 (g(q) + g(-q))`` w.r.t. the normalised Haar measure (S^3 covers SO(3) twice; the Haar measure
+of SO(3) is the surface measure of S^3 / 2, normalised by ``pi^2``). With each lattice point's
+probability spread over its cell (``2 pi^2 / n``): ``log(p(q) + p(-q)) + log(n / 2)``, each
+probability read at the nearest lattice point. A uniform prediction scores 0.
 
-Prediction: softmax over the lattice (sum 1). Loss: ``L_dir + alpha * s * L_dis`` with alpha = 8e7
-in DirectionNet's units, ``s = distribution_loss_scale(n, dim=4)`` (the same density-L2 argument
-as ``pd_re_net`` with the S^3 volume 2 pi^2), mean over the batch.
-
-Uncertainty: ``1 - lambda_max(M)`` (symmetric; in [0, 3/4], 0 = point mass at +-q) or
-``1 - |sum p x|`` (literal). ``log_prob``: log density of the rotation on S^3 / {+-1} (total measure
-pi^2): ``log(p(q) + p(-q)) - log(2 pi^2 / n)`` with each probability read at the nearest lattice
-point.
+Discontinuities: the case switch of Eq. 3 (inherent to the paper's target, above); none added.
 """
 
 from __future__ import annotations
@@ -34,6 +45,9 @@ import torch
 from torch import Tensor
 
 from benchmark.geometry import (
+    SAT_R_N,
+    quat_conjugate,
+    quat_multiply,
     quat_to_rotmat,
     rotmat_to_quat,
     rotmat_to_quat_paper,
@@ -43,13 +57,39 @@ from benchmark.models import AttitudeHead, register_head
 from benchmark.models.heads import check_lattice_options
 from benchmark.models.spherical import LatticeDecoder, directionnet_loss, resultant_length
 
+# Eq. 5 as printed: the satellite camera (pitch -90 deg, heading 0), w first.
+PAPER_SAT_Q_N = (-math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)
+
+
+def paper_relative_quat(R: Tensor) -> Tensor:
+    """The paper's label quaternion of ``R = R_uav^sat (..., 3, 3)``: Eq. 3 on ``R_uav^n``, then
+    Eq. 4 with Eq. 5 as printed. ``(..., 4)`` ``(w, x, y, z)``, unit, sign as the paper's."""
+    R_uav_n = R @ SAT_R_N.to(R.dtype)
+    q_sat = torch.tensor(PAPER_SAT_Q_N, dtype=R.dtype, device=R.device)
+    return quat_multiply(rotmat_to_quat_paper(R_uav_n), quat_conjugate(q_sat))
+
+
+def haar_log_density_s3(log_p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
+    """``log(p(q) + p(-q)) + log(n / 2)``: the log density, w.r.t. the normalised Haar measure on
+    SO(3), of the rotation ``q`` under a lattice distribution on S^3 (module docstring).
+
+    log_p: ``(B, n)``; q: ``(B, 4)`` unit; grid: ``(n, 4)`` -> ``(B,)``.
+    """
+    dots = q @ grid.to(q.dtype).T
+    near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
+    near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
+    return torch.logaddexp(near_pos, near_neg) + math.log(grid.shape[0] / 2)
+
 
 @register_head("pd_net_q")
 class PdNetQ(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), symmetric (True)."""
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160)."""
 
     paper_name = "Pd-Net-Q"
     is_probabilistic = True
+    # 2: the paper's label (Eq. 3 on R_uav^n, Eq. 4-5) only; the symmetric variant moved to
+    # pd_net_q_sym; log_prob w.r.t. the normalised Haar measure.
+    version = 2
 
     def __init__(
         self,
@@ -58,13 +98,11 @@ class PdNetQ(AttitudeHead):
         kappa: float = 10.0,
         alpha: float = 8e7,
         hidden: int = 160,
-        symmetric: bool = True,
     ) -> None:
         super().__init__(in_features)
         self.kappa, self.alpha = check_lattice_options(
             "pd_net_q", n_points, kappa, alpha, min_points=8
         )
-        self.symmetric = bool(symmetric)
         self.register_buffer("grid", super_fibonacci(n_points), persistent=False)
         self.decoder = LatticeDecoder(in_features, 1, n_points, hidden)
 
@@ -76,29 +114,18 @@ class PdNetQ(AttitudeHead):
         """(B, n) probabilities over the lattice quaternions."""
         return torch.softmax(raw, dim=-1)
 
-    def _label(self, R: Tensor) -> Tensor:
-        return rotmat_to_quat(R) if self.symmetric else rotmat_to_quat_paper(R)
-
-    def _target(self, q: Tensor, grid: Tensor) -> Tensor:
-        dots = self.kappa * (q @ grid.T)
-        logits = torch.logaddexp(dots, -dots) if self.symmetric else dots
-        return torch.softmax(logits, dim=-1)
+    def label(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 4) the paper's label quaternion (``paper_relative_quat``)."""
+        return paper_relative_quat(R)
 
     def target_distribution(self, R: Tensor) -> Tensor:
-        return self._target(self._label(R), self.grid.to(R.dtype))
-
-    def _scatter(self, p: Tensor) -> Tensor:
-        grid = self.grid.to(p.dtype)
-        return torch.einsum("bk,ki,kj->bij", p, grid, grid)  # (B, 4, 4), trace 1
+        grid = self.grid.to(R.dtype)
+        return torch.softmax(self.kappa * (self.label(R) @ grid.T), dim=-1)
 
     def decode_distribution(self, p: Tensor) -> Tensor:
-        if self.symmetric:
-            _, vectors = torch.linalg.eigh(self._scatter(p))  # ascending eigenvalues
-            return quat_to_rotmat(vectors[..., -1])
         resultant = p @ self.grid.to(p.dtype)
-        return quat_to_rotmat(
-            resultant / torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
-        )
+        norm = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
+        return quat_to_rotmat(resultant / norm)
 
     def decode(self, raw: Tensor) -> Tensor:
         return self.decode_distribution(self.distribution(raw))
@@ -106,30 +133,18 @@ class PdNetQ(AttitudeHead):
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
         p = self.distribution(raw)
         grid = self.grid.to(p.dtype)
-        q = self._label(R_gt)
-        target = self._target(q, grid)
-        if self.symmetric:
-            # Fold every lattice point onto the label's hemisphere before taking the mean.
-            signs = torch.where(q @ grid.T < 0, -1.0, 1.0).to(p.dtype)
-            resultant = (p * signs) @ grid
-        else:
-            resultant = p @ grid
+        q = self.label(R_gt)
+        target = torch.softmax(self.kappa * (q @ grid.T), dim=-1)
         return directionnet_loss(
-            p[:, None], target[:, None], resultant[:, None], q[:, None], self.alpha, 4
+            p[:, None], target[:, None], (p @ grid)[:, None], q[:, None], self.alpha, 4
         ).mean()
 
     def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
-        """(B,) log density of R on S^3/{+-1}: ``log(p(q) + p(-q)) - log(2 pi^2 / n)``."""
-        q = rotmat_to_quat(R)
+        """(B,) log density of R w.r.t. the normalised Haar measure on SO(3) (0 for uniform):
+        ``log(p(q) + p(-q)) + log(n / 2)``."""
         log_p = torch.log_softmax(raw, dim=-1)
-        dots = q @ self.grid.to(q.dtype).T
-        near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
-        near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
-        return torch.logaddexp(near_pos, near_neg) - math.log(2 * math.pi**2 / self.grid.shape[0])
+        return haar_log_density_s3(log_p, rotmat_to_quat(R).to(log_p.dtype), self.grid)
 
     def uncertainty(self, raw: Tensor) -> Tensor:
-        """(B,) ``1 - lambda_max(M)`` (symmetric) or ``1 - |E q|`` (literal)."""
-        p = self.distribution(raw)
-        if self.symmetric:
-            return 1 - torch.linalg.eigvalsh(self._scatter(p))[..., -1]
-        return 1 - resultant_length(p, self.grid)
+        """(B,) ``1 - |sum p x|`` in [0, 1]."""
+        return 1 - resultant_length(self.distribution(raw), self.grid)
