@@ -229,6 +229,83 @@ def pooled_bootstrap(
     return (mean, *percentile_interval(replicates, confidence))
 
 
+def spearman_replicates(
+    x: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> tuple[float, np.ndarray]:
+    """Spearman correlation of x and y per seed, averaged over seeds, and its flight-and-seed
+    bootstrap replicates.
+
+    Args:
+        x, y: ``(S, N)`` (or ``(N,)``) paired values per seed and frame (e.g. a head's predicted
+            uncertainty and its geodesic error).
+        groups: ``(N,)`` flight id of each frame.
+    Returns:
+        ``(rho, replicates (n_boot,))``: ``rho`` = mean over seeds of ``spearmanr(x[s], y[s])`` on
+        all frames (what the per-seed summaries average); a replicate draws the flights as
+        :func:`pooled_replicates` does, then S seeds with replacement, and averages the drawn
+        seeds' Spearman correlations over the drawn flights' frames (ties get average ranks).
+        NaN where a correlation is undefined (a constant input).
+    """
+    xs, ys = _as_seed_matrix(x, "x"), _as_seed_matrix(y, "y")
+    g = np.asarray(groups).reshape(-1)
+    if xs.shape != ys.shape or xs.shape[1] != g.shape[0]:
+        raise ValueError(
+            f"spearman_bootstrap: x {xs.shape}, y {ys.shape} and groups {g.shape} must agree"
+        )
+    _check_boot(n_boot, 0.5, "spearman_bootstrap")
+    n_seeds = xs.shape[0]
+    ones = np.ones((1, xs.shape[1]))
+    point = float(np.mean([_weighted_spearman(xs[s], ys[s], ones)[0] for s in range(n_seeds)]))
+    labels, inverse = np.unique(g, return_inverse=True)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, len(labels), size=(int(n_boot), len(labels)))
+    seed_draws = rng.integers(0, n_seeds, size=(int(n_boot), n_seeds))
+    # A replicate's frames are the drawn flights' frames, each as often as its flight was drawn:
+    # frame weights = flight counts, and Spearman on that multiset is a weighted rank correlation.
+    weights = _row_counts(draws, len(labels))[:, inverse]  # (n_boot, N)
+    per_seed = np.empty((int(n_boot), n_seeds))
+    for start in range(0, int(n_boot), 256):  # blocks bound the (block, N) temporaries
+        w = weights[start : start + 256]
+        for s in range(n_seeds):
+            per_seed[start : start + 256, s] = _weighted_spearman(xs[s], ys[s], w)
+    replicates = np.take_along_axis(per_seed, seed_draws, axis=1).mean(axis=1)
+    return point, replicates
+
+
+def _average_ranks(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Average ranks (1-based, ties averaged) of ``u (N,)`` in the multiset holding frame n
+    ``w[r, n]`` times, for each row r of ``w (R, N)``: ``(R, N)``. Equals ``rankdata`` of the
+    expanded array (frames of weight 0 get a rank that carries no weight)."""
+    order = np.argsort(u, kind="stable")
+    su = u[order]
+    starts = np.flatnonzero(np.r_[True, su[1:] != su[:-1]])  # tie groups of u
+    group = np.cumsum(np.r_[True, su[1:] != su[:-1]]) - 1  # (N,) group of each sorted position
+    sums = np.add.reduceat(w[:, order], starts, axis=1)  # (R, T) copies per tie group
+    avg = np.cumsum(sums, axis=1) - sums + (sums + 1.0) / 2.0
+    ranks = np.empty_like(w, dtype=np.float64)
+    ranks[:, order] = avg[:, group]
+    return ranks
+
+
+def _weighted_spearman(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Spearman correlation of ``u, v (N,)`` on the multisets given by the rows of ``w (R, N)``
+    (Pearson correlation of the average ranks, weighted by multiplicity): ``(R,)``, NaN where a
+    variable is constant on the multiset."""
+    ru, rv = _average_ranks(u, w), _average_ranks(v, w)
+    total = w.sum(axis=1, keepdims=True)
+    du = ru - (w * ru).sum(axis=1, keepdims=True) / total
+    dv = rv - (w * rv).sum(axis=1, keepdims=True) / total
+    cov, var_u, var_v = ((w * a * b).sum(axis=1) for a, b in ((du, dv), (du, du), (dv, dv)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = cov / np.sqrt(var_u * var_v)
+    tiny = 1e-12 * np.maximum(1.0, total[:, 0] ** 3)  # a constant variable: zero variance
+    return np.where((var_u > tiny) & (var_v > tiny), out, np.nan)
+
+
 def spearman_bootstrap(
     x: np.ndarray,
     y: np.ndarray,
@@ -237,47 +314,10 @@ def spearman_bootstrap(
     seed: int = 0,
     confidence: float = 0.95,
 ) -> tuple[float, float, float]:
-    """Spearman correlation of x and y per seed, averaged over seeds, with a flight-and-seed
-    bootstrap percentile interval.
-
-    Args:
-        x, y: ``(S, N)`` (or ``(N,)``) paired values per seed and frame (e.g. a head's predicted
-            uncertainty and its geodesic error).
-        groups: ``(N,)`` flight id of each frame.
-    Returns:
-        ``(rho, lo, hi)``: ``rho`` = mean over seeds of ``spearmanr(x[s], y[s])`` on all frames
-        (what the per-seed summaries average); a replicate draws the flights as
-        :func:`pooled_replicates` does, then S seeds with replacement, and averages the drawn
-        seeds' Spearman correlations over the drawn flights' frames (ties get average ranks).
-        NaN when a correlation is undefined (a constant input).
-    """
-    from scipy import stats
-
-    xs, ys = _as_seed_matrix(x, "x"), _as_seed_matrix(y, "y")
-    g = np.asarray(groups).reshape(-1)
-    if xs.shape != ys.shape or xs.shape[1] != g.shape[0]:
-        raise ValueError(
-            f"spearman_bootstrap: x {xs.shape}, y {ys.shape} and groups {g.shape} must agree"
-        )
+    """``(rho, lo, hi)``: :func:`spearman_replicates`' point estimate and percentile interval
+    (NaN bounds when some replicate's correlation is undefined)."""
     _check_boot(n_boot, confidence, "spearman_bootstrap")
-
-    def rho(u: np.ndarray, v: np.ndarray) -> float:
-        if np.ptp(u) == 0 or np.ptp(v) == 0:
-            return np.nan
-        ru, rv = stats.rankdata(u), stats.rankdata(v)
-        return float(np.corrcoef(ru, rv)[0, 1])  # Pearson of the ranks = Spearman
-
-    point = float(np.mean([rho(xs[s], ys[s]) for s in range(xs.shape[0])]))
-    labels, inverse = np.unique(g, return_inverse=True)
-    members = [np.flatnonzero(inverse == k) for k in range(len(labels))]
-    rng = np.random.default_rng(seed)
-    draws = rng.integers(0, len(labels), size=(int(n_boot), len(labels)))
-    seed_draws = rng.integers(0, xs.shape[0], size=(int(n_boot), xs.shape[0]))
-    replicates = np.empty(int(n_boot))
-    for r in range(int(n_boot)):
-        frames = np.concatenate([members[k] for k in draws[r]])
-        per_seed = np.array([rho(xs[s, frames], ys[s, frames]) for s in range(xs.shape[0])])
-        replicates[r] = per_seed[seed_draws[r]].mean()
+    point, replicates = spearman_replicates(x, y, groups, n_boot=n_boot, seed=seed)
     if not np.isfinite(replicates).all():
         return point, np.nan, np.nan
     return (point, *percentile_interval(replicates, confidence))

@@ -224,21 +224,39 @@ class TestSpearmanBootstrap:
         assert rho == pytest.approx(ref, rel=1e-12)
         assert lo < rho < hi
 
-    def test_replicates_match_scipy_loop(self):
+    @staticmethod
+    def scipy_loop(x, y, g, n_boot, seed):
         """Same draws as the pooled bootstrap; each replicate = mean over drawn seeds of scipy's
-        spearmanr on the drawn flights' frames."""
-        x, y, g = self.data(2)
-        n_boot = 40
-        rng = np.random.default_rng(9)
-        flights = rng.integers(0, 10, size=(n_boot, 10))
-        seeds = rng.integers(0, 2, size=(n_boot, 2))
+        spearmanr on the drawn flights' concatenated frames."""
+        labels = np.unique(g)
+        rng = np.random.default_rng(seed)
+        flights = rng.integers(0, len(labels), size=(n_boot, len(labels)))
+        seeds = rng.integers(0, x.shape[0], size=(n_boot, x.shape[0]))
         reps = []
         for r in range(n_boot):
-            frames = np.concatenate([np.flatnonzero(g == k) for k in flights[r]])
+            frames = np.concatenate([np.flatnonzero(g == labels[k]) for k in flights[r]])
             reps.append(np.mean([stats.spearmanr(x[s, frames], y[s, frames]).statistic
                                  for s in seeds[r]]))  # fmt: skip
-        _, lo, hi = spearman_bootstrap(x, y, g, n_boot=n_boot, seed=9)
-        assert (lo, hi) == pytest.approx((np.percentile(reps, 2.5), np.percentile(reps, 97.5)))
+        return np.percentile(reps, 2.5), np.percentile(reps, 97.5)
+
+    def test_replicates_match_scipy_loop(self):
+        x, y, g = self.data(2)
+        _, lo, hi = spearman_bootstrap(x, y, g, n_boot=40, seed=9)
+        assert (lo, hi) == pytest.approx(self.scipy_loop(x, y, g, 40, 9), rel=1e-10)
+
+    def test_ties_match_scipy(self):
+        """Ties in the data and duplicated flights: average ranks as scipy's rankdata."""
+        x, y, g = self.data(3)
+        x, y = np.round(x), np.round(y * 2) / 2
+        rho, lo, hi = spearman_bootstrap(x, y, g[::-1] * 3, n_boot=30, seed=2)
+        ref = np.mean([stats.spearmanr(x[s], y[s]).statistic for s in range(3)])
+        assert rho == pytest.approx(ref, rel=1e-10)
+        assert (lo, hi) == pytest.approx(self.scipy_loop(x, y, g[::-1] * 3, 30, 2), rel=1e-10)
+
+    def test_constant_input_gives_nan(self):
+        x, y, g = self.data(2)
+        rho, lo, hi = spearman_bootstrap(np.zeros_like(x), y, g, n_boot=10)
+        assert np.isnan(rho) and np.isnan(lo) and np.isnan(hi)
 
     def test_monotone_gives_one(self):
         x, _, g = self.data(2)
