@@ -1,295 +1,332 @@
-"""The paper's conclusions, checked one by one against our results.
+"""The paper's conclusions, checked one by one by paired statistics on the test frames.
 
-Each check reads the per-table summaries (mean and 95% interval over seeds) and returns a verdict
-with its evidence. A comparison "A beats B" holds when A's mean error is lower; with several seeds
-it must also be clear of noise (A's interval entirely below B's) or it counts as "within noise".
-A check whose tables were not run says so instead of guessing.
+Evidence. Every comparison "A beats B" is made on the per-frame error difference on the same test
+frames (``benchmark.runner.frames.FrameStore``): ``Δ = err(A) − err(B)``, each model's error first
+averaged over its training seeds. Its 95% interval is the percentile interval of a bootstrap that
+resamples whole flights (frames of a flight are correlated) and, independently for each model, its
+seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates, seed 0).
+
+Verdict of one comparison: **supported** when the interval excludes zero in the claimed direction,
+**contradicted** when it excludes zero in the other direction, **not resolved at this scale**
+otherwise.
+
+Participation. A head takes part in a comparison on a split only when it beats the constant
+(training-mean) predictor there on the compared error: the interval of ``err(head) − err(constant)``
+lies below zero. Otherwise the comparison is *excluded* and the evidence says which head and why
+(a head at the constant's level has learned nothing to compare).
+
+Claims with several comparisons (every angle, every height, ...) combine them by ``COMBINE_RULE``:
+supported when every participating comparison is supported (an intersection-union test: valid at
+95% without correction); contradicted when at least one is contradicted at the Bonferroni level
+``1 − 0.05/k`` over the k participating comparisons (one clear counterexample, corrected for having
+looked k times); not resolved otherwise, and when no comparison takes part.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
-SUPPORTED, PARTLY, CONTRADICTED = "supported", "partly supported", "contradicted"
-NOT_RUN, INCONCLUSIVE = "not run", "inconclusive"
+from benchmark.evaluation.paired import percentile_interval, pooled_replicates
+from benchmark.runner.frames import FrameErrors, FrameStore
+
+SUPPORTED, CONTRADICTED = "supported", "contradicted"
+UNRESOLVED, NOT_RUN, EXCLUDED = "not resolved at this scale", "not run", "excluded"
+N_BOOT = 4000
+CONFIDENCE = 0.95
+COMBINE_RULE = (
+    "supported when every participating comparison's 95% interval is on the claimed side of the "
+    "threshold; contradicted when one comparison's Bonferroni-corrected interval (level "
+    "1 − 0.05/k, k participating comparisons) is on the other side; otherwise not resolved"
+)
+SYMBOL = {SUPPORTED: "✓", CONTRADICTED: "✗", UNRESOLVED: "~"}
+TRANSLATION = "dT_m"  # pseudo-metric: per-frame mean of |dE|, |dN|, |dU| (m)
+NAMES = {"dtheta_deg": "δθ", "dgamma_deg": "δγ", "dpsi_deg": "δψ", "dphi_deg": "δφ",
+         "dE_m": "δE", "dN_m": "δN", "dU_m": "δU", TRANSLATION: "mean(δE, δN, δU)"}  # fmt: skip
+Model = tuple[str, str, str | None]  # (table, label, x)
+
+
+@dataclass
+class Comparison:
+    """One paired comparison: ``diff`` = mean per-frame difference in the metric's unit, its 95%
+    interval ``[lo, hi]`` and ``replicates (N_BOOT,)``; ``claimed`` = -1 (the difference should be
+    below ``threshold``) or +1 (above). ``verdict`` is set by :func:`combine`."""
+
+    where: str
+    diff: float = math.nan
+    lo: float = math.nan
+    hi: float = math.nan
+    claimed: int = -1
+    threshold: float = 0.0
+    replicates: np.ndarray | None = None
+    verdict: str = UNRESOLVED
+    note: str = ""
+    unit: str = "°"
+
+    def text(self) -> str:
+        sym = SYMBOL.get(self.verdict, "")
+        return f"{self.where}: {self.diff:+.2f} [{self.lo:+.2f}, {self.hi:+.2f}]{self.unit} {sym}"
 
 
 @dataclass
 class Claim:
+    """One checked claim. ``difference`` lists the participating comparisons
+    (``where: Δ [lo, hi] unit symbol``), ``rule`` says what Δ is and when the claim holds."""
+
     claim: str
     source: str
     verdict: str
     evidence: str
+    difference: str = ""
+    rule: str = ""
+    comparisons: list[Comparison] = field(default_factory=list)
+    excluded: list[str] = field(default_factory=list)
 
 
-def _value(
-    summary: pd.DataFrame | None,
-    label: str,
-    split: str,
-    metric: str,
-    x: str | None = None,
-    satellite: str = "true",
-):
-    """``(mean, lo, hi)`` or None; measured with the true satellite image unless ``satellite``
-    says ``swap``."""
-    if summary is None or summary.empty or metric not in summary:
-        return None
-    rows = summary[(summary["label"] == label) & (summary["split"] == split)]
-    if "satellite" in rows:
-        rows = rows[rows["satellite"] == satellite]
-    if x is not None:
-        rows = rows[rows["x"].astype(str) == x]
-    if rows.empty or not math.isfinite(rows.iloc[0][metric]):
-        return None
-    r = rows.iloc[0]
-    return float(r[metric]), float(r[f"{metric}_lo"]), float(r[f"{metric}_hi"])
+def unit_of(metric: str) -> str:
+    return " m" if metric.endswith("_m") else "°"
 
 
-def _beats(a, b) -> str:
-    """'yes', 'no' or 'noise' for: a has the lower error."""
-    if a[0] >= b[0]:
-        return "no"
-    if math.isfinite(a[2]) and math.isfinite(b[1]) and a[2] >= b[1]:
-        return "noise"
-    return "yes"
+class Evidence:
+    """Per-frame values and participation checks over one :class:`FrameStore`, cached."""
 
+    def __init__(self, frames: FrameStore, n_boot: int = N_BOOT):
+        self.frames, self.n_boot = frames, n_boot
+        self._beats: dict[tuple, Comparison] = {}
 
-def _verdict(outcomes: list[str]) -> str:
-    if not outcomes:
-        return NOT_RUN
-    if all(o == "yes" for o in outcomes):
-        return SUPPORTED
-    if any(o == "yes" for o in outcomes):
-        return PARTLY
-    return CONTRADICTED
+    def values(self, model: Model, split: str, metric: str, satellite: str = "true") -> FrameErrors:
+        table, label, x = model
+        if metric != TRANSLATION:
+            return self.frames.errors(table, label, split, metric, x, satellite)
+        parts = [self.frames.errors(table, label, split, m, x, satellite) for m in _AXES]
+        return FrameErrors(sum(p.values for p in parts) / 3, *_meta(parts[0]))
 
+    def constant(self, model: Model, split: str, metric: str) -> FrameErrors:
+        train = self.frames.train_split(*model)
+        if metric != TRANSLATION:
+            return self.frames.constant(split, metric, train)
+        parts = [self.frames.constant(split, m, train) for m in _AXES]
+        return FrameErrors(sum(p.values for p in parts) / 3, *_meta(parts[0]))
 
-def _fmt(v) -> str:
-    return f"{v[0]:.2f}" if v is not None else "n/a"
+    def paired(
+        self,
+        where: str,
+        a: FrameErrors,
+        b: FrameErrors,
+        claimed: int = -1,
+        threshold: float = 0.0,
+        unit: str = "°",
+    ) -> Comparison:
+        """Δ = a − b per frame (seed means), flights and seeds resampled."""
+        if not np.array_equal(a.index, b.index):
+            raise ValueError(f"{where}: the two models were evaluated on different frames")
+        diff, reps = pooled_replicates(b.values, a.values, a.flight, self.n_boot, seed=0)
+        lo, hi = percentile_interval(reps, CONFIDENCE)
+        return Comparison(where, diff, lo, hi, claimed, threshold, reps, unit=unit)
 
-
-def representation_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    families = {
-        "distribution": ("Pd/Re-Net", ["Pd-Net-Rv", "Pd-Net-E", "Pd-Net-Q"]),
-        "regression": ("Re-Net-R", ["Re-Net-Rv", "Re-Net-E", "Re-Net-Q"]),
-    }
-    outcomes, notes = [], []
-    for table, split in (("table1", "standard/test"), ("table2", "generalized/test")):
-        for family, (best, others) in families.items():
-            a = _value(s.get(table), best, split, "dphi_deg")
-            if a is None:
-                continue
-            for other in others:
-                b = _value(s.get(table), other, split, "dphi_deg")
-                if b is not None:
-                    outcomes.append(_beats(a, b))
-            vals = ", ".join(
-                f"{o} {_fmt(_value(s.get(table), o, split, 'dphi_deg'))}" for o in others
+    def beats_constant(self, model: Model, split: str, metric: str) -> Comparison:
+        """err(head) − err(constant) on ``split``; ``verdict`` SUPPORTED when the head is better."""
+        key = (model, split, metric)
+        if key not in self._beats:
+            c = self.paired(
+                f"{model[1]} − constant",
+                self.values(model, split, metric),
+                self.constant(model, split, metric),
+                unit=unit_of(metric),
             )
-            notes.append(f"{split} {family}: {best} {_fmt(a)} vs {vals}")
-    return Claim(
-        "The rotation matrix beats the other representations (quaternion, rotation vector, Euler)",
-        "Tables 1-2, geodesic error δφ (deg)",
-        _verdict(outcomes),
-        "; ".join(notes) or "tables 1-2 not run",
-    )
+            c.verdict = SUPPORTED if c.hi < 0 else UNRESOLVED
+            self._beats[key] = c
+        return self._beats[key]
 
-
-def _pairwise_claim(
-    claim: str, source: str, s: pd.DataFrame | None, a_label: str, b_label: str,
-    splits: list[str], metrics: list[str], xs: list[str | None] = (None,),
-) -> Claim:  # fmt: skip
-    outcomes, notes = [], []
-    for split in splits:
-        for x in xs:
-            parts = []
-            for m in metrics:
-                a, b = _value(s, a_label, split, m, x), _value(s, b_label, split, m, x)
-                if a is None or b is None:
-                    continue
-                outcomes.append(_beats(a, b))
-                parts.append(f"{m} {_fmt(a)} vs {_fmt(b)}")
-            if parts:
-                where = split + (f" @ {x}" if x is not None else "")
-                notes.append(f"{where}: " + ", ".join(parts))
-    evidence = f"{a_label} vs {b_label}: " + "; ".join(notes) if notes else "not run"
-    return Claim(claim, source, _verdict(outcomes), evidence)
-
-
-def translation_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    notes, outcomes, learned = [], [], []
-    axes = ("dE_m", "dN_m", "dU_m")
-    for table, split in (("table3", "standard/test"), ("table4", "generalized/test")):
-        reg = [_value(s.get(table), "Pd/Re-Net", split, m) for m in axes]
-        dist = [_value(s.get(table), "Re-Net-T", split, m) for m in axes]
-        const = [_value(s.get(table), "Constant (train mean)", split, m) for m in axes]
-        if any(v is None for v in reg + dist):
-            continue
-        mean_reg = sum(v[0] for v in reg) / 3
-        mean_dist = sum(v[0] for v in dist) / 3
-        # "does not help": the distribution branch is not clearly (>10%) better
-        outcomes.append("yes" if mean_dist >= 0.9 * mean_reg else "no")
-        note = f"{split}: mean |error| regression {mean_reg:.1f} m vs Re-Net-T {mean_dist:.1f} m"
-        if all(v is not None for v in const):
-            mean_const = sum(v[0] for v in const) / 3
-            learned.append(min(mean_reg, mean_dist) <= 0.9 * mean_const)
-            note += f", constant predictor {mean_const:.1f} m"
-        notes.append(note)
-    verdict = _verdict(outcomes)
-    if learned and not any(learned):
-        verdict = INCONCLUSIVE
-        notes.append(
-            "neither translation head beats the constant predictor by 10%: nothing learned"
+    def exclusion(self, model: Model, split: str, metric: str) -> str | None:
+        """None when the head takes part, else why not (its difference to the constant)."""
+        c = self.beats_constant(model, split, metric)
+        if c.verdict == SUPPORTED:
+            return None
+        x = f" [{model[2]}]" if model[2] is not None else ""
+        return (
+            f"{model[1]}{x} on {split} ({NAMES.get(metric, metric)} − constant "
+            f"{c.diff:+.2f} [{c.lo:+.2f}, {c.hi:+.2f}]{c.unit})"
         )
+
+    def compare(
+        self, where: str, a: Model, b: Model, split: str, metric: str, excluded: list[str]
+    ) -> Comparison | None:
+        """A (claimed better) against B on ``split``: None if either was not planned there; an
+        EXCLUDED comparison (reason appended to ``excluded``) if either does not beat the
+        constant predictor."""
+        if not (self.frames.has(*a[:2], split, a[2]) and self.frames.has(*b[:2], split, b[2])):
+            return None
+        reasons = [r for m in (a, b) if (r := self.exclusion(m, split, metric)) is not None]
+        if reasons:
+            excluded += [r for r in reasons if r not in excluded]
+            return Comparison(where, verdict=EXCLUDED)
+        va, vb = self.values(a, split, metric), self.values(b, split, metric)
+        return self.paired(where, va, vb, unit=unit_of(metric))
+
+
+_AXES = ("dE_m", "dN_m", "dU_m")
+
+
+def _meta(f: FrameErrors) -> tuple:
+    return f.index, f.flight, f.seeds
+
+
+def decide(c: Comparison, confidence: float = CONFIDENCE) -> str:
+    """Verdict of one comparison from its interval at ``confidence``."""
+    if c.replicates is None:
+        return c.verdict
+    lo, hi = percentile_interval(c.replicates, confidence)
+    below, above = hi < c.threshold, lo > c.threshold
+    if (below and c.claimed < 0) or (above and c.claimed > 0):
+        return SUPPORTED
+    if (above and c.claimed < 0) or (below and c.claimed > 0):
+        return CONTRADICTED
+    return UNRESOLVED
+
+
+def combine(comparisons: list[Comparison]) -> str:
+    """Set each participating comparison's verdict and combine them by ``COMBINE_RULE``."""
+    active = [c for c in comparisons if c.verdict != EXCLUDED and c.replicates is not None]
+    if not comparisons:
+        return NOT_RUN
+    if not active:
+        return UNRESOLVED
+    corrected = 1 - (1 - CONFIDENCE) / len(active)
+    for c in active:
+        # Supported at 95% (each of an all-must-hold conjunction); contradicted only at the
+        # corrected level (any one of k looks).
+        if decide(c) == SUPPORTED:
+            c.verdict = SUPPORTED
+        else:
+            c.verdict = CONTRADICTED if decide(c, corrected) == CONTRADICTED else UNRESOLVED
+    if any(c.verdict == CONTRADICTED for c in active):
+        return CONTRADICTED
+    return SUPPORTED if all(c.verdict == SUPPORTED for c in active) else UNRESOLVED
+
+
+def build_claim(
+    claim: str,
+    source: str,
+    rule: str,
+    comparisons: list[Comparison | None],
+    excluded: list[str],
+    notes: list[str] | None = None,
+) -> Claim:
+    """Combine comparisons (None = not planned) into a :class:`Claim` with its evidence text."""
+    done = [c for c in comparisons if c is not None]
+    verdict = combine(done)
+    active = [c for c in done if c.verdict != EXCLUDED]
+    evidence = list(notes or [])
+    if active:
+        counts = {v: sum(c.verdict == v for c in active) for v in SYMBOL}
+        evidence.insert(
+            0,
+            f"{len(active)} comparison(s): "
+            + ", ".join(f"{n} {v}" for v, n in counts.items() if n),
+        )
+    elif done:
+        evidence.insert(
+            0,
+            "no comparison takes part: every one has a head that does not beat "
+            "the constant predictor",
+        )
+    if excluded:
+        evidence.append("excluded (not better than the constant predictor): " + "; ".join(excluded))
     return Claim(
-        "A distribution layer does not improve translation (regression is a fair trade-off)",
-        "Tables 3-4, mean of δE, δN, δU (m)",
+        claim,
+        source,
         verdict,
-        "; ".join(notes) or "tables 3-4 not run",
+        "; ".join(evidence) or "not run",
+        "<br>".join(c.text() for c in active),
+        rule,
+        done,
+        list(excluded),
     )
 
 
-def kappa_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    summary = s.get("fig7")
-    notes, outcomes = [], []
-    if summary is not None and "satellite" in summary:
-        summary = summary[summary["satellite"] == "true"]
-    if summary is not None and not summary.empty:
-        for split, part in summary.groupby("split"):
-            part = part[part["dphi_deg"].notna()]
-            if part.empty:
-                continue
-            best = part.loc[part["dphi_deg"].idxmin()]
-            outcomes.append("yes" if float(best["x"]) == 10.0 else "no")
-            values = ", ".join(f"κ={r.x}: {r.dphi_deg:.2f}" for r in part.itertuples())
-            notes.append(f"{split}: best κ = {best['x']} ({values})")
-    return Claim("κ = 10 gives the lowest attitude error", "Fig. 7, δφ (deg)", _verdict(outcomes),
-                 "; ".join(notes) or "fig7 not run")  # fmt: skip
+def safe_claim(build, claim: str, source: str) -> Claim:
+    """Build a claim; a missing predictions file makes it "not run" naming the file."""
+    try:
+        return build()
+    except FileNotFoundError as err:
+        return Claim(claim, source, NOT_RUN, str(err))
 
 
-def constant_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    """Not the paper's claim but the benchmark's sanity bar: every head must really learn."""
-    summary = s.get("table1")
-    outcomes, notes = [], []
-    base = _value(summary, "Constant (train mean)", "standard/test", "dphi_deg")
-    if summary is not None and base is not None:
-        for label in _trained_labels(summary):
-            v = _value(summary, label, "standard/test", "dphi_deg")
-            if v is not None:
-                outcomes.append("yes" if v[0] <= 0.75 * base[0] else "no")
-                notes.append(f"{label} {v[0]:.1f}")
-    evidence = (
-        f"constant predictor δφ {_fmt(base)}; heads: " + ", ".join(notes)
-        if notes
-        else "table1 not run"
+def evaluate_claims(summaries: dict[str, pd.DataFrame], frames: FrameStore) -> list[Claim]:
+    """Every claim, in the report's order (1-10 the paper's, then the satellite claims).
+
+    ``summaries`` (per-table mean summaries, ``benchmark.runner.report.summarize``) are kept for
+    the report's context; every verdict is computed from ``frames``' per-frame errors.
+    """
+    from benchmark.runner.claims_paper import (
+        ablation_claim,
+        constant_claim,
+        kappa_claim,
+        pairwise_claim,
+        representation_claim,
+        translation_claim,
+        uncertainty_claim,
     )
-    return Claim(
-        "Sanity: every rotation head beats the constant (training-mean) predictor by >= 25% "
-        "(the UAV-only control excluded)",
-        "Table 1 setting, δφ (deg) on standard/test",
-        _verdict(outcomes),
-        evidence,
-    )
-
-
-def uncertainty_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    notes, outcomes = [], []
-    for table, split in (("table1", "standard/test"), ("table2", "generalized/test")):
-        summary = s.get(table)
-        v = _value(summary, "Pd/Re-Net", split, "spearman_unc_err")
-        if v is not None:
-            outcomes.append("yes" if v[0] > 0.1 else "no")
-            notes.append(f"{split}: Spearman ρ(uncertainty, δφ) = {v[0]:.2f}")
-    return Claim(
-        "Pd/Re-Net's predicted uncertainty is meaningful (higher when the error is larger)",
-        "Tables 1-2 models, rank correlation of the head's uncertainty with δφ (ρ > 0.1 required)",
-        _verdict(outcomes),
-        "; ".join(notes) or "not run",
-    )
-
-
-def _trained_labels(summary: pd.DataFrame, control: bool = False) -> list[str]:
-    """Labels of trained models (not the constant predictor); the UAV-only controls
-    (``satellite_input == "blank"``) if ``control``, else every other one."""
-    if "satellite_input" in summary:
-        blank = summary["satellite_input"] == "blank"
-        rows = summary[blank if control else ~blank & (summary["satellite_input"] != "none")]
-    else:
-        rows = summary[summary["label"] != "Constant (train mean)"] if not control else summary[:0]
-    return list(dict.fromkeys(rows["label"]))
-
-
-def evaluate_claims(s: dict[str, pd.DataFrame]) -> list[Claim]:
     from benchmark.runner.claims_satellite import control_claim, satellite_claims
 
+    ev = Evidence(frames)
     angles = ["dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg"]
-    fig5_xs = _xs(s.get("fig5"))
-    fig6_xs = _xs(s.get("fig6"))
-    flight = ["flight/pitch0", "flight/pitch-10", "flight/pitch-50"]
     return [
-        constant_claim(s),
-        representation_claim(s),
-        _pairwise_claim("For the rotation matrix, a distribution beats regression (every angle)",
-                        "Tables 1-2, δθ δγ δψ δφ", _concat(s, "table1", "table2"), "Pd/Re-Net",
-                        "Re-Net-R", ["standard/test", "generalized/test"], angles),
-        translation_claim(s),
-        _pairwise_claim("Pd/Re-Net stays more accurate than Re-Net-R at every satellite height",
-                        "Fig. 5, δφ", s.get("fig5"), "Pd/Re-Net", "Re-Net-R",
-                        _splits(s.get("fig5")), ["dphi_deg"], fig5_xs),
-        _pairwise_claim("Pd/Re-Net stays more accurate than Re-Net-R at every view difference",
-                        "Fig. 6, δφ", s.get("fig6"), "Pd/Re-Net", "Re-Net-R",
-                        _splits(s.get("fig6")), ["dphi_deg"], fig6_xs),
-        kappa_claim(s),
-        _ablation_claim(s),
-        _pairwise_claim("On the flight-test analogue, Pd/Re-Net with AGTFM beats Re-Net",
-                        "Table 5, δE δN δU δφ", s.get("table5"), "Pd/Re-Net with AGTFM", "Re-Net",
-                        flight, ["dE_m", "dN_m", "dU_m", "dphi_deg"]),
-        uncertainty_claim(s),
-        *satellite_claims(s),
-        control_claim(s),
+        constant_claim(ev),
+        representation_claim(ev),
+        pairwise_claim(ev, "For the rotation matrix, a distribution beats regression (every angle)",
+                       "Tables 1-2, δθ δγ δψ δφ (deg)", ("table1", "table2"), "Pd/Re-Net",
+                       "Re-Net-R", angles),
+        translation_claim(ev),
+        pairwise_claim(ev, "Pd/Re-Net stays more accurate than Re-Net-R at every satellite height",
+                       "Fig. 5, δφ (deg)", "fig5", "Pd/Re-Net", "Re-Net-R", ["dphi_deg"],
+                       sweep=True),
+        pairwise_claim(ev, "Pd/Re-Net stays more accurate than Re-Net-R at every view difference",
+                       "Fig. 6, δφ (deg)", "fig6", "Pd/Re-Net", "Re-Net-R", ["dphi_deg"],
+                       sweep=True),
+        kappa_claim(ev),
+        ablation_claim(ev),
+        pairwise_claim(ev, "On the flight-test analogue, Pd/Re-Net with AGTFM beats Re-Net",
+                       "Table 5, δE δN δU (m), δφ (deg)", "table5", "Pd/Re-Net with AGTFM",
+                       "Re-Net", ["dE_m", "dN_m", "dU_m", "dphi_deg"]),
+        uncertainty_claim(ev),
+        *satellite_claims(ev),
+        control_claim(ev),
     ]  # fmt: skip
 
 
-def _ablation_claim(s: dict[str, pd.DataFrame]) -> Claim:
-    summary = s.get("fig9")
-    outcomes, notes = [], []
-    for split in _splits(summary):
-        a_f = _value(summary, "Pd/Re-Net", split, "dphi_deg", "a-f")
-        plain = _value(summary, "Pd/Re-Net", split, "dphi_deg", "/")
-        if a_f is None or plain is None:
-            continue
-        outcomes.append(_beats(a_f, plain))
-        values = ", ".join(
-            f"{x}: {_fmt(_value(summary, 'Pd/Re-Net', split, 'dphi_deg', x))}"
-            for x in ("/", "a", "f", "a-f")
-        )
-        notes.append(f"{split}: {values}")
-    return Claim("AGTFM (a-f) improves on the plain encoder (/)", "Fig. 9, δφ (deg)",
-                 _verdict(outcomes), "; ".join(notes) or "fig9 not run")  # fmt: skip
-
-
-def _xs(summary: pd.DataFrame | None) -> list[str]:
-    if summary is None or summary.empty:
-        return []
-    return [str(x) for x in dict.fromkeys(summary["x"].astype(str))]
-
-
-def _splits(summary: pd.DataFrame | None) -> list[str]:
-    if summary is None or summary.empty:
-        return []
-    return list(dict.fromkeys(summary["split"]))
-
-
-def _concat(s: dict[str, pd.DataFrame], *names: str) -> pd.DataFrame | None:
-    parts = [s[n] for n in names if n in s and not s[n].empty]
-    return pd.concat(parts, ignore_index=True) if parts else None
-
-
 def render_claims(claims: list[Claim]) -> str:
-    lines = ["| # | claim | source | verdict | evidence |", "|---|---|---|---|---|"]
+    """Markdown table (#, claim, source, paired difference [95% interval], rule, verdict,
+    evidence) followed by the general verdict rule."""
+    lines = [
+        "| # | claim | source | paired difference [95% interval] | rule | verdict | evidence |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for i, c in enumerate(claims, 1):
-        lines.append(f"| {i} | {c.claim} | {c.source} | **{c.verdict}** | {c.evidence} |")
+        cells = [
+            str(i),
+            c.claim,
+            c.source,
+            c.difference or "–",
+            c.rule or "–",
+            f"**{c.verdict}**",
+            c.evidence,
+        ]
+        lines.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
+    lines += ["", RULE_NOTE]
     return "\n".join(lines)
+
+
+RULE_NOTE = (
+    "Each Δ is a per-frame paired difference on the same test frames, each model's error averaged "
+    "over its seeds; the interval is the 95% percentile interval of a bootstrap resampling whole "
+    f"flights and, per model, seeds ({N_BOOT} replicates). ✓ supported: the interval excludes zero "
+    "(or the stated threshold) on the claimed side; ✗ contradicted: it excludes it on the other "
+    "side; ~ not resolved at this scale. A head takes part in a comparison only when it beats the "
+    "constant predictor on that split and error (interval below zero); excluded heads are listed. "
+    f"Several comparisons: {COMBINE_RULE}."
+)

@@ -1,216 +1,222 @@
-"""Claim checks on hand-made summaries: verdicts follow the numbers, noise is not a win."""
+"""Claims decided by paired statistics: synthetic reproductions (real CSV formats, 3 seeds, 10-12
+flights per split, ``test_frames.Repro``) with a clear win, a clear loss, noise, a head at the
+constant predictor's level and seeds that disagree; the combination rule on hand-made replicates.
+"""
 
 from __future__ import annotations
 
-import math
+import re
 
-import pandas as pd
+import numpy as np
+from test_frames import Repro
 
 from benchmark.runner.claims import (
     CONTRADICTED,
-    INCONCLUSIVE,
+    EXCLUDED,
     NOT_RUN,
-    PARTLY,
     SUPPORTED,
+    UNRESOLVED,
+    Comparison,
+    Evidence,
+    combine,
     evaluate_claims,
-    kappa_claim,
-    representation_claim,
-    translation_claim,
+    render_claims,
 )
+from benchmark.runner.claims_paper import (
+    constant_claim,
+    kappa_claim,
+    pairwise_claim,
+    translation_claim,
+    uncertainty_claim,
+)
+from benchmark.runner.claims_satellite import control_claim, satellite_claim
 
-NAN = math.nan
-
-
-def summary(rows: list[tuple]) -> pd.DataFrame:
-    """rows: (label, split, x, {metric: (mean, lo, hi)})"""
-    out = []
-    for label, split, x, metrics in rows:
-        row = {"label": label, "split": split, "x": x}
-        for m, (mean, lo, hi) in metrics.items():
-            row |= {m: mean, f"{m}_lo": lo, f"{m}_hi": hi}
-        out.append(row)
-    return pd.DataFrame(out)
+STD, GEN = "standard/test", "generalized/test"
 
 
-def table(split: str, values: dict[str, float]) -> pd.DataFrame:
-    return summary([(k, split, None, {"dphi_deg": (v, NAN, NAN)}) for k, v in values.items()])
+def claim_ab(repro: Repro, a, b, metrics=("dphi_deg",)):
+    repro.add("table1", "A", {STD: a})
+    repro.add("table1", "B", {STD: b})
+    return pairwise_claim(Evidence(repro.store()), "A beats B", "t", "table1", "A", "B",
+                          list(metrics))  # fmt: skip
 
 
-HEADS = [
-    "Pd/Re-Net",
-    "Pd-Net-Rv",
-    "Pd-Net-E",
-    "Pd-Net-Q",
-    "Re-Net-R",
-    "Re-Net-Rv",
-    "Re-Net-E",
-    "Re-Net-Q",
-]
+def comparison(replicates, claimed=-1, threshold=0.0) -> Comparison:
+    reps = np.asarray(replicates, dtype=float)
+    return Comparison("x", reps.mean(), *np.quantile(reps, [0.025, 0.975]), claimed, threshold,
+                      reps)  # fmt: skip
 
 
-class TestRepresentationClaim:
-    def test_supported_when_matrix_wins_everywhere(self):
-        values = dict(zip(HEADS, [5, 9, 9, 9, 6, 9, 9, 9], strict=True))
-        s = {"table1": table("standard/test", values), "table2": table("generalized/test", values)}
-        assert representation_claim(s).verdict == SUPPORTED
+class TestCombine:
+    def test_all_supported(self):
+        comps = [comparison(np.linspace(-3, -1, 1000)) for _ in range(3)]
+        assert combine(comps) == SUPPORTED
+        assert all(c.verdict == SUPPORTED for c in comps)
 
-    def test_contradicted_when_matrix_never_wins(self):
-        values = dict(zip(HEADS, [9, 5, 5, 5, 9, 5, 5, 5], strict=True))
-        assert (
-            representation_claim({"table1": table("standard/test", values)}).verdict == CONTRADICTED
+    def test_one_clear_counterexample_contradicts(self):
+        comps = [comparison(np.linspace(-3, -1, 1000)), comparison(np.linspace(1, 3, 1000))]
+        assert combine(comps) == CONTRADICTED
+
+    def test_contradiction_needs_the_bonferroni_level(self):
+        """Above zero at 95% but not at 1 - 0.05/10: one of ten looks is not a counterexample."""
+        marginal = np.linspace(-0.1, 10, 4000)  # 2.5% quantile +0.15, 0.25% quantile -0.075
+        comps = [comparison(marginal)] + [comparison(np.linspace(-3, -1, 1000)) for _ in range(9)]
+        assert combine(comps) == UNRESOLVED
+        assert combine([comparison(marginal)]) == CONTRADICTED
+
+    def test_straddling_is_unresolved_and_nothing_is_not_run(self):
+        assert combine([comparison(np.linspace(-1, 1, 1000))]) == UNRESOLVED
+        assert combine([Comparison("x", verdict=EXCLUDED)]) == UNRESOLVED
+        assert combine([]) == NOT_RUN
+
+    def test_threshold_and_direction(self):
+        assert combine([comparison(np.linspace(1.5, 3, 100), +1, 1.0)]) == SUPPORTED
+        assert combine([comparison(np.linspace(0.2, 0.8, 100), +1, 1.0)]) == CONTRADICTED
+        assert combine([comparison(np.linspace(0.5, 1.5, 100), +1, 1.0)]) == UNRESOLVED
+
+
+class TestPairwise:
+    def test_clear_win(self, tmp_path):
+        c = claim_ab(Repro(tmp_path), 5.0, 20.0)
+        assert c.verdict == SUPPORTED
+        (comp,) = c.comparisons
+        assert comp.hi < 0 and comp.lo < comp.diff < comp.hi
+        assert re.search(
+            r"standard/test δφ: -1\d\.\d\d \[-\d+\.\d\d, -\d+\.\d\d\]° ✓", c.difference
         )
 
-    def test_partly(self):
-        values = dict(zip(HEADS, [5, 9, 9, 9, 9, 5, 5, 5], strict=True))
-        assert representation_claim({"table1": table("standard/test", values)}).verdict == PARTLY
+    def test_clear_loss(self, tmp_path):
+        assert claim_ab(Repro(tmp_path), 20.0, 5.0).verdict == CONTRADICTED
 
-    def test_not_run(self):
-        assert representation_claim({}).verdict == NOT_RUN
+    def test_noise_is_not_resolved(self, tmp_path):
+        c = claim_ab(Repro(tmp_path), 10.0, 10.0)
+        assert c.verdict == UNRESOLVED
+        assert c.comparisons[0].lo < 0 < c.comparisons[0].hi
 
-
-class TestNoise:
-    def test_overlapping_intervals_do_not_count_as_a_win(self):
-        s = summary(
-            [
-                ("Pd/Re-Net", "standard/test", None, {"dphi_deg": (5.0, 3.0, 7.0)}),
-                ("Re-Net-R", "standard/test", None, {"dphi_deg": (6.0, 4.0, 8.0)}),
-            ]
+    def test_head_at_constant_level_is_excluded(self, tmp_path):
+        c = claim_ab(Repro(tmp_path), 5.0, "constant")
+        assert c.verdict == UNRESOLVED
+        assert c.comparisons[0].verdict == EXCLUDED
+        assert len(c.excluded) == 1 and c.excluded[0].startswith(
+            "B on standard/test (δφ − constant"
         )
-        claims = {c.source: c for c in evaluate_claims({"table1": s})}
-        assert claims["Tables 1-2, δθ δγ δψ δφ"].verdict == CONTRADICTED  # a tie within noise
+        assert "excluded (not better than the constant predictor): B on standard/test" in c.evidence
+        assert c.difference == ""
 
+    def test_seed_pooling(self, tmp_path):
+        """One of three seeds failed (45 deg): seed 0 alone wins clearly, the pooled interval
+        over seeds does not."""
 
-class TestTranslationClaim:
-    def test_distribution_clearly_better_contradicts(self):
-        rows = [
-            (
-                "Pd/Re-Net",
-                "standard/test",
-                None,
-                {m: (10.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
-            ),
-            (
-                "Re-Net-T",
-                "standard/test",
-                None,
-                {m: (5.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
-            ),
-        ]
-        assert translation_claim({"table3": summary(rows)}).verdict == CONTRADICTED
-
-    def test_similar_errors_support(self):
-        rows = [
-            (
-                "Pd/Re-Net",
-                "standard/test",
-                None,
-                {m: (10.0, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
-            ),
-            (
-                "Re-Net-T",
-                "standard/test",
-                None,
-                {m: (9.5, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")},
-            ),
-        ]
-        assert translation_claim({"table3": summary(rows)}).verdict == SUPPORTED
-
-    def test_nothing_learned_is_inconclusive(self):
-        rows = [
-            (label, "standard/test", None, {m: (v, NAN, NAN) for m in ("dE_m", "dN_m", "dU_m")})
-            for label, v in (
-                ("Pd/Re-Net", 150.0),
-                ("Re-Net-T", 152.0),
-                ("Constant (train mean)", 151.0),
+        def unstable(seed, n):
+            return np.full(n, 45.0 if seed == 1 else 5.0) + np.random.default_rng(seed).gamma(
+                2, 1, n
             )
-        ]
-        claim = translation_claim({"table3": summary(rows)})
-        assert claim.verdict == INCONCLUSIVE and "nothing learned" in claim.evidence
+
+        repro = Repro(tmp_path)
+        repro.add("table1", "A", {STD: unstable})
+        repro.add("table1", "B", {STD: 20.0})
+        ev = Evidence(repro.store())
+        pooled = pairwise_claim(ev, "A beats B", "t", "table1", "A", "B", ["dphi_deg"])
+        assert pooled.verdict == UNRESOLVED
+        one = Repro(tmp_path / "one")
+        one.add("table1", "A", {STD: unstable}, seeds=(0,))
+        one.add("table1", "B", {STD: 20.0}, seeds=(0,))
+        single = pairwise_claim(Evidence(one.store()), "A", "t", "table1", "A", "B", ["dphi_deg"])
+        assert single.verdict == SUPPORTED
+        assert pooled.comparisons[0].hi - pooled.comparisons[0].lo > 3 * (
+            single.comparisons[0].hi - single.comparisons[0].lo
+        )
+
+    def test_every_metric_must_hold(self, tmp_path):
+        c = claim_ab(Repro(tmp_path), 5.0, 20.0, metrics=("dphi_deg", "dE_m", "dN_m"))
+        assert c.verdict == SUPPORTED and len(c.comparisons) == 3
+        assert "m ✓" in c.difference
 
 
-class TestKappaClaim:
-    def test_best_kappa(self):
-        rows = [("Pd/Re-Net", "standard/test", x, {"dphi_deg": (v, NAN, NAN)}) for x, v in
-                (("1", 9), ("5", 7), ("10", 5), ("20", 6), ("50", 8))]  # fmt: skip
-        assert kappa_claim({"fig7": summary(rows)}).verdict == SUPPORTED
-        rows[0] = ("Pd/Re-Net", "standard/test", "1", {"dphi_deg": (1.0, NAN, NAN)})
-        claim = kappa_claim({"fig7": summary(rows)})
-        assert claim.verdict == CONTRADICTED and "best κ = 1" in claim.evidence
+class TestPaperClaims:
+    def test_sanity_claim_flags_a_head_at_constant_level(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: 5.0})
+        repro.add("table1", "Pd-Net-E", {STD: "constant"})
+        repro.add("table1", "UAV-only control", {STD: "constant"}, blank=True)
+        c = constant_claim(Evidence(repro.store()))
+        assert c.verdict == UNRESOLVED
+        assert [x.where for x in c.comparisons] == ["Pd/Re-Net", "Pd-Net-E"]
+        assert [x.verdict for x in c.comparisons] == [SUPPORTED, UNRESOLVED]
 
+    def test_translation_regression_more_accurate(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table3", "Pd/Re-Net", {STD: 5.0})
+        repro.add("table3", "Re-Net-T", {STD: 25.0})
+        assert translation_claim(Evidence(repro.store())).verdict == SUPPORTED
 
-class TestAllClaims:
-    def test_every_claim_reports_not_run_without_results(self):
-        claims = evaluate_claims({})
-        assert len(claims) == 15
-        assert {c.verdict for c in claims} == {NOT_RUN}
+    def test_kappa_ten_best(self, tmp_path):
+        repro = Repro(tmp_path)
+        for x, err in (("1", 20.0), ("10", 5.0), ("50", 15.0)):
+            repro.add("fig7", "Pd/Re-Net", {STD: err, GEN: err}, x=x)
+        c = kappa_claim(Evidence(repro.store()))
+        assert c.verdict == SUPPORTED and len(c.comparisons) == 4
 
+    def test_uncertainty(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: 8.0}, uncertainty=1.0)
+        repro.add("table2", "Pd/Re-Net", {GEN: 8.0}, uncertainty=-1.0)
+        c = uncertainty_claim(Evidence(repro.store()))
+        assert [x.verdict for x in c.comparisons] == [SUPPORTED, CONTRADICTED]
+        assert c.verdict == CONTRADICTED
+        assert c.comparisons[0].diff > 0.5 and c.comparisons[1].diff < -0.5
 
-def probe_rows(label, split, true_psi, swap_psi, effect, groups=8, blank=False):
-    """A model's true and swap summary rows; ``effect``: (diff, lo, hi) of yaw and geodesic."""
-    kind = "blank" if blank else "image"
-    base = {"label": label, "split": split, "x": None, "satellite_input": kind}
-    true = {**base, "satellite": "true", "dpsi_deg": true_psi, "dpsi_deg_lo": NAN,
-            "dpsi_deg_hi": NAN}  # fmt: skip
-    swap = {**base, "satellite": "swap", "dpsi_deg": swap_psi, "swap_groups": groups}
-    for e in ("dpsi", "dphi"):
-        swap |= dict(zip([f"swap_{e}_diff_deg", f"swap_{e}_boot_lo_deg", f"swap_{e}_boot_hi_deg"],
-                         effect, strict=True))  # fmt: skip
-    return [true, swap]
+    def test_uncertainty_needs_a_head_that_beats_the_constant(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: "constant"})
+        c = uncertainty_claim(Evidence(repro.store()))
+        assert c.verdict == UNRESOLVED and "Pd/Re-Net on standard/test" in c.excluded[0]
 
 
 class TestSatelliteClaims:
-    def test_uses_and_does_not_use(self):
-        from benchmark.runner.claims_satellite import satellite_claim
+    def test_uses_and_does_not_use(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: 5.0}, swap={STD: 40.0})
+        ev = Evidence(repro.store())
+        assert satellite_claim(ev, "table1", STD).verdict == SUPPORTED
+        repro.add("table1", "Re-Net-R", {STD: 5.0})  # same predictions with the swapped image
+        c = satellite_claim(Evidence(repro.store()), "table1", STD)
+        assert c.verdict == CONTRADICTED
+        rise = [x for x in c.comparisons if x.where.startswith("Re-Net-R")]
+        assert [(x.diff, x.lo, x.hi) for x in rise] == [(0.0, 0.0, 0.0)] * 2
 
-        rows = probe_rows("Pd/Re-Net", "standard/test", 20.0, 35.0, (15.0, 10.0, 19.0))
-        rows += probe_rows("Re-Net-R", "standard/test", 22.0, 22.1, (0.1, -0.3, 0.5))
-        rows += probe_rows("Pd-Net-Q", "standard/test", 22.0, 22.3, (0.3, 0.1, 0.5))  # < 1 deg
-        rows += probe_rows("UAV-only control", "standard/test", 40.0, 40.0, (0, 0, 0), blank=True)
-        claim = satellite_claim(pd.DataFrame(rows), "table1", "standard/test")
-        assert claim.verdict == PARTLY
-        assert "Pd/Re-Net: uses it" in claim.evidence
-        assert "Re-Net-R: does not use it" in claim.evidence
-        assert "Pd-Net-Q: does not use it" in claim.evidence
-        assert "UAV-only control" not in claim.evidence
-
-    def test_no_head_uses_it_is_said_plainly(self):
-        from benchmark.runner.claims_satellite import satellite_claim
-
-        rows = probe_rows("Pd/Re-Net", "towns/test", 90.0, 90.0, (0.0, -0.2, 0.2))
-        claim = satellite_claim(pd.DataFrame(rows), "towns", "towns/test")
-        assert claim.verdict == CONTRADICTED
-        assert "no head uses the satellite image here" in claim.evidence
-
-    def test_one_flight_is_inconclusive(self):
-        from benchmark.runner.claims_satellite import satellite_claim
-
-        rows = probe_rows("Pd/Re-Net", "standard/test", 20.0, 30.0, (10, 10, 10), groups=1)
-        claim = satellite_claim(pd.DataFrame(rows), "table1", "standard/test")
-        assert claim.verdict == INCONCLUSIVE and "one flight" in claim.evidence
+    def test_control(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table2", "UAV-only control", {GEN: "constant"}, blank=True)
+        assert control_claim(Evidence(repro.store())).verdict == SUPPORTED
+        learns = Repro(tmp_path / "learns")
+        learns.add("table2", "UAV-only control", {GEN: 5.0}, blank=True)
+        assert control_claim(Evidence(learns.store())).verdict == CONTRADICTED
 
 
-class TestControlClaim:
-    def frame(self, split, control_psi, constant_psi, head_psi=None):
-        rows = []
-        for label, psi, kind in (("UAV-only control", control_psi, "blank"),
-                                 ("Constant (train mean)", constant_psi, "none"),
-                                 ("Pd/Re-Net", head_psi, "image")):  # fmt: skip
-            if psi is None:
-                continue
-            row = {"label": label, "split": split, "x": None, "satellite": "true",
-                   "satellite_input": kind}  # fmt: skip
-            for m, v in (("dpsi_deg", psi), ("dtheta_deg", 3.0), ("dgamma_deg", 2.0)):
-                row |= {m: v, f"{m}_lo": NAN, f"{m}_hi": NAN}
-            rows.append(row)
-        return pd.DataFrame(rows)
+class TestEvaluateAndRender:
+    def test_all_claims_and_table(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: 5.0}, swap={STD: 30.0})
+        repro.add("table1", "Re-Net-R", {STD: 20.0})
+        claims = evaluate_claims({}, repro.store())
+        assert len(claims) == 15
+        assert claims[2].verdict == SUPPORTED  # distribution beats regression (where it learns)
+        assert {claims[i].verdict for i in (3, 4, 5, 6, 7, 8)} == {NOT_RUN}
+        text = render_claims(claims)
+        lines = text.splitlines()
+        assert lines[0] == (
+            "| # | claim | source | paired difference [95% interval] | rule | verdict | evidence |"
+        )
+        rows = [line for line in lines if re.match(r"\| \d+ \|", line)]
+        assert len(rows) == 15 and all(row.count(" | ") == 6 for row in rows)
+        assert "Bonferroni" in text
 
-    def test_within_ten_percent_of_the_constant(self):
-        from benchmark.runner.claims_satellite import control_claim
-
-        s = {"table2": self.frame("generalized/test", 85.0, 90.0),
-             "table1": self.frame("standard/test", 50.0, 90.0, 20.0)}  # fmt: skip
-        claim = control_claim(s)
-        assert claim.verdict == SUPPORTED and "(0.94x)" in claim.evidence
-        assert "57% of Pd/Re-Net's yaw gain" in claim.evidence  # (90 - 50) / (90 - 20)
-        s["table2"] = self.frame("generalized/test", 60.0, 90.0)
-        assert control_claim(s).verdict == CONTRADICTED
+    def test_missing_file_named_in_the_claim(self, tmp_path):
+        repro = Repro(tmp_path)
+        repro.add("table1", "Pd/Re-Net", {STD: 5.0})
+        repro.add("table1", "Re-Net-R", {STD: 20.0})
+        path = repro.workdir / "units" / "table1-Re-Net-R-None-1" / "eval" / "standard__test.csv"
+        path.unlink()
+        claims = evaluate_claims({}, repro.store())
+        assert claims[2].verdict == NOT_RUN and str(path) in claims[2].evidence

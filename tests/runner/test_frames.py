@@ -80,12 +80,13 @@ class Repro:
 
     def add(self, table: str, label: str, splits: dict[str, object], seeds=(0, 1, 2),
             x: str | None = None, blank: bool = False, train: str = "standard/train",
-            swap: dict[str, object] | None = None, shuffle: bool = False) -> None:  # fmt: skip
+            swap: dict[str, object] | None = None, shuffle: bool = False,
+            uncertainty: float = 0.0) -> None:  # fmt: skip
         """One model over ``seeds``. ``splits[split]`` is its geodesic error in degrees per frame:
         a float (mean of a gamma-distributed error), a callable ``(seed, n) -> (n,)``, or
         ``"constant"`` (the training-mean pose plus 0.5 deg noise). Translation errors follow the
         same scale in metres. ``swap`` gives the errors with the swapped satellite image (default:
-        the same predictions)."""
+        the same predictions). The ``uncertainty`` column is ``uncertainty * error + N(0, 1)``."""
         variant = VariantSpec(
             label, label, "pd_re_net", satellite_input="blank" if blank else "image"
         )
@@ -96,16 +97,19 @@ class Repro:
             for split, spec in splits.items():
                 for satellite in ("true", "swap"):
                     use = spec if satellite == "true" else (swap or {}).get(split, spec)
-                    self.write(key, split, satellite, use, seed, train, shuffle)
+                    same = satellite == "true" or split not in (swap or {})
+                    self.write(key, split, "true" if same else satellite, use, seed, train,
+                               shuffle, uncertainty, satellite)  # fmt: skip
 
-    def write(self, key, split, satellite, spec, seed, train, shuffle) -> Path:
+    def write(self, key, split, draw, spec, seed, train, shuffle, unc, satellite) -> Path:
         R, T = self.poses(split)
         n = len(R)
-        rng = np.random.default_rng(zlib.crc32(f"{key}|{split}|{satellite}".encode()))
+        rng = np.random.default_rng(zlib.crc32(f"{key}|{split}|{draw}".encode()))
         if isinstance(spec, str):  # the constant predictor, slightly jittered
             R_bar, T_bar = self.mean_pose(train)
             R_hat = perturbed(np.repeat(R_bar[None], n, 0), np.full(n, 0.5), rng)
             T_hat = T_bar + rng.normal(0, 0.5, (n, 3))
+            err = np.full(n, 0.5)
         else:
             err = spec(seed, n) if callable(spec) else rng.gamma(4.0, spec / 4.0, n)
             R_hat = perturbed(R, err, rng)
@@ -113,7 +117,7 @@ class Repro:
         frame = predictions_frame(
             torch.tensor(R_hat), torch.tensor(R), torch.tensor(T_hat),
             torch.tensor(T), index=np.arange(n),
-            uncertainty=torch.from_numpy(rng.normal(size=n)),
+            uncertainty=torch.from_numpy(unc * err + rng.normal(size=n)),
             extra={"city": ["x"] * n, "centre": [0] * n,
                    "flight": self.labels[split]["flight"].tolist(), "sat_index": [0] * n},
         )  # fmt: skip
