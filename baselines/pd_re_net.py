@@ -11,8 +11,17 @@ distribution is their softmax over the lattice, i.e. probabilities summing to 1 
 like the target. (DirectionNet uses softplus and an area-weighted sum instead; either way Eq. 14
 compares probability vectors, so alpha's meaning below is unaffected.)
 
-Decoding: the expectation of each column (Eq. 9, ``sum_k p_k x_k`` normalised), stacked as columns,
-then SVD orthogonalisation (``special_orthogonalize``, det +1).
+Decoding (DirectionNet, Chen et al. CVPR 2021): the expectation of each column distribution
+(Eq. 9, ``sum_k p_k x_k``) is normalised to the unit sphere, the three unit vectors are stacked as
+columns and projected to SO(3) by SVD (special orthogonal Procrustes with the determinant fix,
+``special_orthogonalize``). Normalising first weighs the three columns alike; without it a broad
+column (short resultant) would count less in the projection than a sharp one. A column whose
+resultant vanishes (e.g. mass split between antipodes) contributes a zero column (its norm is
+clamped at 1e-12); the projection is then decided by the other two columns.
+
+Discontinuities: none inherent in the representation (three directions on S^2 and the SVD are
+continuous on SO(3)); the decoding is undefined only for degenerate distributions whose normalised
+expectations span less than a plane (two vanishing resultants).
 
 Loss (Eq. 15): ``L_dir (Eq. 13) + alpha * s * L_dis (Eq. 14)`` with alpha = 8e7, averaged over the
 batch. L_dir uses the Eq. 9 expectations before orthogonalisation (Algorithm 1, steps 3-4).
@@ -31,9 +40,13 @@ does there. Equivalently: DirectionNet's grid with every sin weight replaced by 
 spread loss (beta = 0.1) is not part of the paper's Eq. 15 and is left out.
 
 Uncertainty: the spherical variance ``1 - |sum_k p_k x_k|`` averaged over the three columns, in
-[0, 1] (0 = point masses). ``log_prob``: the three column distributions are independent (as the
-paper assumes), so it is the sum of the three log densities (1/sr) at the lattice points nearest to
-the columns of R.
+[0, 1] (0 = point masses). ``log_prob``: log density w.r.t. the normalised Haar measure on SO(3)
+(a uniform prediction scores 0) of ``p(R) ~ prod_j p_j(R e_j)``, the product of the three column
+distributions normalised over SO(3) by quadrature on a Haar-uniform grid
+(``column_product_log_density``; the product alone is not a density on SO(3)).
+
+Version 2: decoding normalises the column expectations before the SVD; ``log_prob`` is on the
+Haar measure.
 """
 
 from __future__ import annotations
@@ -46,8 +59,8 @@ from benchmark.models import AttitudeHead, register_head
 from benchmark.models.heads import check_lattice_options
 from benchmark.models.spherical import (
     LatticeDecoder,
+    column_product_log_density,
     directionnet_loss,
-    lattice_log_density,
     resultant_length,
 )
 
@@ -58,6 +71,7 @@ class PdReNet(AttitudeHead):
 
     paper_name = "Pd/Re-Net"
     is_probabilistic = True
+    version = 2
 
     def __init__(
         self,
@@ -85,9 +99,10 @@ class PdReNet(AttitudeHead):
         return discrete_vmf(R.transpose(-1, -2), self.kappa, self.grid.to(R.dtype))
 
     def decode_distribution(self, p: Tensor) -> Tensor:
-        """(B, 3, n) -> (B, 3, 3): Eq. 9 expectation per column, then SVD orthogonalisation."""
+        """(B, 3, n) -> (B, 3, 3): Eq. 9 expectation per column, normalised, then SVD projection."""
         resultant = p @ self.grid.to(p.dtype)  # (B, 3 columns, 3 coordinates)
-        return special_orthogonalize(resultant.transpose(-1, -2))
+        length = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
+        return special_orthogonalize((resultant / length).transpose(-1, -2))
 
     def decode(self, raw: Tensor) -> Tensor:
         return self.decode_distribution(self.distribution(raw))
@@ -100,9 +115,9 @@ class PdReNet(AttitudeHead):
         return directionnet_loss(p, target, p @ grid, columns, self.alpha, 3).mean()
 
     def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
-        """(B,) sum over the 3 columns of the log density (1/sr) at the nearest lattice point."""
+        """(B,) log density of R w.r.t. the normalised Haar measure (0 for a uniform prediction)."""
         log_p = torch.log_softmax(raw, dim=-1)
-        return lattice_log_density(log_p, R.transpose(-1, -2), self.grid).sum(-1)
+        return column_product_log_density(log_p, R, self.grid)
 
     def uncertainty(self, raw: Tensor) -> Tensor:
         """(B,) mean spherical variance ``1 - |E x|`` of the three columns, in [0, 1]."""

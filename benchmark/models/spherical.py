@@ -12,11 +12,18 @@ and gives ``log_prob`` without a division.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import torch
 from torch import Tensor, nn
 
+from benchmark.geometry import fibonacci_sphere, quat_to_rotmat, super_fibonacci
 from benchmark.models.heads import distribution_loss_scale, mlp, sphere_volume
+
+# Haar quadrature of the column-product density on SO(3) (``column_product_log_density``): a
+# super-Fibonacci grid of this many unit quaternions, i.e. rotations (each rotation once: the
+# spiral covers S^3, and q, -q are the same rotation, so the grid is uniform on SO(3) as it is).
+HAAR_GRID_SIZE = 2**15
 
 
 class LatticeDecoder(nn.Module):
@@ -86,3 +93,56 @@ def resultant_length(p: Tensor, grid: Tensor) -> Tensor:
     variance used as the uncertainty of the direction heads.
     """
     return torch.linalg.vector_norm(p @ grid.to(p.dtype), dim=-1)
+
+
+@lru_cache(maxsize=4)
+def _haar_grid_column_indices(n_points: int, n_rotations: int) -> Tensor:
+    """``(n_rotations, 3)`` int64: for each rotation of the super-Fibonacci Haar grid, the index of
+    the Fibonacci lattice point (of ``n_points``) nearest to each of its three columns.
+
+    Computed once per process in float64 (in chunks, ~1 s for 2^15 x 4096) and cached.
+    """
+    grid = fibonacci_sphere(n_points, dtype=torch.float64)
+    R = quat_to_rotmat(super_fibonacci(n_rotations, dtype=torch.float64))
+    columns = R.transpose(-1, -2).reshape(-1, 3)  # (M * 3, 3): rows are the columns of R
+    index = torch.cat([(chunk @ grid.T).argmax(-1) for chunk in columns.split(8192)])
+    return index.view(n_rotations, 3)
+
+
+def column_product_log_density(
+    log_p: Tensor, R: Tensor, grid: Tensor, n_rotations: int = HAAR_GRID_SIZE
+) -> Tensor:
+    """Log density on SO(3), w.r.t. the normalised Haar measure, of ``p(R) ~ prod_j f_j(R e_j)``.
+
+    ``f_j`` is the lattice distribution of column j (probability of the nearest lattice point,
+    spread over its cell, as in ``lattice_log_density``). The product of three sphere densities is
+    not a density on SO(3) (the columns of a rotation are not independent), so it is normalised
+    over SO(3): ``log p(R) = s(R) - log mean_m exp(s(R_m))`` with ``s(R) = sum_j log p_j[nearest
+    lattice point to R e_j]`` and ``R_m`` the ``n_rotations``-point super-Fibonacci grid, uniform
+    for the Haar measure (quasi-Monte Carlo quadrature of the normaliser). A uniform prediction
+    scores exactly 0. When every column is a vMF of concentration kappa the result is the matrix
+    Fisher density with ``F = kappa R0`` (a closed-form reference used by the tests).
+
+    Quadrature error: the grid spacing is ~(8 pi^2 / M)^(1/3) rad, 6.2 deg for M = 2^15, so the
+    normaliser is accurate for distributions broader than that. Measured against the matrix Fisher
+    density (lattice vMF columns at three random rotations, log density at the mode): within
+    0.01 nat for kappa = 10 (the training target), 0.03 for kappa = 30, 0.06 for kappa = 100
+    (spread ~6 deg; this includes the 3-deg lattice's own discretisation). Much sharper predictions
+    (a point mass on one lattice cell per column) are not resolved, and their value is not
+    meaningful.
+
+    Args:
+        log_p: ``(B, 3, n)`` log probabilities of the three column distributions.
+        R: ``(B, 3, 3)`` rotations.
+        grid: ``(n, 3)`` the Fibonacci lattice of ``n`` points the distributions live on.
+        n_rotations: size of the Haar quadrature grid.
+    Returns:
+        ``(B,)`` log densities (nats; 0 for a uniform prediction).
+    """
+    n = grid.shape[0]
+    index = _haar_grid_column_indices(n, n_rotations).to(log_p.device)  # (M, 3)
+    at_R = (R.transpose(-1, -2) @ grid.to(R.dtype).T).argmax(-1)  # (B, 3) nearest lattice points
+    score = log_p.gather(-1, at_R[..., None]).squeeze(-1).sum(-1)  # (B,)
+    # s(R_m) for every grid rotation: gather column j's log-probability at index[:, j].
+    on_grid = sum(log_p[:, j, index[:, j]] for j in range(3))  # (B, M)
+    return score - (torch.logsumexp(on_grid, dim=-1) - math.log(n_rotations))
