@@ -74,7 +74,9 @@ class Comparison:
 @dataclass
 class Claim:
     """One checked claim. ``difference`` lists the participating comparisons
-    (``where: Δ [lo, hi] unit symbol``), ``rule`` says what Δ is and when the claim holds."""
+    (``where: Δ [lo, hi] unit symbol``), ``rule`` says what Δ is and when the claim holds;
+    ``comparisons`` and ``excluded`` are the structured evidence (``benchmark.runner.findings``
+    writes its sentences from them)."""
 
     claim: str
     source: str
@@ -84,6 +86,8 @@ class Claim:
     rule: str = ""
     comparisons: list[Comparison] = field(default_factory=list)
     excluded: list[str] = field(default_factory=list)
+    kind: str = "paper"  # "sanity", "paper", "satellite" (split in ``split``) or "control"
+    split: str = ""
 
 
 def unit_of(metric: str) -> str:

@@ -64,7 +64,9 @@ def constant_claim(ev: Evidence) -> Claim:
         rule = "Δ = δφ(head) − δφ(constant); claimed Δ < 0 for every head (no participation rule)"
         return build_claim(claim, source, rule, comps, [])
 
-    return safe_claim(build, claim, source)
+    out = safe_claim(build, claim, source)
+    out.kind, out.split = "sanity", "standard/test"
+    return out
 
 
 FAMILIES = {

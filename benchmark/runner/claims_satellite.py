@@ -88,7 +88,9 @@ def satellite_claim(ev: Evidence, table: str, split: str) -> Claim:
             out.evidence = "no head beats the constant predictor here; " + out.evidence
         return out
 
-    return safe_claim(build, claim, source)
+    out = safe_claim(build, claim, source)
+    out.kind, out.split = "satellite", split
+    return out
 
 
 def satellite_claims(ev: Evidence) -> list[Claim]:
@@ -153,4 +155,6 @@ def control_claim(ev: Evidence) -> Claim:
             out.verdict = NOT_RUN if not notes else out.verdict
         return out
 
-    return safe_claim(build, claim, source)
+    out = safe_claim(build, claim, source)
+    out.kind, out.split = "control", "generalized/test"
+    return out

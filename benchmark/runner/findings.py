@@ -1,0 +1,142 @@
+"""The findings paragraph of a reproduction, written only from the claim verdicts and their numbers.
+
+Prose written by hand drifts from the numbers it summarises (issue 10); this text is generated
+from the :class:`~benchmark.runner.claims.Claim` objects the claims table is rendered from, so it
+says nothing the table does not: verdict counts, which claims hold and which do not (with the
+differences and intervals exactly as the table prints them), which heads use the satellite image
+on which split, and which heads were left out for not beating the constant predictor.
+"""
+
+from __future__ import annotations
+
+from benchmark.runner.claims import (
+    CONTRADICTED,
+    EXCLUDED,
+    NOT_RUN,
+    SUPPORTED,
+    UNRESOLVED,
+    Claim,
+    Comparison,
+)
+
+ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN)
+
+
+def _range(comps: list[Comparison]) -> str:
+    """``Δ -3.10`` or ``Δ from -14.89 to -7.93°`` over the comparisons (same digits as the
+    table)."""
+    diffs = sorted(c.diff for c in comps)
+    unit = comps[0].unit
+    if len(diffs) == 1:
+        return f"Δ {diffs[0]:+.2f}{unit}"
+    return f"Δ from {diffs[0]:+.2f} to {diffs[-1]:+.2f}{unit}"
+
+
+def _claim_summary(number: int, c: Claim) -> str:
+    """``claim 3 (text: why)``: why it holds or not, from its comparisons."""
+    active = [x for x in c.comparisons if x.verdict != EXCLUDED]
+    if c.verdict == SUPPORTED:
+        why = f"{len(active)} of {len(active)} comparisons supported, {_range(active)}"
+    elif c.verdict == CONTRADICTED:
+        bad = [x for x in active if x.verdict == CONTRADICTED]
+        why = "contradicted by " + "; ".join(x.text() for x in bad)
+    elif c.verdict == UNRESOLVED and not active:
+        why = "no comparison takes part (a head does not beat the constant predictor)"
+    elif c.verdict == UNRESOLVED:
+        n_sup = sum(x.verdict == SUPPORTED for x in active)
+        why = f"{n_sup} of {len(active)} comparisons supported, {_range(active)}"
+    else:
+        return f"claim {number}"
+    return f"claim {number} ({c.claim}: {why})"
+
+
+def _heads(c: Claim) -> dict[str, str]:
+    """Per head of a satellite claim: ``uses``, ``does not use``, ``not resolved`` or
+    ``excluded`` (from its δψ and δφ comparisons, named ``"<head> δψ"``)."""
+    by_head: dict[str, list[Comparison]] = {}
+    for x in c.comparisons:
+        by_head.setdefault(x.where.rsplit(" ", 1)[0], []).append(x)
+    out = {}
+    for head, comps in by_head.items():
+        verdicts = {x.verdict for x in comps}
+        if verdicts == {EXCLUDED}:
+            out[head] = "excluded"
+        elif CONTRADICTED in verdicts:
+            out[head] = "does not use"
+        elif verdicts == {SUPPORTED}:
+            out[head] = "uses"
+        else:
+            out[head] = "not resolved"
+    return out
+
+
+def satellite_sentence(number: int, c: Claim) -> str | None:
+    """One sentence per satellite claim that was run."""
+    if c.kind != "satellite" or c.verdict == NOT_RUN:
+        return None
+    heads = _heads(c)
+    tested = {h: s for h, s in heads.items() if s != "excluded"}
+    split = f"`{c.split}`"
+    if not tested:
+        return (
+            f"On {split} no head beats the constant predictor, so none is tested for using the "
+            f"satellite image (claim {number})."
+        )
+    numbers = "; ".join(x.text() for x in c.comparisons if x.verdict != EXCLUDED)
+    if set(tested.values()) == {"does not use"}:
+        return f"No head uses the satellite image on {split} (claim {number}: {numbers})."
+    if set(tested.values()) == {"uses"}:
+        return f"Every tested head uses the satellite image on {split} (claim {number}: {numbers})."
+    parts = []
+    for status in ("uses", "does not use", "not resolved"):
+        names = [h for h, s in tested.items() if s == status]
+        if names:
+            verb = {"uses": "use(s) it", "does not use": "do(es) not use it"}.get(
+                status, "is/are not resolved"
+            )
+            parts.append(f"{', '.join(names)} {verb}")
+    return f"On {split}: " + "; ".join(parts) + f" (claim {number}: {numbers})."
+
+
+def _exclusions(claims: list[Claim]) -> list[str]:
+    """``"<head> on <split> (<errors>)"`` per excluded head and split, from the claims' exclusion
+    notes (``"<head> on <split> (<error> − constant Δ [lo, hi])"``)."""
+    errors: dict[str, dict[str, None]] = {}
+    for c in claims:
+        for note in c.excluded:
+            head, _, rest = note.partition(" (")
+            errors.setdefault(head, {})[rest.split(" − ", 1)[0]] = None
+    return [f"{head} ({', '.join(e for e in errors[head] if e)})" for head in sorted(errors)]
+
+
+def findings_markdown(claims: list[Claim]) -> str:
+    """Markdown findings (a counts sentence, then bullets) from the checked claims, numbered as
+    in the claims table (1-based, in order)."""
+    numbered = list(enumerate(claims, 1))
+    counts = {v: sum(c.verdict == v for c in claims) for v in ORDER}
+    head = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
+    lines = [f"Of {len(claims)} claims checked: {head}.", ""]
+    for verdict in ORDER:
+        group = [
+            (i, c)
+            for i, c in numbered
+            if c.verdict == verdict and (c.kind != "satellite" or verdict == NOT_RUN)
+        ]
+        if not group:
+            continue
+        if verdict == NOT_RUN:
+            lines.append(f"- **{verdict}**: " + ", ".join(f"claim {i}" for i, _ in group) + ".")
+        else:
+            lines.append(f"- **{verdict}**: " + "; ".join(_claim_summary(i, c) for i, c in group))
+    for i, c in numbered:
+        sentence = satellite_sentence(i, c)
+        if sentence is not None:
+            lines.append(f"- {sentence}")
+    excluded = _exclusions(claims)
+    if excluded:
+        lines.append(
+            "- Left out of the comparisons for not beating the constant predictor: "
+            + "; ".join(excluded)
+            + "."
+        )
+    return "\n".join(lines) + "\n"
