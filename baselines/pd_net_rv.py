@@ -1,21 +1,47 @@
-"""Pd-Net-Rv: a vMF lattice distribution over the rotation axis plus an angle branch (Table 1).
+"""Pd-Net-Rv: a vMF lattice distribution over the rotation axis plus a distribution over the
+rotation angle (Table 1).
 
 The paper builds it "on the basis of DirectionNet-R by adding a parallel branch to estimate the
-two-norm of the equivalent rotation vector" (Sec. 3.3.1).
+two-norm of the equivalent rotation vector" (Sec. 3.3.1). The branch here predicts a distribution
+over the angle (version 1 predicted a point), so the head has a density on SO(3) and its
+log-likelihood is comparable with the other heads'.
 
 Label: ``v = rotmat_to_rotvec(R_uav^sat)`` (angle in [0, pi]); axis ``v / |v|`` (``e_z`` when the
-angle is below 1e-6, where the axis is undefined) and angle ``|v|``. Near an angle of pi the axis
-flips to its antipode, the rotation-vector discontinuity of Eq. 7.
+angle is below 1e-6, where the axis is undefined) and angle ``|v|``.
 
-Grid and target: the 4096-point Fibonacci lattice; ``discrete_vmf(axis, kappa)``, sum 1.
-Prediction: softmax over the lattice (sum 1) and ``angle = pi * sigmoid(z)`` in (0, pi).
-Decoding: Eq. 9 expectation of the axis, times the angle, through ``rotvec_to_rotmat``.
-Loss: ``L_dir + alpha * s * L_dis`` for the axis (as in ``pd_re_net``, alpha in DirectionNet's
-units) plus ``angle_weight * (angle - angle*)^2`` (rad^2), mean over the batch.
+Axis: grid the 4096-point Fibonacci lattice; target ``discrete_vmf(axis, kappa)`` (sum 1);
+prediction softmax over the lattice; decoded by the Eq. 9 expectation; loss ``L_dir + alpha * s *
+L_dis`` (as in ``pd_re_net``, alpha in DirectionNet's units).
 
-Uncertainty: spherical variance ``1 - |E axis|`` of the axis distribution, in [0, 1]. ``log_prob``:
-log density (1/sr) of the axis of R under the axis distribution; the angle branch is a point
-estimate and does not contribute.
+Angle: ``n_angle_bins`` (128) equal bins on the interval [0, pi] (width 1.4 deg); target the von
+Mises ``softmax_b(kappa cos(c_b - angle))`` restricted to the interval; prediction a softmax. As
+for Pd-Net-E's pitch, the mean of a truncated target is biased near the ends, so the angle is
+decoded as the centre whose target is closest to the prediction in cross-entropy,
+``argmin_mu -kappa m.(cos mu, sin mu) + log Z(mu)`` with ``m = sum_b p_b (cos c_b, sin c_b)``
+(``8 n + 1`` candidates on [0, pi], a parabola through the minimum, clipped to [0, pi]); the target
+decodes to its angle within 1e-3 deg, also at 0 and pi. Loss ``angle_weight * [CE(p*, p) + 1 -
+cos(m, m*)]`` (cross-entropy plus the Eq. 13 term on the half circle ``e(c) = (cos c, sin c)``,
+``m*`` the target's mean, so the target minimises both). Version 1's ``(angle - angle*)^2`` on a
+point estimate is gone.
+
+Decoding: ``rotvec_to_rotmat(axis * angle)``. Loss: axis loss + angle loss, mean over the batch.
+
+Uncertainty: the mean of the axis' spherical variance ``1 - |sum p x|`` and the angle's
+``1 - |m|``, in [0, 1].
+
+``log_prob``: log density of R w.r.t. the normalised Haar measure on SO(3). In axis-angle
+coordinates (axis on S^2, angle in [0, pi]) the Haar measure is ``(1 - cos t) dt dOmega / (4 pi^2)``
+(``int_0^pi (1 - cos t) dt = pi``, times ``4 pi`` sr, over ``4 pi^2``: 1). The prediction is read as
+a histogram whose mass ``P_axis(k) P_angle(j)`` is spread Haar-uniformly over its cell (lattice
+cell k, area ``4 pi / n``, times angle bin j = [l, u]), of Haar measure
+``(1 / n) ((u - sin u) - (l - sin l)) / pi``: ``log_prob = log P_axis + log P_angle - log(cell)``.
+The Haar-uniform prediction (uniform axis, angle masses ``Delta(t - sin t) / pi``) scores 0; over
+Haar-uniform R the exponential has expectation 1 (up to the lattice cells' unequal areas).
+
+Discontinuities (inherent to the rotation vector, they stay): at angle pi the axis flips to its
+antipode (``v`` and ``-v`` are the same rotation; Eq. 7's discontinuity), so the axis target jumps
+there; at angle 0 the axis is undefined (label ``e_z``) and the axis distribution carries no
+information. Introduced: none.
 """
 
 from __future__ import annotations
@@ -27,10 +53,11 @@ from torch import Tensor
 
 from benchmark.geometry import discrete_vmf, fibonacci_sphere, rotmat_to_rotvec, rotvec_to_rotmat
 from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_lattice_options, check_option, mlp
-from benchmark.models.spherical import directionnet_loss, lattice_log_density, resultant_length
+from benchmark.models.heads import check_lattice_options, check_option, mlp, nearest_grid_index
+from benchmark.models.spherical import cosine_loss, directionnet_loss, resultant_length
 
 _MIN_ANGLE = 1e-6
+_CANDIDATES_PER_BIN = 8  # angle decoding grid: 8 candidates per bin, then a parabola
 
 
 def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
@@ -44,12 +71,49 @@ def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
     return axis, angle
 
 
+def interval_mle(
+    resultant: Tensor, kappa: float, lower: float, candidates: Tensor, log_norm: Tensor
+) -> Tensor:
+    """The centre ``mu`` in [lower, lower + pi] whose truncated von Mises target is closest in
+    cross-entropy to a distribution with resultant ``m``: ``argmin -kappa m.(cos mu, sin mu) +
+    log Z(mu)``. (The same decoder as ``baselines/pd_net_e.py``'s pitch; baselines do not import
+    each other.)
+
+    Args:
+        resultant: ``(..., 2)`` ``sum_b p_b (cos c_b, sin c_b)``.
+        kappa: the target's concentration.
+        lower: lower end of the interval (rad); the interval has length pi.
+        candidates: ``(M,)`` float64 equally spaced candidates from ``lower`` to ``lower + pi``.
+        log_norm: ``(M,)`` float64 ``log Z`` at the candidates.
+    Returns:
+        ``(...)`` radians in [lower, lower + pi], dtype of ``resultant``.
+    """
+    m = resultant.double()
+    f = -kappa * (m[..., :1] * torch.cos(candidates) + m[..., 1:] * torch.sin(candidates))
+    f = f + log_norm  # (..., M)
+    j = f.argmin(-1)
+    last = candidates.shape[0] - 1
+    f0 = f.gather(-1, j[..., None]).squeeze(-1)
+    fm = f.gather(-1, (j - 1).clamp(0, last)[..., None]).squeeze(-1)
+    fp = f.gather(-1, (j + 1).clamp(0, last)[..., None]).squeeze(-1)
+    curvature = fm - 2 * f0 + fp
+    interior = (j > 0) & (j < last) & (curvature > 0)
+    # Vertex of the parabola through the three values; it lies within half a step of j.
+    offset = torch.where(interior, 0.5 * (fm - fp) / curvature.clamp_min(1e-300), 0.0)
+    mu = candidates[j] + offset.clamp(-0.5, 0.5) * (candidates[1] - candidates[0])
+    return mu.clamp(lower, lower + math.pi).to(resultant.dtype)
+
+
 @register_head("pd_net_rv")
 class PdNetRv(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), angle_weight (1)."""
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), angle_weight (1, >= 0),
+    n_angle_bins (128)."""
 
     paper_name = "Pd-Net-Rv"
     is_probabilistic = True
+    # 2: the angle branch predicts a distribution on [0, pi] (was a point estimate); log_prob
+    # w.r.t. the normalised Haar measure (was the axis alone, per steradian).
+    version = 2
 
     def __init__(
         self,
@@ -59,51 +123,100 @@ class PdNetRv(AttitudeHead):
         alpha: float = 8e7,
         hidden: int = 160,
         angle_weight: float = 1.0,
+        n_angle_bins: int = 128,
     ) -> None:
         super().__init__(in_features)
         self.kappa, self.alpha = check_lattice_options("pd_net_rv", n_points, kappa, alpha)
         self.angle_weight = check_option(angle_weight, "angle_weight", "pd_net_rv", inclusive=True)
+        if not isinstance(n_angle_bins, int) or isinstance(n_angle_bins, bool) or n_angle_bins < 4:
+            raise ValueError(f"pd_net_rv: n_angle_bins must be an int >= 4, got {n_angle_bins!r}")
+        self.n_points, self.n_angle_bins = n_points, n_angle_bins
         self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
-        self.net = mlp(in_features, hidden, n_points + 1)
+        edges = math.pi * torch.arange(n_angle_bins + 1, dtype=torch.float64) / n_angle_bins
+        centres = (edges[1:] + edges[:-1]) / 2
+        self.register_buffer("centres", centres, persistent=False)
+        # log Haar measure of (one lattice cell) x (angle bin): (1/n) Delta(t - sin t) / pi.
+        cells = torch.diff(edges - torch.sin(edges)) / (math.pi * n_points)
+        self.register_buffer("log_cells", torch.log(cells), persistent=False)
+        candidates = torch.linspace(
+            0.0, math.pi, _CANDIDATES_PER_BIN * n_angle_bins + 1, dtype=torch.float64
+        )
+        log_norm = torch.logsumexp(self.kappa * torch.cos(centres[None] - candidates[:, None]), -1)
+        self.register_buffer("candidates", candidates, persistent=False)
+        self.register_buffer("log_norm", log_norm, persistent=False)
+        self.net = mlp(in_features, hidden, n_points + n_angle_bins)
 
     def forward(self, features: Tensor) -> dict[str, Tensor]:
-        """(B, F) -> {"logits": (B, n) axis logits, "angle": (B,) radians in (0, pi)}."""
+        """(B, F) -> {"logits": (B, n) axis logits, "angle_logits": (B, n_angle_bins)}."""
         out = self.net(features)
-        return {"logits": out[:, :-1], "angle": math.pi * torch.sigmoid(out[:, -1])}
+        return {"logits": out[:, : self.n_points], "angle_logits": out[:, self.n_points :]}
 
     def distribution(self, raw: dict[str, Tensor]) -> dict[str, Tensor]:
-        """{"axis": (B, n) probabilities, "angle": (B,) point estimate}."""
-        return {"axis": torch.softmax(raw["logits"], dim=-1), "angle": raw["angle"]}
+        """{"axis": (B, n), "angle": (B, n_angle_bins)} probabilities."""
+        return {
+            "axis": torch.softmax(raw["logits"], dim=-1),
+            "angle": torch.softmax(raw["angle_logits"], dim=-1),
+        }
+
+    def _angle_target(self, angle: Tensor) -> Tensor:
+        """(B,) rad in [0, pi] -> (B, n_angle_bins) truncated discrete von Mises."""
+        c = self.centres.to(angle.dtype)
+        return torch.softmax(self.kappa * torch.cos(c - angle[..., None]), dim=-1)
+
+    def _angle_resultant(self, p: Tensor) -> Tensor:
+        """(B, m) -> (B, 2) ``sum_b p_b (cos c_b, sin c_b)``."""
+        c = self.centres.to(p.dtype)
+        return torch.stack([p @ torch.cos(c), p @ torch.sin(c)], dim=-1)
 
     def target_distribution(self, R: Tensor) -> dict[str, Tensor]:
         axis, angle = rotmat_to_axis_angle(R)
-        return {"axis": discrete_vmf(axis, self.kappa, self.grid.to(R.dtype)), "angle": angle}
+        return {
+            "axis": discrete_vmf(axis, self.kappa, self.grid.to(R.dtype)),
+            "angle": self._angle_target(angle),
+        }
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
         resultant = dist["axis"] @ self.grid.to(dist["axis"].dtype)
-        axis = resultant / torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(
-            1e-12
-        )
-        return rotvec_to_rotmat(axis * dist["angle"][..., None])
+        norm = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
+        m = self._angle_resultant(dist["angle"])
+        angle = interval_mle(m, self.kappa, 0.0, self.candidates, self.log_norm)
+        return rotvec_to_rotmat(resultant / norm * angle[..., None])
 
     def decode(self, raw: dict[str, Tensor]) -> Tensor:
         return self.decode_distribution(self.distribution(raw))
 
     def loss(self, raw: dict[str, Tensor], R_gt: Tensor) -> Tensor:
-        p = torch.softmax(raw["logits"], dim=-1)
+        dist = self.distribution(raw)
+        p = dist["axis"]
         grid = self.grid.to(p.dtype)
         axis, angle = rotmat_to_axis_angle(R_gt)
         target = discrete_vmf(axis, self.kappa, grid)
         l_axis = directionnet_loss(
             p[:, None], target[:, None], (p @ grid)[:, None], axis[:, None], self.alpha, 3
         )
-        return (l_axis + self.angle_weight * (raw["angle"] - angle) ** 2).mean()
+        if self.angle_weight == 0:
+            return l_axis.mean()
+        t_angle = self._angle_target(angle)
+        cross_entropy = -(t_angle * torch.log_softmax(raw["angle_logits"], dim=-1)).sum(-1)
+        direction = cosine_loss(
+            self._angle_resultant(dist["angle"]), self._angle_resultant(t_angle)
+        )
+        return (l_axis + self.angle_weight * (cross_entropy + direction)).mean()
 
     def log_prob(self, raw: dict[str, Tensor], R: Tensor) -> Tensor:
-        """(B,) log density (1/sr) of R's rotation axis at the nearest lattice point."""
-        axis, _ = rotmat_to_axis_angle(R)
-        return lattice_log_density(torch.log_softmax(raw["logits"], dim=-1), axis, self.grid)
+        """(B,) log density of R w.r.t. the normalised Haar measure on SO(3) (module docstring):
+        ``log P_axis + log P_angle - log((1/n) Delta(t - sin t) / pi)``."""
+        axis, angle = rotmat_to_axis_angle(R)
+        log_axis = torch.log_softmax(raw["logits"], dim=-1)
+        k = nearest_grid_index(axis.to(log_axis.dtype), self.grid)  # (B,)
+        j = (angle / (math.pi / self.n_angle_bins)).floor().long().clamp(0, self.n_angle_bins - 1)
+        log_angle = torch.log_softmax(raw["angle_logits"], dim=-1)
+        log_mass = log_axis.gather(-1, k[:, None]) + log_angle.gather(-1, j[:, None])
+        return log_mass.squeeze(-1) - self.log_cells.to(log_mass.dtype)[j]
 
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:
-        """(B,) spherical variance of the axis distribution, in [0, 1]."""
-        return 1 - resultant_length(torch.softmax(raw["logits"], dim=-1), self.grid)
+        """(B,) mean of the axis' ``1 - |sum p x|`` and the angle's ``1 - |m|``, in [0, 1]."""
+        dist = self.distribution(raw)
+        axis_var = 1 - resultant_length(dist["axis"], self.grid)
+        angle_var = 1 - torch.linalg.vector_norm(self._angle_resultant(dist["angle"]), dim=-1)
+        return (axis_var + angle_var) / 2
