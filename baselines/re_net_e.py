@@ -6,6 +6,14 @@ deliberate: it is the effect of the representation that the paper measures. Note
 rotation to a nadir satellite camera has pitch near +pi/2 for level flight (UAV pitch 0 -> relative
 pitch 90 deg), i.e. close to gimbal lock, where yaw and roll are ill-defined.
 Decoding: ``euler_to_rotmat`` (Eq. 1).
+
+Discontinuities, all inherent in regressing Euler angles (what the comparison measures), none
+introduced: (1) the +-pi wrap of yaw and roll: rotations a fraction of a degree apart across yaw
+(or roll) = +-180 deg have labels ~2 pi apart; (2) gimbal lock at pitch +-90 deg: there only
+``yaw +- roll`` is defined, and near it the labels are ill-conditioned (level flight, UAV pitch
++0.25 and -0.25 deg, are 0.5 deg apart but their relative yaw and roll labels differ by ~180 deg).
+Decoding is smooth everywhere (any three numbers give a rotation, Lipschitz in them), so a label
+perturbed by d radians decodes within ~3d of the rotation, also near gimbal lock and the wrap.
 """
 
 from __future__ import annotations

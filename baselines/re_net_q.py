@@ -4,6 +4,12 @@ Label: ``rotmat_to_quat_paper(R_uav^sat)``, the four-case conversion of Eq. 3 wh
 jumps between cases (the discontinuity of Eq. 6). The 4 outputs are normalised, and the loss is the
 squared Euclidean distance between the normalised prediction and the label (no q/-q folding, as in
 the paper). Decoding: ``quat_to_rotmat`` of the normalised prediction.
+
+Discontinuities: the label's sign jumps (to ``-q`` or near it) where Eq. 3 switches case, e.g.
+along the level-flight yaw sweep at relative pitch 89 deg; inherent in the paper's target (its
+Eq. 6 argument), kept on purpose. The loss does not fold q and -q for the same reason. Decoding is
+continuous for every non-zero output (the zero quaternion is a degenerate input and raises in
+``quat_to_rotmat``; the normalisation here clamps its norm at 1e-12 first).
 """
 
 from __future__ import annotations

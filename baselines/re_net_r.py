@@ -3,6 +3,10 @@
 Loss: squared Euclidean (Frobenius) distance between the 9 raw numbers and ``R_uav^sat``, the
 plain regression the paper compares against. Decoding: ``special_orthogonalize`` (det +1), the
 closest rotation in Frobenius norm.
+
+Discontinuities: none in the representation (the label is R itself). The SVD projection is
+continuous except at degenerate inputs, matrices whose two smallest singular values (after the
+determinant sign fix) coincide, e.g. rank <= 1 outputs, where the closest rotation is not unique.
 """
 
 from __future__ import annotations

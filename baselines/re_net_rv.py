@@ -3,6 +3,11 @@
 Label: ``rotmat_to_rotvec(R_uav^sat)``, angle in [0, pi]; the vector flips to its antipode when the
 angle crosses pi, the discontinuity the paper discusses. Loss: squared Euclidean distance (rad^2).
 Decoding: Rodrigues (``rotvec_to_rotmat``), a rotation for any output.
+
+Discontinuities: the label jumps from ``pi n`` to ``-pi n`` (2 pi apart) where the rotation angle
+crosses pi; inherent in the rotation vector with angles in [0, pi], kept. None introduced: the
+label goes through the canonical quaternion (accurate at both ends of [0, pi]) and decoding is
+smooth everywhere, including the Taylor series at zero angle.
 """
 
 from __future__ import annotations

@@ -5,6 +5,7 @@ training-set mean and std (buffers ``mean``/``std``, saved with the model; set t
 ``fit_statistics(T_train)`` or ``set_statistics``). Loss: least squares on the standardised values,
 summed over the three axes, mean over the batch (Algorithm 1 step 8, ``(T - T*)^2``, computed in
 standard units so that the three axes weigh alike whatever their spread). Decoding: metres.
+Discontinuities: none (an affine map of R^3).
 """
 
 from __future__ import annotations
