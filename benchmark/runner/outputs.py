@@ -20,6 +20,8 @@ import torch
 from benchmark.runner.claims import evaluate_claims, render_claims
 from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
 from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
+from benchmark.runner.findings import findings_markdown
+from benchmark.runner.frames import FrameStore
 from benchmark.runner.logbook import Logbook
 from benchmark.runner.plan import Unit
 from benchmark.runner.profiles import ReproProfile
@@ -195,6 +197,8 @@ def write_reports(
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
+    # Validation columns in every table once any model was measured on a validation split.
+    show_val = bool(len(frame) and (frame["role"] == "val").any())
     summaries: dict[str, pd.DataFrame] = {}
     input_size = _input_size(data_root)
 
@@ -208,10 +212,10 @@ def write_reports(
         md_path = out / f"{spec.name}.md"
         paths = [md_path]
         if spec.kind == "table":
-            text = markdown_table(spec, summary, paper, extra_labels=[CONSTANT_LABEL])
+            text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val)
             text += extra_metrics_table(spec, summary, EXTRA_METRICS)
         elif spec.kind == "sweep":
-            text = sweep_table(spec, summary)
+            text = sweep_table(spec, summary, show_val)
             if len(summary):
                 png = out / f"{spec.name}.png"
                 sweep_figure(spec, summary, png, per_seed=part)
@@ -223,19 +227,34 @@ def write_reports(
         written += paths
         if logbook is not None:
             logbook.log_table_outputs(spec.name, paths)
-    claims = evaluate_claims(summaries)
+    findings_md, claims_md = _claims_section(summaries, units, data_root, workdir)
     audit_md, audit_rows = heading_cue_report(data_root)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
     record = collect_provenance(units, results, data_root, workdir)
     written += write_provenance(record, out)
     readme = out / "README.md"
-    readme.write_text(
-        _readme(profile, specs, claims, invocations or [], heading_cue_summary(audit_rows))
-        + provenance_summary(record)
-    )
+    audit = heading_cue_summary(audit_rows)
+    text = _readme(profile, specs, findings_md, claims_md, invocations or [], audit)
+    readme.write_text(text + provenance_summary(record))
     written.append(readme)
     return written
+
+
+def _claims_section(
+    summaries: dict[str, pd.DataFrame], units: list[Unit], data_root: Path, workdir: Path | None
+) -> tuple[str, str]:
+    """The findings (generated from the verdicts, so prose cannot drift from the numbers) and the
+    claims table, decided on per-frame errors (``FrameStore`` over ``workdir``). Without a
+    workdir there are no per-frame errors and both say so."""
+    if workdir is None:
+        missing = (
+            "Claims not evaluated: verdicts are decided on per-frame errors, and no work "
+            "directory with the units' predictions was given."
+        )
+        return missing, missing
+    claims = evaluate_claims(summaries, FrameStore(workdir, data_root, units))
+    return findings_markdown(claims), render_claims(claims)
 
 
 def _input_size(data_root: Path) -> int:
@@ -245,7 +264,12 @@ def _input_size(data_root: Path) -> int:
 
 
 def _readme(
-    profile: ReproProfile, specs: list[TableSpec], claims: list, runs: list[dict], audit: str
+    profile: ReproProfile,
+    specs: list[TableSpec],
+    findings_md: str,
+    claims_md: str,
+    runs: list[dict],
+    audit: str,
 ) -> str:
     cpu = platform.processor() or platform.machine()
     lines = [
@@ -271,9 +295,15 @@ def _readme(
         f"lr {profile.lr:g} ({profile.lr_schedule}), batch {profile.batch_size}. Dataset profile "
         f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery).",
         "",
+        "## Findings",
+        "",
+        "Generated from the verdicts of the claims table below (numbers as printed there).",
+        "",
+        findings_md.rstrip(),
+        "",
         "## Claims of the paper, checked",
         "",
-        render_claims(claims),
+        claims_md,
         "",
         audit,
         "",

@@ -96,7 +96,7 @@ def _torch_libraries() -> dict[str, str]:
         elif line.startswith("Intel(R) MKL-DNN"):
             out["onednn"] = line.removeprefix("Intel(R) MKL-DNN").split("(")[0].strip()
         elif line.startswith("at::get_num_threads()"):
-            out["torch_threads_report_process"] = line.split(":", 1)[1].strip()
+            out["torch_threads_report_process"] = line.rsplit(":", 1)[1].strip()
     return out
 
 

@@ -165,9 +165,13 @@ def has_val(summary: pd.DataFrame) -> bool:
     return not summary.empty and "role" in summary and bool((summary["role"] == "val").any())
 
 
-def val_metrics(spec: TableSpec, summary: pd.DataFrame) -> list[str]:
-    """The metrics shown on the validation split beside the test numbers (none without any)."""
-    return [m for m in spec.metrics if m in VAL_METRICS] if has_val(summary) else []
+def val_metrics(spec: TableSpec, summary: pd.DataFrame, show: bool | None = None) -> list[str]:
+    """The metrics shown on the validation split beside the test numbers: those of
+    :data:`VAL_METRICS` in the spec when ``show`` (default: when the summary has validation rows;
+    a reproduction that measured them elsewhere passes True so that a table whose models have no
+    validation split shows ``–``)."""
+    show = has_val(summary) if show is None else show
+    return [m for m in spec.metrics if m in VAL_METRICS] if show else []
 
 
 def val_cell(row: pd.Series | None, m: str, train_split: str, val_splits: dict[str, str]) -> str:
@@ -221,17 +225,22 @@ def table_rows(spec: TableSpec, split: str, extra_labels: list[str]) -> list[tup
 
 
 def markdown_table(
-    spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame, extra_labels: list[str] = ()
+    spec: TableSpec,
+    summary: pd.DataFrame,
+    paper: pd.DataFrame,
+    extra_labels: list[str] = (),
+    show_val: bool | None = None,
 ) -> str:
-    """A Markdown table of one table spec: per metric, the paper's number (paper tables only) and
-    ours; then each ``swap_metrics`` entry measured with the swapped satellite image."""
+    """A Markdown table of one table spec: per metric, the paper's number (paper tables only),
+    ours and (see :func:`val_metrics`, ``show_val``) ours on the validation split; then each
+    ``swap_metrics`` entry measured with the swapped satellite image."""
     lines = [
         f"## {spec.title}",
         "",
         f"Source spec: `{spec.source.name}`. {interval_note(summary)}",
         "",
     ]
-    vals = val_metrics(spec, summary)
+    vals = val_metrics(spec, summary, show_val)
     val_splits = val_splits_of(summary)
     if vals:
         lines += [val_note(val_splits), ""]
@@ -354,9 +363,11 @@ def interval_note(summary: pd.DataFrame) -> str:
 
 
 def val_note(val_splits: dict[str, str]) -> str:
+    """The table note on the *val* columns, naming each training split's validation split."""
     pairs = ", ".join(f"`{v}` for `{t}`" for t, v in val_splits.items())
+    where = f" ({pairs})" if pairs else ""
     return (
-        "Columns *val*: the same model on the validation split of its training data "
-        f"({pairs}); profile settings, learning rates and loss terms are chosen on these numbers, "
-        f"never on the test splits. `{NO_VAL}`: the training split has no validation split."
+        f"Columns *val*: the same model on the validation split of its training data{where}; "
+        "profile settings, learning rates and loss terms are chosen on these numbers, never on the "
+        f"test splits. `{NO_VAL}`: the training split has no validation split."
     )

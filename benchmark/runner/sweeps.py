@@ -27,15 +27,16 @@ from benchmark.runner.report import (
 from benchmark.runner.specs import TableSpec
 
 
-def sweep_table(spec: TableSpec, summary: pd.DataFrame) -> str:
-    """Markdown for a figure: one row per (split, variant, x)."""
+def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = None) -> str:
+    """Markdown for a figure: one row per (split, variant, x), with validation columns as in
+    ``benchmark.runner.report.markdown_table``."""
     lines = [
         f"## {spec.title}",
         "",
         f"Source spec: `{spec.source.name}`. {interval_note(summary)}",
         "",
     ]
-    vals = val_metrics(spec, summary)
+    vals = val_metrics(spec, summary, show_val)
     val_splits = val_splits_of(summary)
     if vals:
         lines += [val_note(val_splits), ""]

@@ -84,6 +84,44 @@ class TestReproduceSmoke:
         trained = results[results.label != "Constant (train mean)"]
         assert trained[["dphi_deg", "dE_m"]].notna().all().all()
 
+    def test_validation_beside_test(self, full_run):
+        tmp, _ = full_run
+        results = pd.read_csv(tmp / "reports" / "results.csv")
+        val = results[results.role == "val"]
+        assert set(val.split) >= {"standard/val", "towns/val"}
+        assert not val.train_split.str.startswith("height").any()  # heights have no val split
+        table1 = (tmp / "reports" / "table1.md").read_text()
+        assert "δφ geodesic (°) val" in table1 and "`standard/val` for `standard/train`" in table1
+        fig5 = (tmp / "reports" / "fig5.md").read_text().splitlines()
+        header = next(x for x in fig5 if x.startswith("| split |")).split(" | ")
+        i = header.index("δφ geodesic (°) val")  # shown, but the height models have none
+        rows = [x.split(" | ") for x in fig5 if x.startswith("| `height")]
+        assert rows and all(r[i] == "–" for r in rows)
+
+    def test_provenance(self, full_run, smoke_dataset):
+        import hashlib
+
+        from benchmark.runner.provenance_report import compare_provenance
+
+        tmp, _ = full_run
+        reports = tmp / "reports"
+        record = json.loads((reports / "provenance.json").read_text())
+        manifest = hashlib.sha256((smoke_dataset / "manifest.json").read_bytes()).hexdigest()
+        assert record["dataset"]["manifest_sha256"] == manifest
+        assert "[provenance.md](provenance.md)" in (reports / "README.md").read_text()
+        assert compare_provenance(reports / "provenance.json", record) == []
+        units = record["units"]
+        assert units, "reproduce must pass workdir= to write_reports (per-unit digests)"
+        for key, digests in units.items():
+            ckpt = tmp / "runs" / "units" / key / "train" / "checkpoint.pt"
+            assert (
+                digests["checkpoint_file_sha256"] == hashlib.sha256(ckpt.read_bytes()).hexdigest()
+            )
+            csv = tmp / "runs" / "units" / key / "eval" / "standard__test.csv"
+            if csv.is_file():
+                got = digests["predictions"]["standard__test.csv"]
+                assert got == hashlib.sha256(csv.read_bytes()).hexdigest()
+
     def test_paper_numbers_beside_ours(self, full_run):
         tmp, _ = full_run
         table1 = (tmp / "reports" / "table1.md").read_text()
