@@ -37,6 +37,10 @@ SUPPORTED, CONTRADICTED = "supported", "contradicted"
 UNRESOLVED, NOT_RUN, EXCLUDED = "not resolved at this scale", "not run", "excluded"
 N_BOOT = 4000
 CONFIDENCE = 0.95
+# Fewer flights than this on a split: no verdict. A percentile bootstrap over G clusters has far
+# below nominal coverage for small G (one flight: every replicate is the same, a zero-width
+# interval), so such a comparison is "not resolved at this scale" whatever its interval.
+MIN_FLIGHTS = 5
 COMBINE_RULE = (
     "supported when every participating comparison's 95% interval is on the claimed side of the "
     "threshold; contradicted when one comparison's Bonferroni-corrected interval (level "
@@ -65,10 +69,17 @@ class Comparison:
     verdict: str = UNRESOLVED
     note: str = ""
     unit: str = "°"
+    n_flights: int | None = None  # flights of the split (None: not from a flight bootstrap)
+
+    @property
+    def too_few_flights(self) -> bool:
+        return self.n_flights is not None and self.n_flights < MIN_FLIGHTS
 
     def text(self) -> str:
         sym = SYMBOL.get(self.verdict, "")
-        return f"{self.where}: {self.diff:+.2f} [{self.lo:+.2f}, {self.hi:+.2f}]{self.unit} {sym}"
+        few = f" ({self.n_flights} flight(s))" if self.too_few_flights else ""
+        interval = f"[{self.lo:+.2f}, {self.hi:+.2f}]"
+        return f"{self.where}: {self.diff:+.2f} {interval}{self.unit}{few} {sym}"
 
 
 @dataclass
@@ -129,7 +140,10 @@ class Evidence:
             raise ValueError(f"{where}: the two models were evaluated on different frames")
         diff, reps = pooled_replicates(b.values, a.values, a.flight, self.n_boot, seed=0)
         lo, hi = percentile_interval(reps, CONFIDENCE)
-        return Comparison(where, diff, lo, hi, claimed, threshold, reps, unit=unit)
+        flights = len(np.unique(a.flight))
+        return Comparison(
+            where, diff, lo, hi, claimed, threshold, reps, unit=unit, n_flights=flights
+        )
 
     def beats_constant(self, model: Model, split: str, metric: str) -> Comparison:
         """err(head) − err(constant) on ``split``; ``verdict`` SUPPORTED when the head is better."""
@@ -141,19 +155,21 @@ class Evidence:
                 self.constant(model, split, metric),
                 unit=unit_of(metric),
             )
-            c.verdict = SUPPORTED if c.hi < 0 else UNRESOLVED
+            c.verdict = SUPPORTED if c.hi < 0 and not c.too_few_flights else UNRESOLVED
             self._beats[key] = c
         return self._beats[key]
 
     def exclusion(self, model: Model, split: str, metric: str) -> str | None:
-        """None when the head takes part, else why not (its difference to the constant)."""
+        """None when the head takes part, else why not: its difference to the constant is not
+        clearly below zero, or the split has fewer than ``MIN_FLIGHTS`` flights."""
         c = self.beats_constant(model, split, metric)
         if c.verdict == SUPPORTED:
             return None
         x = f" [{model[2]}]" if model[2] is not None else ""
         return (
             f"{model[1]}{x} on {split} ({NAMES.get(metric, metric)} − constant "
-            f"{c.diff:+.2f} [{c.lo:+.2f}, {c.hi:+.2f}]{c.unit})"
+            f"{c.diff:+.2f} [{c.lo:+.2f}, {c.hi:+.2f}]{c.unit}"
+            + (f"; {c.n_flights} flight(s))" if c.too_few_flights else ")")
         )
 
     def compare(
@@ -183,6 +199,8 @@ def decide(c: Comparison, confidence: float = CONFIDENCE) -> str:
     """Verdict of one comparison from its interval at ``confidence``."""
     if c.replicates is None:
         return c.verdict
+    if c.too_few_flights:
+        return UNRESOLVED
     lo, hi = percentile_interval(c.replicates, confidence)
     below, above = hi < c.threshold, lo > c.threshold
     if (below and c.claimed < 0) or (above and c.claimed > 0):
@@ -239,7 +257,10 @@ def build_claim(
             "the constant predictor",
         )
     if excluded:
-        evidence.append("excluded (not better than the constant predictor): " + "; ".join(excluded))
+        evidence.append(
+            "excluded (not better than the constant predictor, or too few flights): "
+            + "; ".join(excluded)
+        )
     return Claim(
         claim,
         source,
@@ -330,7 +351,10 @@ RULE_NOTE = (
     "over its seeds; the interval is the 95% percentile interval of a bootstrap resampling whole "
     f"flights and, per model, seeds ({N_BOOT} replicates). ✓ supported: the interval excludes zero "
     "(or the stated threshold) on the claimed side; ✗ contradicted: it excludes it on the other "
-    "side; ~ not resolved at this scale. A head takes part in a comparison only when it beats the "
-    "constant predictor on that split and error (interval below zero); excluded heads are listed. "
+    "side; ~ not resolved at this scale (always so on a split with fewer than "
+    f"{MIN_FLIGHTS} flights: a bootstrap over so few flights has no coverage). A head takes part "
+    "in a comparison only when it beats the constant predictor on that split and error (interval "
+    "below zero); excluded heads are listed "
+    "with their difference to the constant. "
     f"Several comparisons: {COMBINE_RULE}."
 )

@@ -60,7 +60,11 @@ def constant_claim(ev: Evidence) -> Claim:
         comps = []
         for label in ev.frames.labels("table1", "standard/test", control=False):
             c = ev.beats_constant(("table1", label, None), "standard/test", "dphi_deg")
-            comps.append(Comparison(label, c.diff, c.lo, c.hi, replicates=c.replicates))
+            comps.append(
+                Comparison(
+                    label, c.diff, c.lo, c.hi, replicates=c.replicates, n_flights=c.n_flights
+                )
+            )
         rule = "Δ = δφ(head) − δφ(constant); claimed Δ < 0 for every head (no participation rule)"
         return build_claim(claim, source, rule, comps, [])
 
@@ -198,7 +202,8 @@ def uncertainty_claim(ev: Evidence) -> Claim:
             unc, err = ev.values(model, split, "uncertainty"), ev.values(model, split, "dphi_deg")
             rho, reps = spearman_replicates(unc.values, err.values, err.flight, ev.n_boot // 2)
             lo, hi = percentile_interval(reps, CONFIDENCE)
-            comps.append(Comparison(split, rho, lo, hi, +1, 0.0, reps, unit=""))
+            flights = len(set(err.flight.tolist()))
+            comps.append(Comparison(split, rho, lo, hi, +1, 0.0, reps, unit="", n_flights=flights))
         rule = (
             "ρ = Spearman(uncertainty, δφ), 95% bootstrap over flights and seeds; claimed ρ > 0; "
             "Pd/Re-Net must beat the constant predictor on δφ"

@@ -32,6 +32,16 @@ def _range(comps: list[Comparison]) -> str:
     return f"Δ from {diffs[0]:+.2f} to {diffs[-1]:+.2f}{unit}"
 
 
+def _why_none(c: Claim) -> str:
+    """Why no comparison of ``c`` takes part, from its exclusion notes."""
+    few = [e for e in c.excluded if e.endswith("flight(s))")]
+    if few and len(few) == len(c.excluded):
+        return "too few flights for a flight bootstrap"
+    if few:
+        return "heads do not beat the constant predictor, or too few flights"
+    return "a head does not beat the constant predictor"
+
+
 def _claim_summary(number: int, c: Claim) -> str:
     """``claim 3 (text: why)``: why it holds or not, from its comparisons."""
     active = [x for x in c.comparisons if x.verdict != EXCLUDED]
@@ -41,7 +51,7 @@ def _claim_summary(number: int, c: Claim) -> str:
         bad = [x for x in active if x.verdict == CONTRADICTED]
         why = "contradicted by " + "; ".join(x.text() for x in bad)
     elif c.verdict == UNRESOLVED and not active:
-        why = "no comparison takes part (a head does not beat the constant predictor)"
+        why = f"no comparison takes part ({_why_none(c)})"
     elif c.verdict == UNRESOLVED:
         n_sup = sum(x.verdict == SUPPORTED for x in active)
         why = f"{n_sup} of {len(active)} comparisons supported, {_range(active)}"
@@ -79,8 +89,8 @@ def satellite_sentence(number: int, c: Claim) -> str | None:
     split = f"`{c.split}`"
     if not tested:
         return (
-            f"On {split} no head beats the constant predictor, so none is tested for using the "
-            f"satellite image (claim {number})."
+            f"On {split} no head is tested for using the satellite image: {_why_none(c)} "
+            f"(claim {number})."
         )
     numbers = "; ".join(x.text() for x in c.comparisons if x.verdict != EXCLUDED)
     if set(tested.values()) == {"does not use"}:
@@ -98,15 +108,22 @@ def satellite_sentence(number: int, c: Claim) -> str | None:
     return f"On {split}: " + "; ".join(parts) + f" (claim {number}: {numbers})."
 
 
-def _exclusions(claims: list[Claim]) -> list[str]:
+def _exclusions(claims: list[Claim], at_most: int = 8) -> list[str]:
     """``"<head> on <split> (<errors>)"`` per excluded head and split, from the claims' exclusion
-    notes (``"<head> on <split> (<error> − constant Δ [lo, hi])"``)."""
+    notes (``"<head> on <split> (<error> − constant Δ [lo, hi]...)"``); more than ``at_most``
+    are counted per head instead (``"<head>: <n> split(s)"``, sweep values dropped)."""
     errors: dict[str, dict[str, None]] = {}
     for c in claims:
         for note in c.excluded:
             head, _, rest = note.partition(" (")
             errors.setdefault(head, {})[rest.split(" − ", 1)[0]] = None
-    return [f"{head} ({', '.join(e for e in errors[head] if e)})" for head in sorted(errors)]
+    if len(errors) <= at_most:
+        return [f"{head} ({', '.join(e for e in errors[head] if e)})" for head in sorted(errors)]
+    per_label: dict[str, int] = {}
+    for head in errors:
+        label = head.rsplit(" on ", 1)[0].split(" [", 1)[0]
+        per_label[label] = per_label.get(label, 0) + 1
+    return [f"{label}: {n} split(s)" for label, n in sorted(per_label.items())]
 
 
 def findings_markdown(claims: list[Claim]) -> str:
@@ -135,8 +152,7 @@ def findings_markdown(claims: list[Claim]) -> str:
     excluded = _exclusions(claims)
     if excluded:
         lines.append(
-            "- Left out of the comparisons for not beating the constant predictor: "
-            + "; ".join(excluded)
-            + "."
+            "- Left out of the comparisons for not beating the constant predictor (or too few "
+            "flights), see the claims table: " + "; ".join(excluded) + "."
         )
     return "\n".join(lines) + "\n"

@@ -8,7 +8,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
-from test_frames import Repro
+from test_frames import SPLITS, Repro
 
 from benchmark.runner.claims import (
     CONTRADICTED,
@@ -100,8 +100,20 @@ class TestPairwise:
         assert len(c.excluded) == 1 and c.excluded[0].startswith(
             "B on standard/test (δφ − constant"
         )
-        assert "excluded (not better than the constant predictor): B on standard/test" in c.evidence
+        assert "too few flights): B on standard/test (δφ − constant" in c.evidence
         assert c.difference == ""
+
+    def test_too_few_flights_give_no_verdict(self, tmp_path):
+        """Four flights: however clear the difference, no verdict and no participation."""
+        repro = Repro(tmp_path, splits={**SPLITS, STD: (4, 5)})
+        c = claim_ab(repro, 5.0, 20.0)
+        assert c.verdict == UNRESOLVED and c.comparisons[0].verdict == EXCLUDED
+        assert c.excluded[0].endswith("; 4 flight(s))")
+        ev = Evidence(repro.store())
+        low = ev.paired("x", ev.values(("table1", "A", None), STD, "dphi_deg"),
+                        ev.values(("table1", "B", None), STD, "dphi_deg"))  # fmt: skip
+        assert low.hi < 0 and low.n_flights == 4 and combine([low]) == UNRESOLVED
+        assert "(4 flight(s)) ~" in low.text()
 
     def test_seed_pooling(self, tmp_path):
         """One of three seeds failed (45 deg): seed 0 alone wins clearly, the pooled interval

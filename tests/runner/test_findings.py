@@ -58,7 +58,12 @@ class TestSatelliteSentence:
         c = sat_claim(
             [Comparison("D δψ", verdict=EXCLUDED)], UNRESOLVED, ["D on standard/test (x)"]
         )
-        assert "no head beats the constant predictor" in satellite_sentence(13, c)
+        assert satellite_sentence(13, c) == (
+            "On `standard/test` no head is tested for using the satellite image: a head does not "
+            "beat the constant predictor (claim 13)."
+        )
+        c.excluded = ["D on standard/test (δψ − constant -9.00 [-9.10, -8.90]°; 1 flight(s))"]
+        assert "too few flights for a flight bootstrap (claim 13)" in satellite_sentence(13, c)
         assert satellite_sentence(13, Claim("x", "y", NOT_RUN, "", kind="satellite")) is None
 
 
@@ -89,8 +94,8 @@ class TestFindings:
         assert "claim 3 (E beats F: no comparison takes part" in text
         assert "- **not run**: claim 4." in text
         assert lines[-1] == (
-            "- Left out of the comparisons for not beating the constant predictor: "
-            "F on standard/test (δφ)."
+            "- Left out of the comparisons for not beating the constant predictor (or too few "
+            "flights), see the claims table: F on standard/test (δφ)."
         )
 
     def test_generated_numbers_are_the_tables(self, tmp_path):

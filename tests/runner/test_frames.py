@@ -63,9 +63,9 @@ def perturbed(R: np.ndarray, angles_deg: np.ndarray, rng) -> np.ndarray:
 class Repro:
     """A synthetic reproduction: labels, units and their prediction CSVs in ``root``."""
 
-    def __init__(self, root: Path, seed: int = 0):
+    def __init__(self, root: Path, seed: int = 0, splits: dict = SPLITS):
         self.root, self.workdir, self.data = root, root / "runs", root / "data"
-        self.labels = write_labels(self.data, seed)
+        self.labels = write_labels(self.data, seed, splits)
         self.units: list[Unit] = []
         self.rng = np.random.default_rng(seed + 1)
 
