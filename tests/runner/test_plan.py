@@ -27,12 +27,13 @@ def plan(seeds=(0,), root="/data/a", only=None):
 
 
 class TestPlanUnits:
-    def test_every_table_trains_32_models_per_seed(self):
+    def test_every_table_trains_33_models_per_seed(self):
         # 8 attitude heads + Re-Net-T + 2 heads x 5 heights + 4 other kappas + 3 other encoders
         # + the UAV-only control on standard/train (Tables 1-5 and leakage share it)
         # + Pd/Re-Net and the control on frames/train (leakage) + 3 models on towns/train
-        assert len(plan()) == 32
-        assert len(plan(seeds=(0, 1, 2))) == 96
+        # + the antipodally symmetric Pd-Net-Q of the extended comparison
+        assert len(plan()) == 33
+        assert len(plan(seeds=(0, 1, 2))) == 99
 
     def test_control_is_its_own_unit(self):
         units = plan()
@@ -53,7 +54,9 @@ class TestPlanUnits:
         assert len(shared) == 1
         tables = {j.table for j in shared[0].jobs}
         # kappa 10 of Fig. 7 and variant "/" of Fig. 9 are the same model as Table 1's
-        assert tables == {"table1", "table2", "table3", "table4", "fig6", "fig7", "fig9", "leakage"}
+        assert tables == {
+            "table1", "table2", "table3", "table4", "fig6", "fig7", "fig9", "leakage", "extended"
+        }  # fmt: skip
         assert shared[0].cfg.loss.kappa is None
 
     def test_eval_splits_are_the_union(self):
@@ -91,7 +94,7 @@ class TestPlanUnits:
             load_specs(only=["table1"]), PROFILES["quick"], [0], Path("/d"), SPLITS, "h2"
         )
         assert {u.key for u in a}.isdisjoint({u.key for u in b})
-        assert len({u.key for u in plan(seeds=(0, 1))}) == 64
+        assert len({u.key for u in plan(seeds=(0, 1))}) == 66
 
     def test_a_head_version_bump_changes_only_that_heads_keys(self, monkeypatch):
         from benchmark.models import get_head_class
