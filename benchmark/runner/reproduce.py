@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
         }
         invocations = _log_invocation(workdir, record, {u.key for u in units})
         written = write_reports(
-            specs, units, results, profile, data_root, out, logbook, invocations
+            specs, units, results, profile, data_root, out, logbook, invocations, workdir=workdir
         )
     except KeyboardInterrupt:
         status = RunStatus.KILLED
