@@ -11,7 +11,9 @@ and into a loss::
 Probabilistic heads (``is_probabilistic = True``) additionally give::
 
     head.distribution(raw)          # per-grid probabilities (tensor or dict), each summing to 1
-    head.log_prob(raw, R)           # (B,) log density of the rotations R under the prediction
+    head.log_prob(raw, R)           # (B,) log density of the rotations R under the prediction,
+                                    # w.r.t. the normalised Haar measure on SO(3): a uniform
+                                    # prediction scores 0, so every head's value is comparable
     head.uncertainty(raw)           # (B,) higher = less certain (each head documents its measure)
     head.target_distribution(R)     # the training target, same structure as distribution(raw)
     head.decode_distribution(dist)  # (B, 3, 3) == decode(raw) for dist = distribution(raw)
@@ -19,6 +21,8 @@ Probabilistic heads (``is_probabilistic = True``) additionally give::
 A translation head is the same with ``decode(raw) -> (B, 3)`` metres ``[dE, dN, dU]`` and
 ``loss(raw, T_gt (B, 3))``. Translation heads regress standardised values; the training-set mean
 and standard deviation are buffers (``set_statistics``) so they are saved in the state dict.
+Training calls ``fit_statistics(T_train)``; a head that needs more statistics of the labels
+(Re-Net-T: the mean and std of ``|T|``) overrides it and keeps them in buffers too.
 
 Every head is built as ``cls(in_features=F, **options)``; it validates its options in ``__init__``
 and raises ``ValueError`` naming the option and value.
