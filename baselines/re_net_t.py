@@ -78,9 +78,9 @@ class ReNetT(TranslationHead):
         self.length_std.copy_(length.std(unbiased=False).clamp_min(1e-6))
 
     def forward(self, features: Tensor) -> dict[str, Tensor]:
-        """(B, F) -> {"logits": (B, n) direction logits, "length_z": (B,) standardised length}."""
+        """(B, F) -> {"logits": (B, n) direction logits, "scale": (B,) standardised length z}."""
         out = self.net(features)
-        return {"logits": out[:, :-1], "length_z": out[:, -1]}
+        return {"logits": out[:, :-1], "scale": out[:, -1]}
 
     def _split(self, T: Tensor) -> tuple[Tensor, Tensor]:
         """``T (B, 3)`` -> unit direction ``(B, 3)`` and standardised length ``(B,)``."""
@@ -94,14 +94,14 @@ class ReNetT(TranslationHead):
         return direction, z
 
     def distribution(self, raw: dict[str, Tensor]) -> dict[str, Tensor]:
-        """{"direction": (B, n) probabilities, "length_z": (B,) point estimate of z}."""
-        return {"direction": torch.softmax(raw["logits"], dim=-1), "length_z": raw["length_z"]}
+        """{"direction": (B, n) probabilities, "scale": (B,) point estimate of z}."""
+        return {"direction": torch.softmax(raw["logits"], dim=-1), "scale": raw["scale"]}
 
     def target_distribution(self, T: Tensor) -> dict[str, Tensor]:
         direction, z = self._split(T)
         return {
             "direction": discrete_vmf(direction, self.kappa, self.grid.to(T.dtype)),
-            "length_z": z,
+            "scale": z,
         }
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
@@ -110,7 +110,7 @@ class ReNetT(TranslationHead):
         direction = resultant / torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(
             1e-12
         )
-        z = dist["length_z"]
+        z = dist["scale"]
         length = (self.length_mean.to(z.dtype) + z * self.length_std.to(z.dtype)).clamp_min(0.0)
         return direction * length[..., None]
 
@@ -126,7 +126,7 @@ class ReNetT(TranslationHead):
         l_dir = directionnet_loss(
             p[:, None], target[:, None], (p @ grid)[:, None], direction[:, None], self.alpha, 3
         )
-        return (l_dir + self.scale_weight * (raw["length_z"] - z) ** 2).mean()
+        return (l_dir + self.scale_weight * (raw["scale"] - z) ** 2).mean()
 
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:
         """(B,) spherical variance of the direction distribution, in [0, 1]."""

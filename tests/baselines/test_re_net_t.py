@@ -52,7 +52,7 @@ class TestStatistics:
         h = head()
         T = dataset_like(500, seed=1)
         h.fit_statistics(T)
-        z = h.target_distribution(T)["length_z"]
+        z = h.target_distribution(T)["scale"]
         assert z.mean().item() == pytest.approx(0.0, abs=1e-9)
         assert z.std(unbiased=False).item() == pytest.approx(1.0, abs=1e-9)
 
@@ -100,14 +100,14 @@ class TestDecodeDistribution:
         target = h.target_distribution(T)
         logits = torch.log(target["direction"])
         noisy = logits + 0.2 * torch.randn(logits.shape, generator=g, dtype=torch.float64)
-        T_hat = h.decode({"logits": noisy, "length_z": target["length_z"]})
+        T_hat = h.decode({"logits": noisy, "scale": target["scale"]})
         assert (T_hat - T).norm(dim=-1).max() < 5.0  # 0.3 deg at 900 m
 
     def test_negative_length_clamps_to_zero(self):
         h = head()
         h.fit_statistics(dataset_like(200, seed=6))
         raw = {"logits": torch.zeros(2, 4096, dtype=torch.float64)}
-        raw["length_z"] = torch.full((2,), -1e3, dtype=torch.float64)
+        raw["scale"] = torch.full((2,), -1e3, dtype=torch.float64)
         assert torch.equal(h.decode(raw), torch.zeros(2, 3, dtype=torch.float64))
 
     def test_gradcheck_float64(self):
@@ -117,7 +117,7 @@ class TestDecodeDistribution:
         logits = torch.randn(3, 64, generator=g, dtype=torch.float64, requires_grad=True)
         z = torch.randn(3, generator=g, dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(
-            lambda a, b: h.decode({"logits": a, "length_z": b}), (logits, z)
+            lambda a, b: h.decode({"logits": a, "scale": b}), (logits, z)
         )
 
 
@@ -132,8 +132,8 @@ class TestLoss:
         logits = torch.log(target["direction"])
         z_true = (T.norm(dim=-1) - h.length_mean) / h.length_std
         z_pred = z_true + 0.5
-        base = h.loss({"logits": logits, "length_z": z_true}, T)
-        shifted = h.loss({"logits": logits, "length_z": z_pred}, T)
+        base = h.loss({"logits": logits, "scale": z_true}, T)
+        shifted = h.loss({"logits": logits, "scale": z_pred}, T)
         assert (shifted - base).item() == pytest.approx(0.25, abs=1e-9)
 
     def test_gradcheck_float64(self):
@@ -144,7 +144,7 @@ class TestLoss:
         logits = torch.randn(3, 64, generator=g, dtype=torch.float64, requires_grad=True)
         z = torch.randn(3, generator=g, dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(
-            lambda a, b: h.loss({"logits": a, "length_z": b}, T), (logits, z)
+            lambda a, b: h.loss({"logits": a, "scale": b}, T), (logits, z)
         )
 
 
