@@ -3,8 +3,10 @@ costs and the claim-by-claim summary ``README.md``.
 
 ``results.csv`` has one row per (table, model, sweep value, split, satellite mode, seed); the
 column ``satellite`` says whether the row was measured with each pair's true satellite image
-(``true``) or with another place's (``swap``, the satellite-swap probe), see
-``benchmark.runner.report`` for the other columns."""
+(``true``) or with another place's (``swap``, the satellite-swap probe); ``role`` is ``test`` or
+``val`` (the unit's validation split, shown beside the test numbers); see
+``benchmark.runner.report`` for the other columns. ``provenance.md`` / ``provenance.json``
+(``benchmark.runner.provenance_report``) hold the digests to compare a rerun with."""
 
 from __future__ import annotations
 
@@ -316,5 +318,6 @@ def _readme(
               "satellite image, `swap` = another place's, the satellite-swap probe; the `swap` "
               "rows hold the paired swap effect `swap_dpsi_diff_deg`, `swap_dphi_diff_deg` with "
               "their 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, `swap_*_boot_hi_deg`; "
-              "column `satellite_input`: `blank` marks the UAV-only control)."]  # fmt: skip
+              "column `satellite_input`: `blank` marks the UAV-only control; column `role`: "
+              "`test`, or `val` for the validation split of the training data)."]  # fmt: skip
     return "\n".join(lines) + "\n"
