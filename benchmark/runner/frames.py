@@ -83,10 +83,19 @@ class FrameStore:
         self.data_root = Path(data_root)
         # (table, label, x) -> {seed: (unit key, job)}, in plan order
         self._models: dict[tuple[str, str, str | None], dict[int, tuple[str, object]]] = {}
+        # A table may hold one label twice, trained on different splits (the leakage table's
+        # Pd/Re-Net on standard/train and on frames/train): such a name does not identify one
+        # model, so asking for it is an error rather than a silent pick of the last row.
+        self._ambiguous: dict[tuple[str, str, str | None], set[str]] = {}
         for unit in units:
             for job in unit.jobs:
                 model = (job.table, job.label, _norm_x(job.x))
-                self._models.setdefault(model, {})[int(unit.cfg.seed)] = (unit.key, job)
+                by_seed = self._models.setdefault(model, {})
+                seed = int(unit.cfg.seed)
+                if seed in by_seed and by_seed[seed][0] != unit.key:
+                    self._ambiguous.setdefault(model, {by_seed[seed][1].train_split})
+                    self._ambiguous[model].add(job.train_split)
+                by_seed[seed] = (unit.key, job)
         self._csv: dict[Path, pd.DataFrame] = {}
         self._constant: dict[tuple[str, str], pd.DataFrame] = {}
         self._pairs: pd.DataFrame | None = None
@@ -131,6 +140,12 @@ class FrameStore:
         return job.train_split
 
     def _jobs(self, table: str, label: str, x: object) -> list[tuple[int, tuple[str, object]]]:
+        ambiguous = self._ambiguous.get((table, label, _norm_x(x)))
+        if ambiguous:
+            raise KeyError(
+                f"({table!r}, {label!r}, x={x!r}) names more than one model (trained on "
+                f"{sorted(ambiguous)}); per-frame errors need one"
+            )
         by_seed = self._models.get((table, label, _norm_x(x)))
         if not by_seed:
             known = sorted({lb for (t, lb, _) in self._models if t == table})

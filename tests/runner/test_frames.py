@@ -92,7 +92,8 @@ class Repro:
         )
         job = Job(table, label, label, x, variant, train, tuple(splits))
         for seed in seeds:
-            key = f"{table}-{label}-{x}-{seed}".replace("/", "_").replace(" ", "_")
+            where = "" if train == "standard/train" else f"-{train}"
+            key = f"{table}-{label}-{x}-{seed}{where}".replace("/", "_").replace(" ", "_")
             self.units.append(Unit(key, TrainConfig(seed=seed), [job]))
             for split, spec in splits.items():
                 for satellite in ("true", "swap"):
@@ -200,6 +201,14 @@ class TestErrors:
             store.errors("table1", "Re-Net-R", "standard/test", "dphi_deg")
         with pytest.raises(KeyError, match="not evaluated on 'generalized/test'"):
             store.errors("table1", "Pd/Re-Net", "generalized/test", "dphi_deg")
+
+    def test_a_label_trained_on_two_splits_is_refused(self, tmp_path):
+        # The leakage table holds Pd/Re-Net twice (standard/train and frames/train).
+        r = Repro(tmp_path)
+        r.add("leakage", "Pd/Re-Net", {"standard/test": 5.0}, seeds=(0,))
+        r.add("leakage", "Pd/Re-Net", {"standard/test": 7.0}, seeds=(0,), train="standard/val")
+        with pytest.raises(KeyError, match=r"more than one model.*standard/train.*standard/val"):
+            r.store().errors("leakage", "Pd/Re-Net", "standard/test", "dphi_deg")
 
 
 class TestPlan:

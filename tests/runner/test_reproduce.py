@@ -151,7 +151,7 @@ class TestReproduceSmoke:
         tmp, _ = full_run
         monkeypatch.chdir(tmp)
         assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
-        assert "32 training runs (32 already in the tracking store)" in capsys.readouterr().out
+        assert "33 training runs (33 already in the tracking store)" in capsys.readouterr().out
 
     def test_second_invocation_keeps_the_numbers_and_train_times(
         self, full_run, smoke_dataset, monkeypatch
