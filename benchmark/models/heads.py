@@ -22,7 +22,8 @@ A translation head is the same with ``decode(raw) -> (B, 3)`` metres ``[dE, dN, 
 ``loss(raw, T_gt (B, 3))``. Translation heads regress standardised values; the training-set mean
 and standard deviation are buffers (``set_statistics``) so they are saved in the state dict.
 Training calls ``fit_statistics(T_train)``; a head that needs more statistics of the labels
-(Re-Net-T: the mean and std of ``|T|``) overrides it and keeps them in buffers too.
+(Re-Net-T: the mean and std of ``|u|``, ``u = (T - mean) / std``) overrides it and keeps them
+in buffers too.
 
 Every head is built as ``cls(in_features=F, **options)``; it validates its options in ``__init__``
 and raises ``ValueError`` naming the option and value.

@@ -166,10 +166,12 @@ class TestPdNetRv:
 
 
 class TestReNetT:
-    def test_length_statistics_are_the_training_lengths_mean_and_std(self):
+    def test_scale_statistics_are_the_standardised_lengths_mean_and_std(self):
+        # Version 3: the scale branch regresses |u|, u = (T - mean) / std per axis (issue 10).
         h = head("re_net_t")
         T = torch.randn(2000, 3, dtype=torch.float64) * torch.tensor([80.0, 40, 5]) + 30
         h.fit_statistics(T)
-        length = np.linalg.norm(T.numpy(), axis=-1)
-        assert h.length_mean.item() == pytest.approx(length.mean())
-        assert h.length_std.item() == pytest.approx(length.std())
+        u = (T.numpy() - T.numpy().mean(0)) / T.numpy().std(0)
+        r = np.linalg.norm(u, axis=-1)
+        assert h.scale_mean.item() == pytest.approx(r.mean())
+        assert h.scale_std.item() == pytest.approx(r.std())
