@@ -231,6 +231,46 @@ def fit_heading_probe(
     return HeadingProbe(mean, scale, best[2], best[3], best[1], errors)
 
 
+def ratio_interval(
+    probe_err: np.ndarray,
+    constant_err: np.ndarray,
+    flights: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    confidence: float = 0.95,
+) -> tuple[float, float]:
+    """Percentile interval of ``mean(probe_err) / mean(constant_err)`` under a bootstrap that
+    resamples whole flights (frames of a flight are correlated), both errors on the same frames.
+
+    Args:
+        probe_err, constant_err: ``(n,)`` per-frame errors (any unit); ``flights``: ``(n,)`` ids.
+    Returns:
+        ``(lo, hi)``: the ``(1 -+ confidence) / 2`` quantiles of the replicates' ratios (each
+        replicate: the sums over its drawn flights' frames, divided).
+    """
+    p, c, f = (np.asarray(a).reshape(-1) for a in (probe_err, constant_err, flights))
+    if not (p.shape == c.shape == f.shape) or p.size == 0:
+        raise ValueError(
+            f"ratio_interval: need equal non-empty lengths, got {p.size}, {c.size}, {f.size}"
+        )
+    _, inverse = np.unique(f, return_inverse=True)
+    groups = int(inverse.max()) + 1
+    sp = np.bincount(inverse, weights=p.astype(np.float64), minlength=groups)
+    sc = np.bincount(inverse, weights=c.astype(np.float64), minlength=groups)
+    draws = np.random.default_rng(seed).integers(0, groups, size=(int(n_boot), groups))
+    ratios = sp[draws].sum(axis=1) / sc[draws].sum(axis=1)
+    tail = (1.0 - confidence) / 2.0
+    lo, hi = np.quantile(ratios, [tail, 1.0 - tail])
+    return float(lo), float(hi)
+
+
+def split_flights(dataset_root: str | Path, split: str) -> np.ndarray:
+    """Flight id ``(n,)`` of every pair of ``split``, in the order of :func:`split_features`."""
+    from benchmark.data import PairDataset
+
+    return PairDataset(dataset_root, split, verify="size").poses["flight"].to_numpy()
+
+
 def split_features(dataset_root: str | Path, split: str) -> tuple[np.ndarray, np.ndarray]:
     """Features ``(n, F)`` of the UAV images of ``split`` and their yaw ``(n,)``, radians."""
     from benchmark.data import PairDataset
@@ -266,7 +306,9 @@ def heading_cue_audit(
     "constant_yaw_deg", "splits": {split: {"n", "probe_deg", "constant_deg", "ratio"}}}`` with
     ``splits`` holding ``val`` first, then each test split; errors are mean absolute wrapped yaw
     errors in degrees, ``ratio = probe_deg / constant_deg`` (1: no cue; the acceptance asks
-    >= 0.85 on standard/test). Unknown splits raise ``ValueError`` from ``PairDataset``.
+    >= 0.85 on standard/test), ``ratio_lo``/``ratio_hi`` its 95% flight-bootstrap interval
+    (:func:`ratio_interval`) and ``flights``. Unknown splits raise ``ValueError`` from
+    ``PairDataset``.
     """
     tests = [test] if isinstance(test, str) else list(test)
     x_train, y_train = split_features(dataset_root, train)
@@ -284,12 +326,18 @@ def heading_cue_audit(
     }
     for name in [val, *tests]:
         x, y = (x_val, y_val) if name == val else split_features(dataset_root, name)
-        probe_deg = yaw_error_deg(probe.predict(x), y)
-        const_deg = yaw_error_deg(np.full_like(y, constant), y)
+        probe_err = np.degrees(np.abs(wrap_angle(probe.predict(x) - y)))
+        const_err = np.degrees(np.abs(wrap_angle(np.full_like(y, constant) - y)))
+        probe_deg, const_deg = float(probe_err.mean()), float(const_err.mean())
+        flights = split_flights(dataset_root, name)
+        lo, hi = ratio_interval(probe_err, const_err, flights) if const_deg > 0 else (math.nan,) * 2
         result["splits"][name] = {
             "n": len(y),
             "probe_deg": probe_deg,
             "constant_deg": const_deg,
             "ratio": probe_deg / const_deg if const_deg > 0 else math.nan,
+            "ratio_lo": lo,
+            "ratio_hi": hi,
+            "flights": len(np.unique(flights)),
         }
     return result

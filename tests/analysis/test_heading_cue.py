@@ -19,6 +19,7 @@ from benchmark.analysis.heading_cue import (
     fit_ridge,
     heading_cue_audit,
     image_features,
+    ratio_interval,
     soft_histogram,
     yaw_error_deg,
 )
@@ -91,6 +92,30 @@ class TestFitHeadingProbe:
             fit_heading_probe(x, np.zeros(4), x, y)
         with pytest.raises(ValueError, match="ridges must be positive"):
             fit_heading_probe(x, y, x, y, ridges=[0.0])
+
+
+class TestRatioInterval:
+    def test_matches_a_naive_flight_bootstrap_loop(self):
+        rng = np.random.default_rng(3)
+        flights = np.repeat(np.arange(7), 5)
+        probe, const = rng.uniform(50, 120, 35), rng.uniform(60, 110, 35)
+        lo, hi = ratio_interval(probe, const, flights, n_boot=300, seed=4)
+        draws = np.random.default_rng(4).integers(0, 7, size=(300, 7))
+        ratios = []
+        for d in draws:
+            keep = np.concatenate([np.flatnonzero(flights == g) for g in d])
+            ratios.append(probe[keep].sum() / const[keep].sum())
+        ref = np.quantile(ratios, [0.025, 0.975])
+        assert (lo, hi) == pytest.approx(tuple(ref), rel=1e-12)
+
+    def test_one_flight_and_proportional_errors_give_a_point(self):
+        flights = np.zeros(10)
+        err = np.linspace(1, 10, 10)
+        assert ratio_interval(0.8 * err, err, flights) == pytest.approx((0.8, 0.8))
+
+    def test_bad_input(self):
+        with pytest.raises(ValueError, match="equal non-empty"):
+            ratio_interval(np.ones(3), np.ones(4), np.zeros(3))
 
 
 class TestCircularStatistics:
