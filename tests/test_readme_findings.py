@@ -7,6 +7,7 @@ drift from the numbers: after a rerun, a stale quote fails this test until it is
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,6 +43,18 @@ class TestReadmeFindings:
         quote = report_findings((ROOT / "reports" / "quick" / "README.md").read_text())
         assert len(quote) > 100
         assert any(w in quote for w in ("supported", "contradicted", "not resolved"))
+
+    def test_hand_written_numbers_appear_in_the_reports(self):
+        # The README's own sentences around the quote (leakage, towns) cite table numbers; each
+        # must be printed in a committed report of that reproduction, so none can drift.
+        readme = (ROOT / "README.md").read_text()
+        section = readme.split("## Findings so far", 1)[1].split("\n## ", 1)[0]
+        section = section.split("**Continuity", 1)[0]
+        own = section.replace(readme_quote(readme), "")
+        reports = "".join(p.read_text() for p in (ROOT / "reports" / "quick").glob("*.md"))
+        cited = re.findall(r"\d+\.\d\d\b", own)
+        assert cited, "expected numbers cited from the tables"
+        assert [n for n in cited if n not in reports] == []
 
     def test_helpers_find_the_sections(self):
         report = "# r\n\n## Findings\n\nGenerated from x.\n\nA is supported.\n\n## Claims\n\nx\n"
