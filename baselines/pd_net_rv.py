@@ -54,7 +54,12 @@ from torch import Tensor
 from benchmark.geometry import discrete_vmf, fibonacci_sphere, rotmat_to_rotvec, rotvec_to_rotmat
 from benchmark.models import AttitudeHead, register_head
 from benchmark.models.heads import check_lattice_options, check_option, mlp, nearest_grid_index
-from benchmark.models.spherical import cosine_loss, directionnet_loss, resultant_length
+from benchmark.models.spherical import (
+    cosine_loss,
+    directionnet_loss,
+    interval_mle,
+    resultant_length,
+)
 
 _MIN_ANGLE = 1e-6
 _CANDIDATES_PER_BIN = 8  # angle decoding grid: 8 candidates per bin, then a parabola
@@ -69,39 +74,6 @@ def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
     e_z[..., 2] = 1
     axis = torch.where(small[..., None], e_z, v / angle.clamp_min(_MIN_ANGLE)[..., None])
     return axis, angle
-
-
-def interval_mle(
-    resultant: Tensor, kappa: float, lower: float, candidates: Tensor, log_norm: Tensor
-) -> Tensor:
-    """The centre ``mu`` in [lower, lower + pi] whose truncated von Mises target is closest in
-    cross-entropy to a distribution with resultant ``m``: ``argmin -kappa m.(cos mu, sin mu) +
-    log Z(mu)``. (The same decoder as ``baselines/pd_net_e.py``'s pitch; baselines do not import
-    each other.)
-
-    Args:
-        resultant: ``(..., 2)`` ``sum_b p_b (cos c_b, sin c_b)``.
-        kappa: the target's concentration.
-        lower: lower end of the interval (rad); the interval has length pi.
-        candidates: ``(M,)`` float64 equally spaced candidates from ``lower`` to ``lower + pi``.
-        log_norm: ``(M,)`` float64 ``log Z`` at the candidates.
-    Returns:
-        ``(...)`` radians in [lower, lower + pi], dtype of ``resultant``.
-    """
-    m = resultant.double()
-    f = -kappa * (m[..., :1] * torch.cos(candidates) + m[..., 1:] * torch.sin(candidates))
-    f = f + log_norm  # (..., M)
-    j = f.argmin(-1)
-    last = candidates.shape[0] - 1
-    f0 = f.gather(-1, j[..., None]).squeeze(-1)
-    fm = f.gather(-1, (j - 1).clamp(0, last)[..., None]).squeeze(-1)
-    fp = f.gather(-1, (j + 1).clamp(0, last)[..., None]).squeeze(-1)
-    curvature = fm - 2 * f0 + fp
-    interior = (j > 0) & (j < last) & (curvature > 0)
-    # Vertex of the parabola through the three values; it lies within half a step of j.
-    offset = torch.where(interior, 0.5 * (fm - fp) / curvature.clamp_min(1e-300), 0.0)
-    mu = candidates[j] + offset.clamp(-0.5, 0.5) * (candidates[1] - candidates[0])
-    return mu.clamp(lower, lower + math.pi).to(resultant.dtype)
 
 
 @register_head("pd_net_rv")

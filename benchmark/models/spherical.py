@@ -146,3 +146,40 @@ def column_product_log_density(
     # s(R_m) for every grid rotation: gather column j's log-probability at index[:, j].
     on_grid = sum(log_p[:, j, index[:, j]] for j in range(3))  # (B, M)
     return score - (torch.logsumexp(on_grid, dim=-1) - math.log(n_rotations))
+
+
+def interval_mle(
+    resultant: Tensor, kappa: float, lower: float, candidates: Tensor, log_norm: Tensor
+) -> Tensor:
+    """The centre ``mu`` in [lower, lower + pi] whose truncated von Mises target is closest in
+    cross-entropy to a distribution with resultant ``m``: ``argmin -kappa m.(cos mu, sin mu) +
+    log Z(mu)``. Shared by the interval-valued angles of
+    ``pd_net_e`` (pitch on [-pi/2, pi/2]) and ``pd_net_rv`` (rotation angle on [0, pi]).
+
+    Args:
+        resultant: ``(..., 2)`` ``sum_b p_b (cos c_b, sin c_b)``.
+        kappa: the target's concentration.
+        lower: lower end of the interval (rad); the interval has length pi.
+        candidates: ``(M,)`` float64 equally spaced candidates from ``lower`` to ``lower + pi``.
+        log_norm: ``(M,)`` float64 ``log Z`` at the candidates.
+    Returns:
+        ``(...)`` radians in [lower, lower + pi], dtype of ``resultant``.
+    """
+    m = resultant.double()
+    f = (
+        -kappa * (m[..., :1] * torch.cos(candidates) + m[..., 1:] * torch.sin(candidates))
+        + log_norm
+    )  # (..., M)
+    j = f.argmin(-1)
+    last = candidates.shape[0] - 1
+    jm, jp = (j - 1).clamp(0, last), (j + 1).clamp(0, last)
+    f0 = f.gather(-1, j[..., None]).squeeze(-1)
+    fm = f.gather(-1, jm[..., None]).squeeze(-1)
+    fp = f.gather(-1, jp[..., None]).squeeze(-1)
+    curvature = fm - 2 * f0 + fp
+    interior = (j > 0) & (j < last) & (curvature > 0)
+    # Vertex of the parabola through the three values; it lies within half a step of j.
+    offset = torch.where(interior, 0.5 * (fm - fp) / curvature.clamp_min(1e-300), 0.0)
+    step = candidates[1] - candidates[0]
+    mu = candidates[j] + offset.clamp(-0.5, 0.5) * step
+    return mu.clamp(lower, lower + math.pi).to(resultant.dtype)
