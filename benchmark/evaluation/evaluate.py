@@ -1,8 +1,9 @@
 """Run a model over a split: per-sample predictions (CSV) and the metric summary.
 
 Heads are used only through the contract (``benchmark.models.heads``): ``decode`` for every head;
-``log_prob`` and ``uncertainty`` when the head declares ``is_probabilistic``. Nothing here knows
-which head it is running.
+``log_prob`` when the head declares ``is_probabilistic`` or ``gives_log_prob``, ``uncertainty`` when
+it declares ``is_probabilistic`` or ``gives_uncertainty``. Nothing here knows which head it is
+running.
 
 Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city``, ``centre`` and
 ``flight`` columns and the satellite image each pair was shown (``sat_index``, the swapped one under
@@ -65,6 +66,8 @@ def predict(
     model.eval()
     head = model.attitude_head
     probabilistic = bool(getattr(head, "is_probabilistic", False))
+    with_log_prob = probabilistic or bool(getattr(head, "gives_log_prob", False))
+    with_uncertainty = probabilistic or bool(getattr(head, "gives_uncertainty", False))
     parts: dict[str, list[torch.Tensor]] = {
         k: [] for k in ("index", "R_hat", "R_gt", "T_hat", "T_gt", "log_likelihood", "uncertainty")
     }
@@ -86,8 +89,9 @@ def predict(
                 parts["R_gt"].append(R_gt.double())
                 parts["T_hat"].append(T_hat.double())
                 parts["T_gt"].append(T_gt.double())
-                if probabilistic:
+                if with_log_prob:
                     parts["log_likelihood"].append(head.log_prob(out.attitude, R_gt).double())
+                if with_uncertainty:
                     parts["uncertainty"].append(head.uncertainty(out.attitude).double())
                 bar.update(1)
     finally:

@@ -18,6 +18,12 @@ Probabilistic heads (``is_probabilistic = True``) additionally give::
     head.target_distribution(R)     # the training target, same structure as distribution(raw)
     head.decode_distribution(dist)  # (B, 3, 3) == decode(raw) for dist = distribution(raw)
 
+A head whose representation is a density but not a distribution on a grid (Bingham, matrix Fisher)
+keeps ``is_probabilistic = False`` and declares what it does give: ``gives_log_prob = True``
+(``log_prob`` as above, w.r.t. the normalised Haar measure) and/or ``gives_uncertainty = True``
+(``uncertainty``). Evaluation asks for a head's log-likelihood and uncertainty exactly when
+``is_probabilistic`` or the matching flag is set.
+
 A translation head is the same with ``decode(raw) -> (B, 3)`` metres ``[dE, dN, dU]`` and
 ``loss(raw, T_gt (B, 3))``. Translation heads regress standardised values; the training-set mean
 and standard deviation are buffers (``set_statistics``) so they are saved in the state dict.
@@ -127,7 +133,9 @@ class Head(nn.Module):
 
     name: ClassVar[str] = ""  # set by @register_head
     paper_name: ClassVar[str] = ""  # e.g. "Pd/Re-Net", "Re-Net-R"
-    is_probabilistic: ClassVar[bool] = False
+    is_probabilistic: ClassVar[bool] = False  # the full grid-distribution contract
+    gives_log_prob: ClassVar[bool] = False  # log_prob without the grid contract (see above)
+    gives_uncertainty: ClassVar[bool] = False  # uncertainty without the grid contract
     # Bump when the head's maths changes (target, loss, decoding) without its options changing:
     # the runner and `uavbench train` key finished runs on it, so old results are not reused.
     version: ClassVar[int] = 1

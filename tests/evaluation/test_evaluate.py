@@ -115,6 +115,23 @@ class TestEvaluate:
         summary, frame = evaluate(model, data)
         assert "loglik" not in summary and "uncertainty" not in frame
 
+    @pytest.mark.parametrize(
+        ("flag", "present", "absent"),
+        [
+            ("gives_log_prob", "log_likelihood", "uncertainty"),
+            ("gives_uncertainty", "uncertainty", "log_likelihood"),
+        ],
+    )
+    def test_capability_flags_without_grid_contract(self, flag, present, absent):
+        # A density head that is not a grid distribution (Bingham, matrix Fisher) declares only
+        # what it gives; evaluation asks for exactly that.
+        data = Items(4)
+        model = FakeModel(data)
+        model.attitude_head.is_probabilistic = False
+        setattr(model.attitude_head, flag, True)
+        pred = predict(model, data, batch_size=2)
+        assert getattr(pred, present) is not None and getattr(pred, absent) is None
+
     def test_empty(self):
         with pytest.raises(ValueError, match="empty"):
             predict(FakeModel(Items(1)), torch.utils.data.Subset(Items(1), []))
