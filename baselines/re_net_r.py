@@ -7,6 +7,12 @@ closest rotation in Frobenius norm.
 Discontinuities: none in the representation (the label is R itself). The SVD projection is
 continuous except at degenerate inputs, matrices whose two smallest singular values (after the
 determinant sign fix) coincide, e.g. rank <= 1 outputs, where the closest rotation is not unique.
+
+This head is exactly "SVD-Inf" of Levinson et al. (NeurIPS 2020), the variant recommended by
+Geist et al., "Learning with 3D rotations, a hitchhiker's guide to SO(3)" (ICML 2024): the loss
+sees the raw 9 numbers and SVD orthogonalisation is applied only at inference. Levinson et al.'s
+"SVD-Train" variant, with the chordal (squared Frobenius) loss after the SVD, is ``re_net_svd``
+(``baselines/re_net_svd.py``); there is deliberately no separate SVD-Inf head.
 """
 
 from __future__ import annotations
