@@ -6,8 +6,23 @@ the loader checks that. A spec names its variants (which heads and encoder varia
 train on and the splits they are evaluated on. Sweep specs (figures) repeat the variants for every
 ``sweep_values`` entry, substituting ``{x}`` in split names and variant fields.
 
-Per variant (row), optional fields:
+Per variant (row): ``label``, ``paper_model`` and ``attitude`` (a registered attitude head) are
+required; the other fields describe the model (``benchmark.models.ModelConfig``; the profile sets
+its width, the dataset its input size) or where it trains:
 
+- ``translation`` (default ``regression``), ``encoder`` (default ``googlenet``), ``encoder_variant``
+  (``/``, ``a``, ``f``, ``a-f``; default ``/``), ``aux_weight`` (default 0.3).
+- ``attitude_options``, ``translation_options``, ``encoder_options``: mappings of constructor
+  options of that head / encoder, any of them, e.g. ``attitude_options: {kappa: 5, hidden: 512}``,
+  ``attitude_options: {direction_weight: 0}`` (with ``attitude: pd_net_e``),
+  ``encoder_options: {norm: batch}``. Each value is converted to the type of the constructor
+  parameter; an option the head does not take is an error naming the file, the row, the head and
+  the options it accepts. A value equal to the constructor's default is the same model as no value
+  (Fig. 7's kappa 10 is Table 1's Pd/Re-Net). The old row field ``kappa:`` is refused with a
+  message pointing to ``attitude_options: {kappa: ...}``.
+- Sweeps: ``{x}`` may appear in any string field and inside option values, e.g.
+  ``attitude_options: {kappa: "{x}"}``; after substitution an option value is read as a YAML
+  scalar (``"5"`` -> 5, ``"1e-3"`` -> 0.001, ``"true"`` -> True), then typed as above.
 - ``satellite_input: blank``: the UAV-only control (the model sees grey instead of the satellite
   image, ``benchmark.models.pair``); default ``image``.
 - ``train_split`` / ``eval_splits``: override the table's, for tables whose rows train on different
