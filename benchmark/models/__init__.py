@@ -7,6 +7,11 @@ Public API (see DEVELOPERS.md, "Model contract")::
 """
 
 from benchmark.models.encoder import VARIANTS, Encoder, VariantSpec, parse_variant
+from benchmark.models.head_bases import (
+    LatticeHead,
+    RegressionAttitudeHead,
+    RegressionTranslationHead,
+)
 from benchmark.models.heads import (
     AttitudeHead,
     Head,
@@ -40,9 +45,12 @@ __all__ = [
     "AttitudeHead",
     "Encoder",
     "Head",
+    "LatticeHead",
     "ModelConfig",
     "PoseModel",
     "PoseOutput",
+    "RegressionAttitudeHead",
+    "RegressionTranslationHead",
     "TranslationHead",
     "VariantSpec",
     "build_model",
