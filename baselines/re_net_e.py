@@ -22,28 +22,19 @@ import torch
 from torch import Tensor
 
 from benchmark.geometry import euler_to_rotmat, rotmat_to_euler
-from benchmark.models import AttitudeHead, mlp, register_head
+from benchmark.models import RegressionAttitudeHead, register_head
 
 
 @register_head("re_net_e")
-class ReNetE(AttitudeHead):
-    """Args: in_features; hidden (1024)."""
+class ReNetE(RegressionAttitudeHead):
+    """Args: in_features; hidden (1024). Raw: (B, 3) (yaw, pitch, roll) radians."""
 
     paper_name = "Re-Net-E"
+    raw_shape = (3,)
 
-    def __init__(self, in_features: int, hidden: int = 1024) -> None:
-        super().__init__(in_features)
-        self.net = mlp(in_features, hidden, 3)
+    def encode(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 3) (yaw, pitch, roll), unwrapped."""
+        return torch.stack(rotmat_to_euler(R), dim=-1)
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> (B, 3) (yaw, pitch, roll) radians."""
-        return self.net(features)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        yaw, pitch, roll = raw.unbind(-1)
-        return euler_to_rotmat(yaw, pitch, roll)
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        yaw, pitch, roll = rotmat_to_euler(R_gt)
-        target = torch.stack([yaw, pitch, roll], dim=-1)
-        return ((raw - target) ** 2).sum(-1).mean()
+    def to_label(self, x: Tensor) -> Tensor:
+        return euler_to_rotmat(*x.unbind(-1))

@@ -18,29 +18,21 @@ import torch
 from torch import Tensor
 
 from benchmark.geometry import quat_to_rotmat, rotmat_to_quat_paper
-from benchmark.models import AttitudeHead, mlp, register_head
-
-
-def _normalize(q: Tensor) -> Tensor:
-    return q / torch.linalg.vector_norm(q, dim=-1, keepdim=True).clamp_min(1e-12)
+from benchmark.models import RegressionAttitudeHead, register_head
 
 
 @register_head("re_net_q")
-class ReNetQ(AttitudeHead):
-    """Args: in_features; hidden (1024)."""
+class ReNetQ(RegressionAttitudeHead):
+    """Args: in_features; hidden (1024). Raw: (B, 4) unnormalised quaternions (w, x, y, z)."""
 
     paper_name = "Re-Net-Q"
+    raw_shape = (4,)
 
-    def __init__(self, in_features: int, hidden: int = 1024) -> None:
-        super().__init__(in_features)
-        self.net = mlp(in_features, hidden, 4)
+    def normalize(self, raw: Tensor) -> Tensor:
+        return raw / torch.linalg.vector_norm(raw, dim=-1, keepdim=True).clamp_min(1e-12)
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> (B, 4) unnormalised quaternions (w, x, y, z)."""
-        return self.net(features)
+    def encode(self, R: Tensor) -> Tensor:
+        return rotmat_to_quat_paper(R)
 
-    def decode(self, raw: Tensor) -> Tensor:
-        return quat_to_rotmat(_normalize(raw))
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        return ((_normalize(raw) - rotmat_to_quat_paper(R_gt)) ** 2).sum(-1).mean()
+    def to_label(self, q: Tensor) -> Tensor:
+        return quat_to_rotmat(q)

@@ -20,25 +20,18 @@ from __future__ import annotations
 from torch import Tensor
 
 from benchmark.geometry import special_orthogonalize
-from benchmark.models import AttitudeHead, mlp, register_head
+from benchmark.models import RegressionAttitudeHead, register_head
 
 
 @register_head("re_net_r")
-class ReNetR(AttitudeHead):
-    """Args: in_features; hidden (1024)."""
+class ReNetR(RegressionAttitudeHead):
+    """Args: in_features; hidden (1024). Raw: (B, 3, 3) unconstrained matrices."""
 
     paper_name = "Re-Net-R"
+    raw_shape = (3, 3)
 
-    def __init__(self, in_features: int, hidden: int = 1024) -> None:
-        super().__init__(in_features)
-        self.net = mlp(in_features, hidden, 9)
+    def encode(self, R: Tensor) -> Tensor:
+        return R
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> (B, 3, 3) unconstrained matrices."""
-        return self.net(features).view(-1, 3, 3)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return special_orthogonalize(raw)
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        return ((raw - R_gt) ** 2).sum(dim=(-1, -2)).mean()
+    def to_label(self, x: Tensor) -> Tensor:
+        return special_orthogonalize(x)

@@ -15,25 +15,18 @@ from __future__ import annotations
 from torch import Tensor
 
 from benchmark.geometry import rotmat_to_rotvec, rotvec_to_rotmat
-from benchmark.models import AttitudeHead, mlp, register_head
+from benchmark.models import RegressionAttitudeHead, register_head
 
 
 @register_head("re_net_rv")
-class ReNetRv(AttitudeHead):
-    """Args: in_features; hidden (1024)."""
+class ReNetRv(RegressionAttitudeHead):
+    """Args: in_features; hidden (1024). Raw: (B, 3) rotation vectors (radians)."""
 
     paper_name = "Re-Net-Rv"
+    raw_shape = (3,)
 
-    def __init__(self, in_features: int, hidden: int = 1024) -> None:
-        super().__init__(in_features)
-        self.net = mlp(in_features, hidden, 3)
+    def encode(self, R: Tensor) -> Tensor:
+        return rotmat_to_rotvec(R)
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> (B, 3) rotation vectors (radians)."""
-        return self.net(features)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return rotvec_to_rotmat(raw)
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        return ((raw - rotmat_to_rotvec(R_gt)) ** 2).sum(-1).mean()
+    def to_label(self, v: Tensor) -> Tensor:
+        return rotvec_to_rotmat(v)

@@ -10,28 +10,12 @@ Discontinuities: none (an affine map of R^3).
 
 from __future__ import annotations
 
-from torch import Tensor
-
-from benchmark.models import TranslationHead, mlp, register_head
+from benchmark.models import RegressionTranslationHead, register_head
 
 
 @register_head("regression")
-class TranslationRegression(TranslationHead):
-    """Args: in_features; hidden (1024)."""
+class TranslationRegression(RegressionTranslationHead):
+    """Args: in_features; hidden (1024). Raw: (B, 3) standardised translation; decode: metres
+    ``[dE, dN, dU]`` (the representation is the base's: ``(T - mean) / std``)."""
 
     paper_name = "Pd/Re-Net"
-
-    def __init__(self, in_features: int, hidden: int = 1024) -> None:
-        super().__init__(in_features)
-        self.net = mlp(in_features, hidden, 3)
-
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> (B, 3) standardised translation."""
-        return self.net(features)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        """(B, 3) metres ``[dE, dN, dU]``."""
-        return self.unstandardize(raw)
-
-    def loss(self, raw: Tensor, T_gt: Tensor) -> Tensor:
-        return ((raw - self.standardize(T_gt)) ** 2).sum(-1).mean()
