@@ -15,6 +15,11 @@ Participation. A head takes part in a comparison on a split only when it beats t
 lies below zero. Otherwise the comparison is *excluded* and the evidence says which head and why
 (a head at the constant's level has learned nothing to compare).
 
+Head families. A claim that compares representations within a family ("distribution" or
+"regression") reads the family from the head registry (:func:`head_family`: the class attributes
+``is_probabilistic`` and ``gives_log_prob``), never from a table's display labels, so a head added
+to a table takes part without any change here.
+
 Claims with several comparisons (every angle, every height, ...) combine them by ``COMBINE_RULE``:
 supported when every participating comparison is supported (an intersection-union test: valid at
 95% without correction); contradicted when at least one is contradicted at the Bonferroni level
@@ -97,8 +102,23 @@ class Claim:
     rule: str = ""
     comparisons: list[Comparison] = field(default_factory=list)
     excluded: list[str] = field(default_factory=list)
-    kind: str = "paper"  # "sanity", "paper", "satellite" (split in ``split``) or "control"
+    kind: str = "paper"  # "sanity", "paper", "satellite", "control" or "ranking" (``split``)
     split: str = ""
+    facts: dict[str, object] = field(default_factory=dict)  # structured numbers for the prose
+
+
+DISTRIBUTION, REGRESSION = "distribution", "regression"
+
+
+def head_family(attitude: str) -> str:
+    """``"distribution"`` for an attitude head that predicts a density of the rotation (the
+    registry class has ``is_probabilistic``, the grid-distribution contract, or ``gives_log_prob``,
+    a density that is not a grid distribution: Bingham, matrix Fisher), else ``"regression"``.
+    Raises ``ValueError`` naming the known heads for an unknown name."""
+    from benchmark.models import get_head_class
+
+    cls = get_head_class(attitude)
+    return DISTRIBUTION if cls.is_probabilistic or cls.gives_log_prob else REGRESSION
 
 
 def unit_of(metric: str) -> str:
@@ -118,6 +138,14 @@ class Evidence:
             return self.frames.errors(table, label, split, metric, x, satellite)
         parts = [self.frames.errors(table, label, split, m, x, satellite) for m in _AXES]
         return FrameErrors(sum(p.values for p in parts) / 3, *_meta(parts[0]))
+
+    def attitude(self, model: Model) -> str:
+        """Registry name of the model's attitude head (from its spec row)."""
+        return self.frames.variant(*model).attitude
+
+    def family(self, model: Model) -> str:
+        """:func:`head_family` of the model's attitude head."""
+        return head_family(self.attitude(model))
 
     def constant(self, model: Model, split: str, metric: str) -> FrameErrors:
         train = self.frames.train_split(*model)
@@ -282,7 +310,8 @@ def safe_claim(build, claim: str, source: str) -> Claim:
 
 
 def evaluate_claims(summaries: dict[str, pd.DataFrame], frames: FrameStore) -> list[Claim]:
-    """Every claim, in the report's order (1-10 the paper's, then the satellite claims).
+    """Every claim, in the report's order (1-10 the paper's, then the satellite claims, then which
+    representation wins each test split of the beyond-the-paper ``extended`` table).
 
     ``summaries`` (per-table mean summaries, ``benchmark.runner.report.summarize``) are kept for
     the report's context; every verdict is computed from ``frames``' per-frame errors.
@@ -296,6 +325,7 @@ def evaluate_claims(summaries: dict[str, pd.DataFrame], frames: FrameStore) -> l
         translation_claim,
         uncertainty_claim,
     )
+    from benchmark.runner.claims_ranking import ranking_claims
     from benchmark.runner.claims_satellite import control_claim, satellite_claims
 
     ev = Evidence(frames)
@@ -321,6 +351,7 @@ def evaluate_claims(summaries: dict[str, pd.DataFrame], frames: FrameStore) -> l
         uncertainty_claim(ev),
         *satellite_claims(ev),
         control_claim(ev),
+        *ranking_claims(ev),
     ]  # fmt: skip
 
 

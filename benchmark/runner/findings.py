@@ -4,7 +4,9 @@ Prose written by hand drifts from the numbers it summarises (issue 10); this tex
 from the :class:`~benchmark.runner.claims.Claim` objects the claims table is rendered from, so it
 says nothing the table does not: verdict counts, which claims hold and which do not (with the
 differences and intervals exactly as the table prints them), which heads use the satellite image
-on which split, and which heads were left out for not beating the constant predictor.
+on which split, which representation wins each test split of the ``extended`` table
+(``benchmark.runner.claims_ranking``), and which heads were left out for not beating the constant
+predictor.
 """
 
 from __future__ import annotations
@@ -18,8 +20,10 @@ from benchmark.runner.claims import (
     Claim,
     Comparison,
 )
+from benchmark.runner.claims_ranking import ranking_sentence
 
 ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN)
+SENTENCE_KINDS = ("satellite", "ranking")  # claims summarised by a sentence of their own
 
 
 def _range(comps: list[Comparison]) -> str:
@@ -137,7 +141,7 @@ def findings_markdown(claims: list[Claim]) -> str:
         group = [
             (i, c)
             for i, c in numbered
-            if c.verdict == verdict and (c.kind != "satellite" or verdict == NOT_RUN)
+            if c.verdict == verdict and (c.kind not in SENTENCE_KINDS or verdict == NOT_RUN)
         ]
         if not group:
             continue
@@ -146,7 +150,7 @@ def findings_markdown(claims: list[Claim]) -> str:
         else:
             lines.append(f"- **{verdict}**: " + "; ".join(_claim_summary(i, c) for i, c in group))
     for i, c in numbered:
-        sentence = satellite_sentence(i, c)
+        sentence = satellite_sentence(i, c) or ranking_sentence(i, c)
         if sentence is not None:
             lines.append(f"- {sentence}")
     excluded = _exclusions(claims)

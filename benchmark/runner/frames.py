@@ -28,6 +28,7 @@ import pandas as pd
 
 from benchmark.runner.execute import eval_key, split_filename
 from benchmark.runner.plan import Unit
+from benchmark.runner.specs import VariantSpec
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,13 @@ class FrameStore:
     def has(self, table: str, label: str, split: str, x: object = None) -> bool:
         """Whether the model is planned and evaluated on ``split``."""
         return split in self.splits(table, label, x)
+
+    def variant(self, table: str, label: str, x: object = None) -> VariantSpec:
+        """The spec row of the model ``(table, label, x)`` (its heads, encoder variant, satellite
+        input): the claims read a head's family from the registry through ``variant.attitude``.
+        Raises ``KeyError`` when the model is not planned."""
+        _seed, (_key, job) = self._jobs(table, label, x)[0]
+        return job.variant
 
     def seeds(self, table: str, label: str, x: object = None) -> list[int]:
         return sorted(self._models.get((table, label, _norm_x(x)), {}))

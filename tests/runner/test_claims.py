@@ -5,9 +5,11 @@ constant predictor's level and seeds that disagree; the combination rule on hand
 
 from __future__ import annotations
 
+import dataclasses
 import re
 
 import numpy as np
+import pytest
 from test_frames import SPLITS, Repro
 
 from benchmark.runner.claims import (
@@ -20,18 +22,31 @@ from benchmark.runner.claims import (
     Evidence,
     combine,
     evaluate_claims,
+    head_family,
     render_claims,
 )
 from benchmark.runner.claims_paper import (
     constant_claim,
     kappa_claim,
     pairwise_claim,
+    representation_claim,
     translation_claim,
     uncertainty_claim,
 )
 from benchmark.runner.claims_satellite import control_claim, satellite_claim
 
 STD, GEN = "standard/test", "generalized/test"
+
+
+def add_head(repro: Repro, table: str, label: str, attitude: str, splits, **kwargs) -> None:
+    """``repro.add`` with the row's attitude head set to ``attitude`` (Repro uses pd_re_net)."""
+    first = len(repro.units)
+    repro.add(table, label, splits, **kwargs)
+    for unit in repro.units[first:]:
+        unit.jobs = [
+            dataclasses.replace(j, variant=dataclasses.replace(j.variant, attitude=attitude))
+            for j in unit.jobs
+        ]
 
 
 def claim_ab(repro: Repro, a, b, metrics=("dphi_deg",)):
@@ -185,6 +200,67 @@ class TestPaperClaims:
         assert c.verdict == UNRESOLVED and "Pd/Re-Net on standard/test" in c.excluded[0]
 
 
+class TestFamiliesFromTheRegistry:
+    """Claim 2 reads head families from the registry, not from display labels."""
+
+    def test_head_family_follows_the_class_attributes(self, monkeypatch):
+        from benchmark.models import AttitudeHead, list_heads, register_head
+        from benchmark.models import registry as registry_module
+
+        assert head_family("pd_re_net") == "distribution"
+        assert head_family("pd_net_q_sym") == "distribution"
+        assert head_family("re_net_r") == "regression"
+        list_heads()
+        monkeypatch.setattr(registry_module, "_HEADS", dict(registry_module._HEADS))
+
+        @register_head("test_density_only")
+        class DensityOnly(AttitudeHead):  # a density that is not a grid distribution
+            gives_log_prob = True
+
+        assert not DensityOnly.is_probabilistic
+        assert head_family("test_density_only") == "distribution"
+        with pytest.raises(ValueError, match="pd_re_net"):
+            head_family("no_such_head")
+
+    def test_every_registered_head_has_a_family_matching_its_contract(self):
+        from benchmark.models import get_head_class, list_heads
+
+        for name in list_heads("attitude"):
+            cls = get_head_class(name)
+            density = cls.is_probabilistic or cls.gives_log_prob
+            assert head_family(name) == ("distribution" if density else "regression"), name
+
+    def test_representation_claim_takes_new_heads_by_family(self, tmp_path):
+        """Rows with labels the claim has never heard of join the family their registry class
+        declares: a worse distribution head (Pd-Net-Q Sym, label unknown to the claim) is
+        compared with Pd/Re-Net, a worse regression head with Re-Net-R, and no cross-family
+        comparison is made."""
+        repro = Repro(tmp_path)
+        add_head(repro, "table1", "Pd/Re-Net", "pd_re_net", {STD: 5.0})
+        add_head(repro, "table1", "Quaternion sym.", "pd_net_q_sym", {STD: 20.0})
+        add_head(repro, "table1", "Re-Net-R", "re_net_r", {STD: 6.0})
+        add_head(repro, "table1", "Rotation vector", "re_net_rv", {STD: 25.0})
+        add_head(repro, "table1", "Control", "pd_re_net", {STD: "constant"}, blank=True)
+        c = representation_claim(Evidence(repro.store()))
+        assert [x.where for x in c.comparisons] == [
+            "standard/test vs Quaternion sym.",
+            "standard/test vs Rotation vector",
+        ]
+        assert c.verdict == SUPPORTED and all(x.diff < -10 for x in c.comparisons)
+        assert "registry" in c.rule
+
+    def test_representation_claim_relabelled_heads(self, tmp_path):
+        """The matrix heads are found by registry name whatever their label; a head of the
+        other family is not compared."""
+        repro = Repro(tmp_path)
+        add_head(repro, "table2", "Matrix (dist.)", "pd_re_net", {GEN: 20.0})
+        add_head(repro, "table2", "Euler (dist.)", "pd_net_e", {GEN: 5.0})
+        add_head(repro, "table2", "Euler (regr.)", "re_net_e", {GEN: 5.0})
+        c = representation_claim(Evidence(repro.store()))
+        assert [x.where for x in c.comparisons] == ["generalized/test vs Euler (dist.)"]
+        assert c.verdict == CONTRADICTED
+
+
 class TestSatelliteClaims:
     def test_uses_and_does_not_use(self, tmp_path):
         repro = Repro(tmp_path)
@@ -212,7 +288,7 @@ class TestEvaluateAndRender:
         repro.add("table1", "Pd/Re-Net", {STD: 5.0}, swap={STD: 30.0})
         repro.add("table1", "Re-Net-R", {STD: 20.0})
         claims = evaluate_claims({}, repro.store())
-        assert len(claims) == 15
+        assert len(claims) == 15  # no extended table planned: no ranking claims
         assert claims[2].verdict == SUPPORTED  # distribution beats regression (where it learns)
         assert {claims[i].verdict for i in (3, 4, 5, 6, 7, 8)} == {NOT_RUN}
         text = render_claims(claims)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+from test_claims import add_head
 from test_frames import Repro
 
 from benchmark.runner.claims import (
@@ -101,11 +102,11 @@ class TestFindings:
     def test_generated_numbers_are_the_tables(self, tmp_path):
         """Every number in the findings is printed in the claims table, every verdict counted."""
         repro = Repro(tmp_path)
-        repro.add("table1", "Pd/Re-Net", {STD: 5.0}, swap={STD: 30.0})
-        repro.add("table1", "Re-Net-R", {STD: 20.0})
-        repro.add("table1", "Pd-Net-E", {STD: "constant"})
-        repro.add("table2", "Pd/Re-Net", {GEN: 6.0}, uncertainty=1.0)
-        repro.add("table2", "Re-Net-R", {GEN: 6.0})
+        add_head(repro, "table1", "Pd/Re-Net", "pd_re_net", {STD: 5.0}, swap={STD: 30.0})
+        add_head(repro, "table1", "Re-Net-R", "re_net_r", {STD: 20.0})
+        add_head(repro, "table1", "Pd-Net-E", "pd_net_e", {STD: "constant"})
+        add_head(repro, "table2", "Pd/Re-Net", "pd_re_net", {GEN: 6.0}, uncertainty=1.0)
+        add_head(repro, "table2", "Re-Net-R", "re_net_r", {GEN: 6.0})
         claims = evaluate_claims({}, repro.store())
         text, table = findings_markdown(claims), render_claims(claims)
         numbers = re.findall(r"[+-]\d+\.\d\d", text)
