@@ -315,8 +315,13 @@ def _effect(swap: pd.Series | None, e: str) -> str:
 
 
 def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[str]) -> str:
-    """Our metrics the paper does not report (medians, accuracies, uncertainty quality)."""
-    present = [m for m in metrics if m in summary.columns and summary[m].notna().any()]
+    """Our metrics the paper does not report (medians, accuracies, uncertainty quality), those
+    the spec's own columns do not already show (``""`` when none is left)."""
+    present = [
+        m
+        for m in metrics
+        if m not in spec.metrics and m in summary.columns and summary[m].notna().any()
+    ]
     if not present:
         return ""
     header = ["split", "model", *(METRIC_LABELS.get(m, m) for m in present)]
