@@ -48,14 +48,10 @@ from benchmark.geometry import (
     SAT_R_N,
     quat_conjugate,
     quat_multiply,
-    quat_to_rotmat,
-    rotmat_to_quat,
     rotmat_to_quat_paper,
     super_fibonacci,
 )
-from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_lattice_options
-from benchmark.models.spherical import LatticeDecoder, directionnet_loss, resultant_length
+from benchmark.models import LatticeHead, register_head
 
 # Eq. 5 as printed: the satellite camera (pitch -90 deg, heading 0), w first.
 PAPER_SAT_Q_N = (-math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0)
@@ -69,82 +65,21 @@ def paper_relative_quat(R: Tensor) -> Tensor:
     return quat_multiply(rotmat_to_quat_paper(R_uav_n), quat_conjugate(q_sat))
 
 
-def haar_log_density_s3(log_p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
-    """``log(p(q) + p(-q)) + log(n / 2)``: the log density, w.r.t. the normalised Haar measure on
-    SO(3), of the rotation ``q`` under a lattice distribution on S^3 (module docstring).
-
-    log_p: ``(B, n)``; q: ``(B, 4)`` unit; grid: ``(n, 4)`` -> ``(B,)``.
-    """
-    dots = q @ grid.to(q.dtype).T
-    near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
-    near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
-    return torch.logaddexp(near_pos, near_neg) + math.log(grid.shape[0] / 2)
-
-
 @register_head("pd_net_q")
-class PdNetQ(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160)."""
+class PdNetQ(LatticeHead):
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160). Raw: logits (B, n).
+
+    ``LatticeHead`` on S^3: decoding by ``quat_to_rotmat`` of the normalised expectation and
+    ``log_prob`` by ``haar_log_density_s3`` come with the base; this head is its label.
+    """
 
     paper_name = "Pd-Net-Q"
-    is_probabilistic = True
     # 2: the paper's label (Eq. 3 on R_uav^n, Eq. 4-5) only; the symmetric variant moved to
     # pd_net_q_sym; log_prob w.r.t. the normalised Haar measure.
     version = 2
+    min_points = 8
+    lattice = staticmethod(super_fibonacci)
 
-    def __init__(
-        self,
-        in_features: int,
-        n_points: int = 4096,
-        kappa: float = 10.0,
-        alpha: float = 8e7,
-        hidden: int = 160,
-    ) -> None:
-        super().__init__(in_features)
-        self.kappa, self.alpha = check_lattice_options(
-            "pd_net_q", n_points, kappa, alpha, min_points=8
-        )
-        self.register_buffer("grid", super_fibonacci(n_points), persistent=False)
-        self.decoder = LatticeDecoder(in_features, 1, n_points, hidden)
-
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> logits (B, n) over the S^3 lattice."""
-        return self.decoder(features)[:, 0]
-
-    def distribution(self, raw: Tensor) -> Tensor:
-        """(B, n) probabilities over the lattice quaternions."""
-        return torch.softmax(raw, dim=-1)
-
-    def label(self, R: Tensor) -> Tensor:
+    def encode(self, R: Tensor) -> Tensor:
         """(B, 3, 3) -> (B, 4) the paper's label quaternion (``paper_relative_quat``)."""
         return paper_relative_quat(R)
-
-    def target_distribution(self, R: Tensor) -> Tensor:
-        grid = self.grid.to(R.dtype)
-        return torch.softmax(self.kappa * (self.label(R) @ grid.T), dim=-1)
-
-    def decode_distribution(self, p: Tensor) -> Tensor:
-        resultant = p @ self.grid.to(p.dtype)
-        norm = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
-        return quat_to_rotmat(resultant / norm)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        p = self.distribution(raw)
-        grid = self.grid.to(p.dtype)
-        q = self.label(R_gt)
-        target = torch.softmax(self.kappa * (q @ grid.T), dim=-1)
-        return directionnet_loss(
-            p[:, None], target[:, None], (p @ grid)[:, None], q[:, None], self.alpha, 4
-        ).mean()
-
-    def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
-        """(B,) log density of R w.r.t. the normalised Haar measure on SO(3) (0 for uniform):
-        ``log(p(q) + p(-q)) + log(n / 2)``."""
-        log_p = torch.log_softmax(raw, dim=-1)
-        return haar_log_density_s3(log_p, rotmat_to_quat(R).to(log_p.dtype), self.grid)
-
-    def uncertainty(self, raw: Tensor) -> Tensor:
-        """(B,) ``1 - |sum p x|`` in [0, 1]."""
-        return 1 - resultant_length(self.distribution(raw), self.grid)

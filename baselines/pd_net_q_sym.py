@@ -30,87 +30,48 @@ prediction, not a label).
 
 from __future__ import annotations
 
-import math
-
 import torch
 from torch import Tensor
 
 from benchmark.geometry import quat_to_rotmat, rotmat_to_quat, super_fibonacci
-from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_lattice_options
-from benchmark.models.spherical import LatticeDecoder, directionnet_loss
+from benchmark.models import LatticeHead, register_head
 
 
 @register_head("pd_net_q_sym")
-class PdNetQSym(AttitudeHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160)."""
+class PdNetQSym(LatticeHead):
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160). Raw: logits (B, n).
+
+    Pd-Net-Q's lattice (S^3) with another label, target, Eq. 13 resultant, decoding and
+    uncertainty; decoder, distribution, ``log_prob`` and the loss's wiring are ``LatticeHead``'s.
+    """
 
     paper_name = "Pd-Net-Q-sym"
-    is_probabilistic = True
     version = 1
+    min_points = 8
+    lattice = staticmethod(super_fibonacci)
 
-    def __init__(
-        self,
-        in_features: int,
-        n_points: int = 4096,
-        kappa: float = 10.0,
-        alpha: float = 8e7,
-        hidden: int = 160,
-    ) -> None:
-        super().__init__(in_features)
-        self.kappa, self.alpha = check_lattice_options(
-            "pd_net_q_sym", n_points, kappa, alpha, min_points=8
-        )
-        self.register_buffer("grid", super_fibonacci(n_points), persistent=False)
-        self.decoder = LatticeDecoder(in_features, 1, n_points, hidden)
+    def encode(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 4) a unit quaternion of R, either sign."""
+        return rotmat_to_quat(R)
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> logits (B, n) over the S^3 lattice."""
-        return self.decoder(features)[:, 0]
-
-    def distribution(self, raw: Tensor) -> Tensor:
-        """(B, n) probabilities over the lattice quaternions."""
-        return torch.softmax(raw, dim=-1)
-
-    def _target(self, q: Tensor, grid: Tensor) -> Tensor:
+    def target(self, q: Tensor, grid: Tensor) -> Tensor:
+        """The antipodal vMF mixture ``softmax_k log(exp(kappa q.x_k) + exp(-kappa q.x_k))``."""
         dots = self.kappa * (q @ grid.T)
         return torch.softmax(torch.logaddexp(dots, -dots), dim=-1)
 
-    def target_distribution(self, R: Tensor) -> Tensor:
-        return self._target(rotmat_to_quat(R), self.grid.to(R.dtype))
+    def loss_resultant(self, p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
+        """``sum_k p_k sign(q.x_k) x_k``: every lattice point folded onto the label's hemisphere."""
+        signs = torch.where(q @ grid.T < 0, -1.0, 1.0).to(p.dtype)
+        return (p * signs) @ grid
 
     def _scatter(self, p: Tensor) -> Tensor:
         grid = self.grid.to(p.dtype)
         return torch.einsum("bk,ki,kj->bij", p, grid, grid)  # (B, 4, 4), trace 1
 
     def decode_distribution(self, p: Tensor) -> Tensor:
+        """(B, n) -> (B, 3, 3): the principal eigenvector of ``M = sum_k p_k x_k x_k^T``."""
         _, vectors = torch.linalg.eigh(self._scatter(p))  # ascending eigenvalues
         return quat_to_rotmat(vectors[..., -1])
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        p = self.distribution(raw)
-        grid = self.grid.to(p.dtype)
-        q = rotmat_to_quat(R_gt)
-        target = self._target(q, grid)
-        # Fold every lattice point onto the label's hemisphere before taking the mean.
-        signs = torch.where(q @ grid.T < 0, -1.0, 1.0).to(p.dtype)
-        resultant = (p * signs) @ grid
-        return directionnet_loss(
-            p[:, None], target[:, None], resultant[:, None], q[:, None], self.alpha, 4
-        ).mean()
-
-    def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
-        """(B,) log density of R w.r.t. the normalised Haar measure on SO(3) (0 for uniform):
-        ``log(p(q) + p(-q)) + log(n / 2)``."""
-        log_p = torch.log_softmax(raw, dim=-1)
-        q = rotmat_to_quat(R).to(log_p.dtype)
-        dots = q @ self.grid.to(q.dtype).T
-        near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
-        near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
-        return torch.logaddexp(near_pos, near_neg) + math.log(self.grid.shape[0] / 2)
 
     def uncertainty(self, raw: Tensor) -> Tensor:
         """(B,) ``(4 / 3) (1 - lambda_max(M))`` in [0, 1]."""

@@ -51,74 +51,33 @@ Haar measure.
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, fibonacci_sphere, special_orthogonalize
-from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_lattice_options
-from benchmark.models.spherical import (
-    LatticeDecoder,
-    column_product_log_density,
-    directionnet_loss,
-    resultant_length,
-)
+from benchmark.geometry import fibonacci_sphere, special_orthogonalize
+from benchmark.models import LatticeHead, register_head
+from benchmark.models.spherical import column_product_log_density
 
 
 @register_head("pd_re_net")
-class PdReNet(AttitudeHead):
-    """Args: in_features; n_points (4096); kappa (10, > 0); alpha (8e7); hidden (160)."""
+class PdReNet(LatticeHead):
+    """Args: in_features; n_points (4096); kappa (10, > 0); alpha (8e7); hidden (160).
+
+    Raw: logits (B, 3, n), one row per column of R; the rest is ``LatticeHead``'s.
+    """
 
     paper_name = "Pd/Re-Net"
-    is_probabilistic = True
     version = 2
+    channels = 3
+    lattice = staticmethod(fibonacci_sphere)
 
-    def __init__(
-        self,
-        in_features: int,
-        n_points: int = 4096,
-        kappa: float = 10.0,
-        alpha: float = 8e7,
-        hidden: int = 160,
-    ) -> None:
-        super().__init__(in_features)
-        self.kappa, self.alpha = check_lattice_options("pd_re_net", n_points, kappa, alpha)
-        self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
-        self.decoder = LatticeDecoder(in_features, 3, n_points, hidden)
+    def encode(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 3, 3): row j is column j of R."""
+        return R.transpose(-1, -2)
 
-    def forward(self, features: Tensor) -> Tensor:
-        """(B, F) -> logits (B, 3, n): one row per column of R."""
-        return self.decoder(features)
+    def to_label(self, columns: Tensor) -> Tensor:
+        """(B, 3, 3) normalised column expectations (rows) -> SVD projection onto SO(3)."""
+        return special_orthogonalize(columns.transpose(-1, -2))
 
-    def distribution(self, raw: Tensor) -> Tensor:
-        """(B, 3, n) probabilities, each row summing to 1."""
-        return torch.softmax(raw, dim=-1)
-
-    def target_distribution(self, R: Tensor) -> Tensor:
-        """(B, 3, 3) -> (B, 3, n): discrete vMF around each column (Eq. 10)."""
-        return discrete_vmf(R.transpose(-1, -2), self.kappa, self.grid.to(R.dtype))
-
-    def decode_distribution(self, p: Tensor) -> Tensor:
-        """(B, 3, n) -> (B, 3, 3): Eq. 9 expectation per column, normalised, then SVD projection."""
-        resultant = p @ self.grid.to(p.dtype)  # (B, 3 columns, 3 coordinates)
-        length = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
-        return special_orthogonalize((resultant / length).transpose(-1, -2))
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
-
-    def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
-        p = self.distribution(raw)
-        grid = self.grid.to(p.dtype)
-        columns = R_gt.transpose(-1, -2)
-        target = discrete_vmf(columns, self.kappa, grid)
-        return directionnet_loss(p, target, p @ grid, columns, self.alpha, 3).mean()
-
-    def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
-        """(B,) log density of R w.r.t. the normalised Haar measure (0 for a uniform prediction)."""
-        log_p = torch.log_softmax(raw, dim=-1)
+    def log_density(self, log_p: Tensor, R: Tensor) -> Tensor:
+        """Product of the column densities normalised over SO(3) by Haar quadrature."""
         return column_product_log_density(log_p, R, self.grid)
-
-    def uncertainty(self, raw: Tensor) -> Tensor:
-        """(B,) mean spherical variance ``1 - |E x|`` of the three columns, in [0, 1]."""
-        return 1 - resultant_length(self.distribution(raw), self.grid).mean(-1)

@@ -16,6 +16,9 @@ and the uncertainty ``1 - |sum p x|`` (mean over the channels). A subclass decla
     to_label(m) -> R       # normalised expectations, shaped like encode's output -> (B, 3, 3)
     log_density(log_p, R)  # (B,) log density of R w.r.t. the normalised Haar measure on SO(3)
 
+A one-channel lattice on S^3 (d = 4) is read as unit quaternions ``(w, x, y, z)``: there the base
+already supplies ``to_label`` (``quat_to_rotmat``) and ``log_density`` (``q`` and ``-q`` are one
+rotation: ``haar_log_density_s3``), so such a head declares ``lattice`` and ``encode`` only.
 and may override ``target(x, grid)`` (default the discrete vMF, Eq. 10), ``loss_resultant`` (the
 vector the Eq. 13 cosine compares with the label; default ``sum p x``), ``decode_distribution``
 and ``uncertainty``.
@@ -37,9 +40,14 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, spherical_mean
+from benchmark.geometry import discrete_vmf, quat_to_rotmat, rotmat_to_quat, spherical_mean
 from benchmark.models.heads import AttitudeHead, TranslationHead, check_lattice_options, mlp
-from benchmark.models.spherical import LatticeDecoder, directionnet_loss, resultant_length
+from benchmark.models.spherical import (
+    LatticeDecoder,
+    directionnet_loss,
+    haar_log_density_s3,
+    resultant_length,
+)
 
 
 class LatticeHead(AttitudeHead):
@@ -80,13 +88,29 @@ class LatticeHead(AttitudeHead):
         raise NotImplementedError
 
     def to_label(self, directions: Tensor) -> Tensor:
-        """Unit mean directions shaped like ``encode``'s output -> ``(B, 3, 3)``, det +1."""
-        raise NotImplementedError
+        """Unit mean directions shaped like ``encode``'s output -> ``(B, 3, 3)``, det +1.
+
+        Default: only for a one-channel lattice on S^3, whose directions are unit quaternions.
+        """
+        self._require_quaternions("to_label")
+        return quat_to_rotmat(directions)
 
     def log_density(self, log_p: Tensor, R: Tensor) -> Tensor:
         """``log_p`` (log of ``distribution``), ``R (B, 3, 3)`` -> ``(B,)`` log density of R
-        w.r.t. the normalised Haar measure on SO(3) (0 for a uniform prediction)."""
-        raise NotImplementedError
+        w.r.t. the normalised Haar measure on SO(3) (0 for a uniform prediction).
+
+        Default: only for a one-channel lattice on S^3, ``log(p(q) + p(-q)) + log(n / 2)``.
+        """
+        self._require_quaternions("log_density")
+        return haar_log_density_s3(log_p, rotmat_to_quat(R).to(log_p.dtype), self.grid)
+
+    def _require_quaternions(self, hook: str) -> None:
+        if self.channels != 1 or self.grid.shape[-1] != 4:
+            raise NotImplementedError(
+                f"{type(self).__name__} must define {hook}: the default exists only for one "
+                f"channel on S^3 (quaternions), not {self.channels} channel(s) in "
+                f"R^{self.grid.shape[-1]}"
+            )
 
     def target(self, directions: Tensor, grid: Tensor) -> Tensor:
         """Target probabilities around the label directions (default Eq. 10, the discrete vMF

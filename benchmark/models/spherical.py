@@ -95,6 +95,23 @@ def resultant_length(p: Tensor, grid: Tensor) -> Tensor:
     return torch.linalg.vector_norm(p @ grid.to(p.dtype), dim=-1)
 
 
+def haar_log_density_s3(log_p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
+    """Log density, w.r.t. the normalised Haar measure on SO(3), of the rotation ``q`` under a
+    lattice distribution on S^3: ``log(p(q) + p(-q)) + log(n / 2)``.
+
+    A density ``g`` on S^3 w.r.t. surface measure (total ``2 pi^2``) gives the rotation density
+    ``pi^2 (g(q) + g(-q))`` w.r.t. the normalised Haar measure (S^3 covers SO(3) twice). With each
+    lattice point's probability spread over its cell (``2 pi^2 / n``) and read at the nearest
+    lattice point, that is the formula above; a uniform prediction scores 0.
+
+    log_p: ``(B, n)``; q: ``(B, 4)`` unit; grid: ``(n, 4)`` -> ``(B,)``.
+    """
+    dots = q @ grid.to(q.dtype).T
+    near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
+    near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
+    return torch.logaddexp(near_pos, near_neg) + math.log(grid.shape[0] / 2)
+
+
 @lru_cache(maxsize=4)
 def _haar_grid_column_indices(n_points: int, n_rotations: int) -> Tensor:
     """``(n_rotations, 3)`` int64: for each rotation of the super-Fibonacci Haar grid, the index of

@@ -79,7 +79,7 @@ class TestPaperLabel:
     @pytest.mark.parametrize("batch", [1, 3, 8])
     def test_convention_label_is_eq3_to_5(self, batch):
         rot = Rotation.random(batch, random_state=batch)
-        q = head().label(as_tensor(rot)).numpy()
+        q = head().encode(as_tensor(rot)).numpy()
         np.testing.assert_allclose(q, paper_label_reference(rot), atol=1e-12)
         np.testing.assert_allclose(
             Rotation.from_quat(np.roll(q, -1, -1)).as_matrix(), rot.as_matrix(), atol=1e-12
@@ -91,7 +91,7 @@ class TestPaperLabel:
         assert SWITCH == pytest.approx(-63.03, abs=0.05)
         step = 0.01
         psi = np.arange(-180.0, 180.0, step)
-        q = head().label(as_tensor(paper_sweep(psi))).numpy()
+        q = head().encode(as_tensor(paper_sweep(psi))).numpy()
         jumps = np.flatnonzero(np.linalg.norm(np.diff(q, axis=0), axis=-1) > 1.0)
         assert len(jumps) == 1
         assert psi[jumps[0]] <= SWITCH + 1e-9 and SWITCH <= psi[jumps[0] + 1] + 1e-9
@@ -132,7 +132,7 @@ class TestDecode:
         q_head, sym = head(), head("pd_net_q_sym")
         t = q_head.target_distribution(as_tensor(rot))
         flipped = torch.softmax(
-            -q_head.kappa * (q_head.label(as_tensor(rot)) @ q_head.grid.double().T), -1
+            -q_head.kappa * (q_head.encode(as_tensor(rot)) @ q_head.grid.double().T), -1
         )
         full = 1 - q_head.uncertainty(t.log()).item()
         for w in (0.1, 0.3, 0.45):
@@ -154,7 +154,7 @@ class TestDecode:
         h = head("pd_net_q_sym")
         q = torch.tensor(np.roll(Rotation.random(3).as_quat(), 1, -1))
         grid = h.grid.double()
-        torch.testing.assert_close(h._target(q, grid), h._target(-q, grid))
+        torch.testing.assert_close(h.target(q, grid), h.target(-q, grid))
 
 
 class TestLoss:
