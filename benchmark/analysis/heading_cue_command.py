@@ -4,7 +4,8 @@ Fits :mod:`benchmark.analysis.heading_cue`'s probe (image-wide UAV statistics ->
 ``--train`` with the regularisation chosen on ``--val``, and prints its mean absolute yaw error
 beside the constant predictor's on ``--val`` and each ``--test`` split. A ratio near 1 means the
 UAV images carry no heading cue that needs no satellite image; issue 9 asks >= 0.85 on
-standard/test.
+standard/test. Several datasets (e.g. one profile at several seeds) are audited one by one and
+pooled (``pooled_heading_cue_audit``): one small test split cannot decide the question.
 """
 
 from __future__ import annotations
@@ -20,7 +21,12 @@ THRESHOLD = 0.85  # issue 9 acceptance: probe error >= 0.85 x the constant predi
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", type=Path, help="dataset directory written by uavbench simulate")
+    parser.add_argument(
+        "dataset",
+        type=Path,
+        nargs="+",
+        help="dataset directory written by uavbench simulate (several: audited and pooled)",
+    )
     parser.add_argument("--train", default="standard/train", help="split the probe is fitted on")
     parser.add_argument(
         "--val", default="standard/val", help="split the ridge strength is chosen on"
@@ -48,33 +54,58 @@ def _check_splits(root: Path, names: list[tuple[str, str]]) -> None:
             )
 
 
-def format_result(result: dict) -> str:
-    """The audit as a small text table (degrees)."""
+def _verdict(r: dict) -> str:
+    """No interval, no verdict: the threshold must lie outside the flight-bootstrap interval."""
+    if r["ratio_lo"] >= THRESHOLD:
+        return "ok"
+    return "CUE" if r["ratio_hi"] < THRESHOLD else "unresolved"
+
+
+def format_result(result: dict, pooled: bool = False) -> str:
+    """The audit as a small text table (degrees); ``pooled``: the splits are pooled summaries."""
+    head = (
+        "each dataset's probe on its own splits, errors pooled; interval over all flights"
+        if pooled
+        else f"probe fitted on {result['train']} (n={result['n_train']}, "
+        f"{result['n_features']} features, ridge {result['ridge']:.3g} chosen on "
+        f"{result['val']}); constant predictor yaw {result['constant_yaw_deg']:.1f} deg"
+    )
     lines = [
-        f"probe fitted on {result['train']} (n={result['n_train']}, {result['n_features']} "
-        f"features, ridge {result['ridge']:.3g} chosen on {result['val']}); constant predictor "
-        f"yaw {result['constant_yaw_deg']:.1f} deg",
-        f"{'split':<24} {'n':>6} {'probe deg':>10} {'const deg':>10} {'ratio':>7}",
+        head,
+        f"{'split':<24} {'n':>6} {'flights':>7} {'probe deg':>10} {'const deg':>10} "
+        f"{'ratio [95% flight bootstrap]':>30}",
     ]
     for split, r in result["splits"].items():
-        verdict = "" if split == result["val"] else ("  ok" if r["ratio"] >= THRESHOLD else "  CUE")
+        verdict = "" if split == result["val"] else f"  {_verdict(r)}"
+        interval = f"{r['ratio']:.3f} [{r['ratio_lo']:.3f}, {r['ratio_hi']:.3f}]"
         lines.append(
-            f"{split:<24} {r['n']:>6d} {r['probe_deg']:>10.2f} {r['constant_deg']:>10.2f} "
-            f"{r['ratio']:>7.3f}{verdict}"
+            f"{split:<24} {r['n']:>6d} {r['flights']:>7d} {r['probe_deg']:>10.2f} "
+            f"{r['constant_deg']:>10.2f} {interval:>30}{verdict}"
         )
     lines.append(
         f"ratio = probe / constant yaw error; issue 9 asks >= {THRESHOLD} "
-        "(CUE: the UAV image alone gives the heading)"
+        "(ok / CUE: the whole interval is above / below it; CUE: the UAV image alone gives the "
+        "heading)"
     )
     return "\n".join(lines)
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.analysis.heading_cue import heading_cue_audit
+    from benchmark.analysis.heading_cue import pooled_heading_cue_audit
 
     tests = args.test or ["standard/test"]
     names = [("--train", args.train), ("--val", args.val), *(("--test", t) for t in tests)]
-    _check_splits(args.dataset, names)
-    result = heading_cue_audit(args.dataset, train=args.train, val=args.val, test=tests)
-    print(json.dumps(result, indent=1) if args.json else format_result(result))
+    for root in args.dataset:
+        _check_splits(root, names)
+    pooled = pooled_heading_cue_audit(args.dataset, train=args.train, val=args.val, test=tests)
+    if args.json:
+        print(json.dumps(pooled if len(args.dataset) > 1 else pooled["datasets"][0], indent=1))
+        return 0
+    for root, result in zip(args.dataset, pooled["datasets"], strict=True):
+        print(f"== {root}")
+        print(format_result(result))
+    if len(args.dataset) > 1:
+        print(f"== pooled over {len(args.dataset)} datasets")
+        first = pooled["datasets"][0]
+        print(format_result({**first, "splits": pooled["pooled"]}, pooled=True))
     return 0

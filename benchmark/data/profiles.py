@@ -110,6 +110,22 @@ class Profile:
             n_town_pairs=tuple(scale(n) for n in self.n_town_pairs),
         )
 
+    def standard_only(self) -> Profile:
+        """This profile with only the standard splits (train, val, test): what the heading-cue
+        audit renders for its extra dataset seeds. Named ``<name>-standard``."""
+        return dataclasses.replace(
+            self,
+            name=f"{self.name}-standard",
+            n_generalized_test=0,
+            n_flight_per_pitch=0,
+            n_pitch_per_bin=0,
+            n_height_train=0,
+            n_height_test=0,
+            frame_split=False,
+            n_towns=(0, 0, 0, 0),
+            n_town_pairs=(0, 0, 0, 0),
+        )
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 

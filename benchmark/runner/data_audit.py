@@ -5,10 +5,18 @@ histograms and colour balance, no spatial layout) is trained on a training split
 on the validation split, and scored on the test splits. A ratio (probe / constant predictor yaw
 error) near 1 means the simulator gives no global heading cue; the acceptance of issue 9 asks
 >= 0.85 on standard/test. Written to ``heading_cue.md`` and summarised in the report's README.
+
+One quick dataset's standard/test holds ~40 flights, too few to decide the question: the constant
+predictor's error alone moves by +-10 deg between draws. The verdict therefore pools the
+reproduction's dataset with :data:`CUE_EXTRA_SEEDS` more datasets of the same profile, standard
+splits only, at the next dataset seeds (``<data>-cue-s<seed>``, rendered once and reused; about
+2.5 min each for the quick profile on 2 cores; five datasets hold ~190 test flights).
 """
 
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,22 +26,68 @@ AUDITS = (
     ("towns/train", "towns/val", ("towns/test", "towns/london")),
 )
 THRESHOLD = 0.85
+CUE_EXTRA_SEEDS = 4  # standard-only datasets pooled with the reproduction's for the verdict
 
 
-def heading_cue_report(data_root: Path) -> tuple[str, list[dict[str, Any]]]:
+def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> list[Path]:
+    """``[data_root, extra_1, ...]``: the dataset and ``n_extra`` standard-only datasets of its
+    profile at the next seeds, rendered next to it (reused when complete, resumed when not)."""
+    from benchmark.data import Profile
+    from benchmark.data.writer import simulate_dataset
+
+    config_path = Path(data_root) / "config.json"
+    try:
+        config = json.loads(config_path.read_text())
+        profile, seed = Profile.from_dict(config["profile"]).standard_only(), int(config["seed"])
+    except (OSError, KeyError, ValueError, TypeError) as err:
+        raise ValueError(
+            f"{config_path}: cannot read the dataset's profile and seed ({err})"
+        ) from err
+    roots = [Path(data_root)]
+    for k in range(1, n_extra + 1):
+        root = Path(data_root).parent / f"{Path(data_root).name}-cue-s{seed + k}"
+        if not quiet:
+            print(
+                f"heading-cue audit: dataset {k}/{n_extra} at {root} (standard splits, seed "
+                f"{seed + k})",
+                file=sys.stderr,
+                flush=True,
+            )
+        simulate_dataset(root, profile, seed + k, workers=2, progress=not quiet)
+        roots.append(root)
+    return roots
+
+
+def _row(train: str, split: str, dataset: str, summary: dict[str, Any]) -> dict[str, Any]:
+    return {"train": train, "split": split, "dataset": dataset, **summary}
+
+
+def heading_cue_report(
+    data_root: Path, n_extra: int = CUE_EXTRA_SEEDS, *, quiet: bool = False
+) -> tuple[str, list[dict[str, Any]]]:
     """Markdown of the heading-cue audit on every family of splits the dataset holds, and its
-    rows ``{"train", "split", "n", "probe_deg", "constant_deg", "ratio"}`` (val rows included)."""
-    from benchmark.analysis.heading_cue import heading_cue_audit
+    rows ``{"train", "split", "dataset", "n", "flights", "probe_deg", "constant_deg", "ratio",
+    "ratio_lo", "ratio_hi"}`` (val rows included; ``dataset`` is a directory name or
+    ``"pooled"``). The standard family is also audited on ``n_extra`` more dataset seeds and
+    pooled (:func:`cue_dataset_roots`)."""
+    from benchmark.analysis.heading_cue import heading_cue_audit, pooled_heading_cue_audit
     from benchmark.data.dataset import list_splits
 
     available = set(list_splits(data_root))
     rows: list[dict[str, Any]] = []
-    for train, val, tests in AUDITS:
+    for index, (train, val, tests) in enumerate(AUDITS):
         tests = tuple(t for t in tests if t in available)
         if not ({train, val} <= available and tests):
             continue
-        result = heading_cue_audit(data_root, train=train, val=val, test=list(tests))
-        rows += [{"train": train, "split": s, **v} for s, v in result["splits"].items()]
+        if index > 0 or n_extra == 0:
+            result = heading_cue_audit(data_root, train=train, val=val, test=list(tests))
+            rows += [_row(train, s, data_root.name, v) for s, v in result["splits"].items()]
+            continue
+        roots = cue_dataset_roots(data_root, n_extra, quiet=quiet)
+        pooled = pooled_heading_cue_audit(roots, train=train, val=val, test=list(tests))
+        for root, result in zip(roots, pooled["datasets"], strict=True):
+            rows += [_row(train, s, root.name, v) for s, v in result["splits"].items()]
+        rows += [_row(train, s, "pooled", v) for s, v in pooled["pooled"].items()]
     lines = [
         "## Data audit: heading from the UAV image alone",
         "",
@@ -46,27 +100,34 @@ def heading_cue_report(data_root: Path) -> tuple[str, list[dict[str, Any]]]:
         "are correlated). A probe that learns nothing scores about 90 deg; the constant "
         "predictor's error depends on how far the split's headings lie from the training mean.",
         "",
-        "| trained on | evaluated on | pairs | flights | probe yaw error (deg) | constant (deg) "
-        "| ratio [95% interval] |",
-        "|---|---|---|---|---|---|---|",
+        f"The standard splits are audited on this dataset and on {n_extra} more of the same "
+        "profile at the next dataset seeds (standard splits only, `<data>-cue-s<seed>`; each "
+        "probe fitted on its own dataset), then pooled: one test split of ~40 flights cannot "
+        "decide the question, since the constant predictor's error alone moves by about 10 deg "
+        "between draws. The verdict reads the pooled standard/test row.",
+        "",
+        "| trained on | evaluated on | dataset | pairs | flights | probe yaw error (deg) "
+        "| constant (deg) | ratio [95% interval] |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
-            f"| {r['train']} | {r['split']} | {r['n']} | {r['flights']} | {r['probe_deg']:.1f} | "
-            f"{r['constant_deg']:.1f} | {r['ratio']:.3f} [{r['ratio_lo']:.3f}, "
-            f"{r['ratio_hi']:.3f}] |"
+            f"| {r['train']} | {r['split']} | {r['dataset']} | {r['n']} | {r['flights']} | "
+            f"{r['probe_deg']:.1f} | {r['constant_deg']:.1f} | {r['ratio']:.3f} "
+            f"[{r['ratio_lo']:.3f}, {r['ratio_hi']:.3f}] |"
         )
     if not rows:
-        lines.append("| - | (the dataset has none of the audited splits) | | | | | |")
+        lines.append("| - | (the dataset has none of the audited splits) | | | | | | |")
     return "\n".join(lines) + "\n", rows
 
 
 def heading_cue_summary(rows: list[dict[str, Any]]) -> str:
-    """One sentence for the README: the standard/test ratio against the threshold."""
+    """One sentence for the README: the (pooled, where audited) standard/test ratio against the
+    threshold, and the other splits' ratios of the reproduction's own dataset."""
     std = [r for r in rows if r["split"] == "standard/test"]
     if not std:
         return "Heading-cue audit: no standard/test split in this dataset."
-    r = std[0]
+    r = next((o for o in std if o["dataset"] == "pooled"), std[0])
     # No interval, no verdict: the threshold must lie outside the flight-bootstrap interval.
     if r["ratio_lo"] >= THRESHOLD:
         verdict = "no global heading cue"
@@ -74,11 +135,21 @@ def heading_cue_summary(rows: list[dict[str, Any]]) -> str:
         verdict = "a heading cue remains"
     else:
         verdict = "not resolved at this scale (the interval contains the threshold)"
-    others = ", ".join(f"{o['split']} {o['ratio']:.2f}" for o in rows if o is not r)
+    own = rows[0]["dataset"]
+    others = ", ".join(
+        f"{o['split']} {o['ratio']:.2f}"
+        for o in rows
+        if o["dataset"] == own and o["split"] != "standard/test"
+    )
+    where = (
+        f"{r['flights']} flights pooled over {len({o['dataset'] for o in std}) - 1} datasets"
+        if r["dataset"] == "pooled"
+        else f"{r['flights']} flights"
+    )
     return (
         f"Heading-cue audit ([heading_cue.md](heading_cue.md)): image-wide UAV statistics read "
         f"the yaw on standard/test at {r['ratio']:.2f}x [{r['ratio_lo']:.2f}, "
         f"{r['ratio_hi']:.2f}] the constant predictor's error ({r['probe_deg']:.1f} vs "
-        f"{r['constant_deg']:.1f} deg; {r['flights']} flights; threshold {THRESHOLD}): "
-        f"{verdict}. Other splits: {others}."
+        f"{r['constant_deg']:.1f} deg; {where}; threshold {THRESHOLD}): {verdict}. Other splits "
+        f"of {own}: {others}."
     )

@@ -279,3 +279,39 @@ class TestHeadingCueAudit:
         assert main(["heading-cue", str(cue_dataset), "--test", "towns/test"]) == 2
         err = capsys.readouterr().err
         assert "'towns/test'" in err and "standard/train" in err
+
+
+class TestPooledHeadingCueAudit:
+    def test_one_dataset_twice_keeps_the_ratio_and_doubles_the_flights(self, cue_dataset):
+        # Pooling sums errors over datasets; the same dataset twice must give the same ratio and
+        # twice the (made unique) flights, and per-dataset results equal the plain audit's.
+        from benchmark.analysis.heading_cue import pooled_heading_cue_audit
+
+        single = heading_cue_audit(cue_dataset, test=["standard/test"])
+        pooled = pooled_heading_cue_audit([cue_dataset, cue_dataset], test=["standard/test"])
+        assert pooled["datasets"] == [single, single]
+        for split, one in single["splits"].items():
+            both = pooled["pooled"][split]
+            assert both["n"] == 2 * one["n"] and both["flights"] == 2 * one["flights"]
+            assert both["ratio"] == pytest.approx(one["ratio"], rel=1e-12)
+            assert both["ratio_lo"] <= both["ratio"] <= both["ratio_hi"]
+
+    def test_a_split_missing_from_one_dataset_is_not_pooled(self, cue_dataset):
+        from benchmark.analysis.heading_cue import pooled_heading_cue_audit
+
+        # generalized/test is absent from the cue dataset: scored nowhere, pooled nowhere.
+        pooled = pooled_heading_cue_audit([cue_dataset], test=["standard/test", "generalized/test"])
+        assert list(pooled["pooled"]) == ["standard/val", "standard/test"]
+
+    def test_cli_pools_several_datasets(self, cue_dataset, capsys):
+        from benchmark.cli import main
+
+        assert main(["heading-cue", str(cue_dataset), str(cue_dataset)]) == 0
+        out = capsys.readouterr().out
+        assert out.count(f"== {cue_dataset}") == 2 and "== pooled over 2 datasets" in out
+
+    def test_empty_list_is_an_error(self):
+        from benchmark.analysis.heading_cue import pooled_heading_cue_audit
+
+        with pytest.raises(ValueError, match="at least one dataset"):
+            pooled_heading_cue_audit([])
