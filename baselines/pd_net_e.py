@@ -70,9 +70,14 @@ from torch import Tensor
 from benchmark.geometry import euler_to_rotmat, rotmat_to_euler
 from benchmark.models import AttitudeHead, register_head
 from benchmark.models.heads import check_option
-from benchmark.models.spherical import LatticeDecoder, cosine_loss, interval_mle
-
-_CANDIDATES_PER_BIN = 8  # pitch decoding grid: 8 candidates per bin, then a parabola
+from benchmark.models.spherical import (
+    LatticeDecoder,
+    angle_bins_loss,
+    circle_resultant,
+    interval_decoding_grid,
+    interval_mle,
+    von_mises_bins,
+)
 
 
 @register_head("pd_net_e")
@@ -118,10 +123,7 @@ class PdNetE(AttitudeHead):
         log_cells = torch.log(torch.stack([circle_cells, pitch_cells, circle_cells]))
         self.register_buffer("log_cells", log_cells, persistent=False)
         # Pitch decoding: candidates and log Z(mu) of the truncated target (float64).
-        candidates = torch.linspace(
-            -math.pi / 2, math.pi / 2, _CANDIDATES_PER_BIN * n_bins + 1, dtype=torch.float64
-        )
-        log_norm = torch.logsumexp(self.kappa * torch.cos(pitch[None] - candidates[:, None]), -1)
+        candidates, log_norm = interval_decoding_grid(pitch, -math.pi / 2, self.kappa)
         self.register_buffer("candidates", candidates, persistent=False)
         self.register_buffer("log_norm", log_norm, persistent=False)
         self.decoder = LatticeDecoder(in_features, 3, n_bins, hidden)
@@ -143,13 +145,11 @@ class PdNetE(AttitudeHead):
 
     def _target(self, angles: Tensor) -> Tensor:
         """(B, 3) (yaw, pitch, roll) rad -> (B, 3, n_bins) discrete von Mises targets."""
-        c = self.centres.to(angles.dtype)
-        return torch.softmax(self.kappa * torch.cos(c - angles[..., None]), dim=-1)
+        return von_mises_bins(angles, self.centres, self.kappa)
 
     def _resultant(self, p: Tensor) -> Tensor:
         """(B, 3, n) -> (B, 3, 2) ``sum_b p_b (cos c_b, sin c_b)``."""
-        c = self.centres.to(p.dtype)
-        return torch.stack([(p * torch.cos(c)).sum(-1), (p * torch.sin(c)).sum(-1)], dim=-1)
+        return circle_resultant(p, self.centres)
 
     def decode_distribution(self, p: Tensor) -> Tensor:
         m = self._resultant(p)
@@ -163,12 +163,10 @@ class PdNetE(AttitudeHead):
 
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
         target = self._target(self._angles(R_gt))
-        cross_entropy = -(target * torch.log_softmax(raw, dim=-1)).sum(dim=(-1, -2))  # (B,)
+        cross_entropy, direction = angle_bins_loss(raw, target, self.centres)  # (B, 3) each
         if self.direction_weight == 0:
-            return cross_entropy.mean()
-        m = self._resultant(self.distribution(raw))  # (B, 3, 2)
-        direction = cosine_loss(m, self._resultant(target)).sum(-1)  # (B,)
-        return (cross_entropy + self.direction_weight * direction).mean()
+            return cross_entropy.sum(-1).mean()
+        return (cross_entropy.sum(-1) + self.direction_weight * direction.sum(-1)).mean()
 
     def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
         """(B,) log density of R w.r.t. the normalised Haar measure on SO(3).

@@ -50,14 +50,14 @@ class PdNetQSym(LatticeHead):
     min_points = 8
     lattice = staticmethod(super_fibonacci)
 
-    def encode(self, R: Tensor) -> Tensor:
-        """(B, 3, 3) -> (B, 4) a unit quaternion of R, either sign."""
-        return rotmat_to_quat(R)
-
     def target(self, q: Tensor, grid: Tensor) -> Tensor:
         """The antipodal vMF mixture ``softmax_k log(exp(kappa q.x_k) + exp(-kappa q.x_k))``."""
         dots = self.kappa * (q @ grid.T)
         return torch.softmax(torch.logaddexp(dots, -dots), dim=-1)
+
+    def encode(self, R: Tensor) -> Tensor:
+        """(B, 3, 3) -> (B, 4) a unit quaternion of R, either sign."""
+        return rotmat_to_quat(R)
 
     def loss_resultant(self, p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
         """``sum_k p_k sign(q.x_k) x_k``: every lattice point folded onto the label's hemisphere."""

@@ -51,29 +51,32 @@ import math
 import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, fibonacci_sphere, rotmat_to_rotvec, rotvec_to_rotmat
+from benchmark.geometry import (
+    discrete_vmf,
+    fibonacci_sphere,
+    rotmat_to_rotvec,
+    rotvec_to_rotmat,
+    spherical_mean,
+)
 from benchmark.models import AttitudeHead, register_head
 from benchmark.models.heads import check_lattice_options, check_option, mlp, nearest_grid_index
 from benchmark.models.spherical import (
-    cosine_loss,
-    directionnet_loss,
+    angle_bins_loss,
+    circle_resultant,
+    interval_decoding_grid,
     interval_mle,
     resultant_length,
+    single_direction_loss,
+    unit_direction,
+    von_mises_bins,
 )
 
 _MIN_ANGLE = 1e-6
-_CANDIDATES_PER_BIN = 8  # angle decoding grid: 8 candidates per bin, then a parabola
 
 
 def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
     """(B, 3, 3) -> unit axis (B, 3) and angle (B,) in [0, pi]; axis e_z for (near) identity."""
-    v = rotmat_to_rotvec(R)
-    angle = torch.linalg.vector_norm(v, dim=-1)
-    small = angle < _MIN_ANGLE
-    e_z = torch.zeros_like(v)
-    e_z[..., 2] = 1
-    axis = torch.where(small[..., None], e_z, v / angle.clamp_min(_MIN_ANGLE)[..., None])
-    return axis, angle
+    return unit_direction(rotmat_to_rotvec(R), _MIN_ANGLE)
 
 
 @register_head("pd_net_rv")
@@ -110,10 +113,7 @@ class PdNetRv(AttitudeHead):
         # log Haar measure of (one lattice cell) x (angle bin): (1/n) Delta(t - sin t) / pi.
         cells = torch.diff(edges - torch.sin(edges)) / (math.pi * n_points)
         self.register_buffer("log_cells", torch.log(cells), persistent=False)
-        candidates = torch.linspace(
-            0.0, math.pi, _CANDIDATES_PER_BIN * n_angle_bins + 1, dtype=torch.float64
-        )
-        log_norm = torch.logsumexp(self.kappa * torch.cos(centres[None] - candidates[:, None]), -1)
+        candidates, log_norm = interval_decoding_grid(centres, 0.0, self.kappa)
         self.register_buffer("candidates", candidates, persistent=False)
         self.register_buffer("log_norm", log_norm, persistent=False)
         self.net = mlp(in_features, hidden, n_points + n_angle_bins)
@@ -132,13 +132,7 @@ class PdNetRv(AttitudeHead):
 
     def _angle_target(self, angle: Tensor) -> Tensor:
         """(B,) rad in [0, pi] -> (B, n_angle_bins) truncated discrete von Mises."""
-        c = self.centres.to(angle.dtype)
-        return torch.softmax(self.kappa * torch.cos(c - angle[..., None]), dim=-1)
-
-    def _angle_resultant(self, p: Tensor) -> Tensor:
-        """(B, m) -> (B, 2) ``sum_b p_b (cos c_b, sin c_b)``."""
-        c = self.centres.to(p.dtype)
-        return torch.stack([p @ torch.cos(c), p @ torch.sin(c)], dim=-1)
+        return von_mises_bins(angle, self.centres, self.kappa)
 
     def target_distribution(self, R: Tensor) -> dict[str, Tensor]:
         axis, angle = rotmat_to_axis_angle(R)
@@ -148,31 +142,22 @@ class PdNetRv(AttitudeHead):
         }
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
-        resultant = dist["axis"] @ self.grid.to(dist["axis"].dtype)
-        norm = torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(1e-12)
-        m = self._angle_resultant(dist["angle"])
+        axis = spherical_mean(dist["axis"], self.grid)
+        m = circle_resultant(dist["angle"], self.centres)
         angle = interval_mle(m, self.kappa, 0.0, self.candidates, self.log_norm)
-        return rotvec_to_rotmat(resultant / norm * angle[..., None])
+        return rotvec_to_rotmat(axis * angle[..., None])
 
     def decode(self, raw: dict[str, Tensor]) -> Tensor:
         return self.decode_distribution(self.distribution(raw))
 
     def loss(self, raw: dict[str, Tensor], R_gt: Tensor) -> Tensor:
-        dist = self.distribution(raw)
-        p = dist["axis"]
-        grid = self.grid.to(p.dtype)
         axis, angle = rotmat_to_axis_angle(R_gt)
-        target = discrete_vmf(axis, self.kappa, grid)
-        l_axis = directionnet_loss(
-            p[:, None], target[:, None], (p @ grid)[:, None], axis[:, None], self.alpha, 3
-        )
+        p = torch.softmax(raw["logits"], dim=-1)
+        l_axis = single_direction_loss(p, axis, self.grid, self.kappa, self.alpha)
         if self.angle_weight == 0:
             return l_axis.mean()
         t_angle = self._angle_target(angle)
-        cross_entropy = -(t_angle * torch.log_softmax(raw["angle_logits"], dim=-1)).sum(-1)
-        direction = cosine_loss(
-            self._angle_resultant(dist["angle"]), self._angle_resultant(t_angle)
-        )
+        cross_entropy, direction = angle_bins_loss(raw["angle_logits"], t_angle, self.centres)
         return (l_axis + self.angle_weight * (cross_entropy + direction)).mean()
 
     def log_prob(self, raw: dict[str, Tensor], R: Tensor) -> Tensor:
@@ -190,5 +175,7 @@ class PdNetRv(AttitudeHead):
         """(B,) mean of the axis' ``1 - |sum p x|`` and the angle's ``1 - |m|``, in [0, 1]."""
         dist = self.distribution(raw)
         axis_var = 1 - resultant_length(dist["axis"], self.grid)
-        angle_var = 1 - torch.linalg.vector_norm(self._angle_resultant(dist["angle"]), dim=-1)
+        angle_var = 1 - torch.linalg.vector_norm(
+            circle_resultant(dist["angle"], self.centres), dim=-1
+        )
         return (axis_var + angle_var) / 2

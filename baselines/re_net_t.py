@@ -55,10 +55,10 @@ import math
 import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, fibonacci_sphere
+from benchmark.geometry import discrete_vmf, fibonacci_sphere, spherical_mean
 from benchmark.models import TranslationHead, register_head
 from benchmark.models.heads import check_lattice_options, check_option, mlp
-from benchmark.models.spherical import directionnet_loss, resultant_length
+from benchmark.models.spherical import resultant_length, single_direction_loss, unit_direction
 
 _MIN_LENGTH = 1e-6  # standard units; below this the direction of u is undefined and e_z is used
 # Moments of |u| for u ~ N(0, I_3): the chi distribution with 3 degrees of freedom.
@@ -112,13 +112,7 @@ class ReNetT(TranslationHead):
 
     def _split(self, T: Tensor) -> tuple[Tensor, Tensor]:
         """``T (B, 3)`` metres -> unit direction of ``u`` ``(B, 3)`` and standardised ``|u|``."""
-        u = self.standardize(T)
-        length = torch.linalg.vector_norm(u, dim=-1)
-        e_z = torch.zeros_like(u)
-        e_z[..., 2] = 1
-        direction = torch.where(
-            (length < _MIN_LENGTH)[..., None], e_z, u / length.clamp_min(_MIN_LENGTH)[..., None]
-        )
+        direction, length = unit_direction(self.standardize(T), _MIN_LENGTH)
         s = (length - self.scale_mean.to(T.dtype)) / self.scale_std.to(T.dtype)
         return direction, s
 
@@ -136,11 +130,7 @@ class ReNetT(TranslationHead):
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
         """(B, 3) metres: ``mean + std * max(|u|_hat, 0) * d_hat``."""
-        p = dist["direction"]
-        resultant = p @ self.grid.to(p.dtype)
-        direction = resultant / torch.linalg.vector_norm(resultant, dim=-1, keepdim=True).clamp_min(
-            1e-12
-        )
+        direction = spherical_mean(dist["direction"], self.grid)
         s = dist["scale"]
         length = (self.scale_mean.to(s.dtype) + s * self.scale_std.to(s.dtype)).clamp_min(0.0)
         return self.unstandardize(direction * length[..., None])
@@ -151,12 +141,8 @@ class ReNetT(TranslationHead):
 
     def loss(self, raw: dict[str, Tensor], T_gt: Tensor) -> Tensor:
         p = torch.softmax(raw["logits"], dim=-1)
-        grid = self.grid.to(p.dtype)
         direction, s = self._split(T_gt)
-        target = discrete_vmf(direction, self.kappa, grid)
-        l_dir = directionnet_loss(
-            p[:, None], target[:, None], (p @ grid)[:, None], direction[:, None], self.alpha, 3
-        )
+        l_dir = single_direction_loss(p, direction, self.grid, self.kappa, self.alpha)
         return (l_dir + self.scale_weight * (raw["scale"] - s) ** 2).mean()
 
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:

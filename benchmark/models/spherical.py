@@ -17,7 +17,7 @@ from functools import lru_cache
 import torch
 from torch import Tensor, nn
 
-from benchmark.geometry import fibonacci_sphere, quat_to_rotmat, super_fibonacci
+from benchmark.geometry import discrete_vmf, fibonacci_sphere, quat_to_rotmat, super_fibonacci
 from benchmark.models.heads import distribution_loss_scale, mlp, sphere_volume
 
 # Haar quadrature of the column-product density on SO(3) (``column_product_log_density``): a
@@ -73,6 +73,72 @@ def directionnet_loss(
     l_dir = cosine_loss(resultant, direction).sum(-1)
     l_dis = ((p - p_target) ** 2).sum(dim=(-1, -2))
     return l_dir + alpha * scale * l_dis
+
+
+def single_direction_loss(
+    p: Tensor, direction: Tensor, grid: Tensor, kappa: float, alpha: float
+) -> Tensor:
+    """``directionnet_loss`` of one direction per sample with the discrete vMF target (Eq. 10).
+
+    p: ``(B, n)`` predicted probabilities; direction: ``(B, d)`` unit label; grid: ``(n, d)``;
+    kappa: the target's concentration; alpha: as in ``directionnet_loss``. Returns ``(B,)``.
+    """
+    grid = grid.to(p.dtype)
+    target = discrete_vmf(direction, kappa, grid)
+    terms = (p, target, p @ grid, direction)
+    return directionnet_loss(*(t[:, None] for t in terms), alpha, grid.shape[-1])
+
+
+def unit_direction(v: Tensor, min_length: float) -> tuple[Tensor, Tensor]:
+    """``v (..., 3)`` -> ``(v / |v|, |v|)``; where ``|v| < min_length`` the direction is undefined
+    and ``e_z`` is used (any fixed unit vector would do: the lattices have no boundary)."""
+    length = torch.linalg.vector_norm(v, dim=-1)
+    e_z = torch.zeros_like(v)
+    e_z[..., 2] = 1
+    unit = v / length.clamp_min(min_length)[..., None]
+    return torch.where((length < min_length)[..., None], e_z, unit), length
+
+
+def von_mises_bins(angle: Tensor, centres: Tensor, kappa: float) -> Tensor:
+    """Discrete von Mises target ``softmax_b(kappa cos(c_b - angle))`` over angle bins (3D-RCNN;
+    restricted to the bins, so truncated when they cover an interval).
+
+    angle: ``(...)`` rad; centres: ``(..., n)`` bin centres (rad, broadcast against ``angle``)
+    -> ``(..., n)`` probabilities.
+    """
+    c = centres.to(angle.dtype)
+    return torch.softmax(kappa * torch.cos(c - angle[..., None]), dim=-1)
+
+
+def circle_resultant(p: Tensor, centres: Tensor) -> Tensor:
+    """``sum_b p_b (cos c_b, sin c_b)``: ``p (..., n)``, centres ``(..., n)`` -> ``(..., 2)``."""
+    c = centres.to(p.dtype)
+    return torch.stack([(p * torch.cos(c)).sum(-1), (p * torch.sin(c)).sum(-1)], dim=-1)
+
+
+def angle_bins_loss(logits: Tensor, target: Tensor, centres: Tensor) -> tuple[Tensor, Tensor]:
+    """The two loss terms of a binned angle: cross-entropy ``-sum_b p*_b log p_b`` (3D-RCNN) and
+    the Eq. 13 term ``1 - cos(m, m*)`` of the resultants ``m = circle_resultant(p)``, ``m*`` of the
+    target. logits, target: ``(..., n)``; centres ``(..., n)`` -> two ``(...)`` tensors.
+    """
+    cross_entropy = -(target * torch.log_softmax(logits, dim=-1)).sum(-1)
+    m = circle_resultant(torch.softmax(logits, dim=-1), centres)
+    return cross_entropy, cosine_loss(m, circle_resultant(target, centres))
+
+
+def interval_decoding_grid(
+    centres: Tensor, lower: float, kappa: float, per_bin: int = 8
+) -> tuple[Tensor, Tensor]:
+    """Candidates and ``log Z`` for ``interval_mle`` on the interval ``[lower, lower + pi]``.
+
+    centres: ``(n,)`` float64 bin centres of the interval. Returns ``candidates (per_bin n + 1,)``
+    equally spaced from ``lower`` to ``lower + pi`` and ``log_norm`` of the same shape,
+    ``log Z(mu) = logsumexp_b kappa cos(c_b - mu)`` of the truncated target, both float64.
+    """
+    n = centres.shape[-1]
+    candidates = torch.linspace(lower, lower + math.pi, per_bin * n + 1, dtype=torch.float64)
+    log_norm = torch.logsumexp(kappa * torch.cos(centres[None] - candidates[:, None]), -1)
+    return candidates, log_norm
 
 
 def lattice_log_density(log_p: Tensor, x: Tensor, grid: Tensor) -> Tensor:
