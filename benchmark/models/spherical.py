@@ -7,6 +7,12 @@ sum instead; both give a probability vector, and Eq. 14 compares probabilities, 
 positive map does not change what alpha means (that is fixed by ``distribution_loss_scale``). The
 softmax makes the vMF target exactly representable (its log is linear in the lattice coordinates)
 and gives ``log_prob`` without a division.
+
+Also here, once for every head that needs them: the single-direction loss and the fallback for an
+undefined direction (``single_direction_loss``, ``unit_direction``: Pd-Net-Rv's axis, Re-Net-T's
+direction), the S^3 Haar log density (``haar_log_density_s3``), and the binned angles of Pd-Net-E
+and Pd-Net-Rv (``von_mises_bins``, ``circle_resultant``, ``angle_bins_loss``,
+``interval_decoding_grid``, ``interval_mle``). The shared head classes are in ``head_bases.py``.
 """
 
 from __future__ import annotations
