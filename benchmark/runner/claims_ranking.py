@@ -38,7 +38,8 @@ def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
 
     ``facts`` hold ``table``, ``metric``, ``means`` (label -> mean δφ in deg, every trained head,
     in plan order), ``constant`` (the constant predictor's mean δφ), ``participants`` (labels that
-    beat the constant predictor, best first), ``winner`` and ``runner_up`` (labels or None)."""
+    beat the constant predictor, best first), ``winner`` and ``runner_up`` (labels or None) and
+    ``n_flights`` (flights of the split)."""
     claim = (
         f"The representation with the lowest δφ on `{split}` (table {table}) beats the runner-up "
         "beyond the seed and flight spread"
@@ -64,6 +65,7 @@ def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
             else:
                 excluded.append(reason)
         participants.sort(key=lambda label: means[label])
+        flights = ev.beats_constant(models[labels[0]], split, RANK_METRIC).n_flights
         winner = participants[0] if participants else None
         runner_up = participants[1] if len(participants) > 1 else None
         comps: list[Comparison | None] = []
@@ -96,6 +98,7 @@ def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
         out.facts = {
             "table": table, "metric": RANK_METRIC, "means": means, "constant": constant,
             "participants": participants, "winner": winner, "runner_up": runner_up,
+            "n_flights": flights,
         }  # fmt: skip
         return out
 
@@ -125,10 +128,17 @@ def ranking_sentence(number: int, c: Claim) -> str | None:
     winner, runner = f["winner"], f["runner_up"]
     if winner is None:
         best = min(means, key=means.__getitem__)
+        lowest = f"lowest mean δφ: {best} {means[best]:.2f}°, constant {const:.2f}°"
+        flights = f["n_flights"]
+        if isinstance(flights, int) and flights < MIN_FLIGHTS:
+            return (
+                f"On {split} no head of table {table} is ranked: its {flights} flight(s) are too "
+                f"few for a flight bootstrap (at least {MIN_FLIGHTS}), so no verdict ({lowest}; "
+                f"claim {number})."
+            )
         return (
             f"On {split} no head of table {table} beats the constant predictor on δφ, so no "
-            f"representation wins (lowest mean δφ: {best} {means[best]:.2f}°, constant "
-            f"{const:.2f}°; claim {number})."
+            f"representation wins ({lowest}; claim {number})."
         )
     head = f"On {split} (table {table}), {winner} has the lowest mean δφ, {means[winner]:.2f}°"
     if runner is None:

@@ -96,6 +96,11 @@ class TestRankingClaim:
         c = ranking_claim(extended(repro, {"A": 5.0, "B": 30.0}), "extended", STD)
         assert c.verdict == UNRESOLVED and c.facts["winner"] is None
         assert all(e.endswith("; 4 flight(s))") for e in c.excluded)
+        assert c.facts["n_flights"] == 4
+        assert ranking_sentence(6, c).startswith(
+            f"On `{STD}` no head of table extended is ranked: its 4 flight(s) are too few for a "
+            "flight bootstrap (at least 5), so no verdict (lowest mean δφ: A "
+        )
 
     def test_not_planned(self, tmp_path):
         repro = Repro(tmp_path)
