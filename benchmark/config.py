@@ -3,9 +3,13 @@
 Each stage owns its config dataclasses (``benchmark.training.config`` etc.); this module knows only
 dataclasses and their type annotations:
 
-- ``apply_overrides(cfg, ["optim.lr=0.01", "model.head=re_net_r"])``: a new config; each value is
-  converted by the annotation of the field it targets (``int``, ``float``, ``bool``, ``str``,
-  ``tuple[...]``, ``Optional[...]`` / ``X | None``, ``Literal[...]``, nested dataclasses).
+- ``apply_overrides(cfg, ["optim.lr=0.01", "model.attitude=re_net_r"])``: a new config; each value
+  is converted by the annotation of the field it targets (``int``, ``float``, ``bool``, ``str``,
+  ``tuple[...]``, ``Optional[...]`` / ``X | None``, ``Literal[...]``, nested dataclasses,
+  ``dict[str, Any]``). An entry of a mapping field is set by its key,
+  ``model.attitude_options.hidden=512``: the value is read as a YAML scalar and the owning
+  dataclass types it. A class may list keys it no longer has in a ``MOVED`` class attribute
+  (``{"loss.kappa": "model.attitude_options.kappa"}``); such a key is refused with where it lives.
 - ``flatten(cfg)``: ``{"optim.lr": 0.001, ...}`` (dotted keys, scalar values) for MLflow params.
 - ``config_hash(cfg)``: sha256 of a canonical JSON form; the same config always gives the same hash.
 - ``to_dict`` / ``from_dict`` / ``load_yaml`` / ``save_yaml``: round trip, errors naming the
@@ -93,6 +97,14 @@ def convert(value: Any, tp: Any, key: str) -> Any:
             except ConfigError:
                 continue
         raise ConfigError(f"{key}={value!r}: expected one of {', '.join(map(repr, choices))}")
+    if origin in (dict, Mapping) or tp is dict:
+        # An options mapping (e.g. model.attitude_options): a YAML mapping, or on the command
+        # line a flow mapping "{kappa: 5, hidden: 512}". Values stay as given (YAML-typed); the
+        # owning dataclass checks and types them.
+        mapping = _yaml_value(value) if isinstance(value, str) else value
+        if not isinstance(mapping, Mapping):
+            raise fail(" (a mapping, e.g. {name: value})")
+        return {str(k): v for k, v in mapping.items()}
     if origin in (tuple, list):
         args = typing.get_args(tp)
         items = _split_sequence(value) if isinstance(value, str) else value
@@ -168,6 +180,36 @@ def convert(value: Any, tp: Any, key: str) -> Any:
     raise ConfigError(f"{key}: unsupported annotation {_type_name(tp)} in the config class")
 
 
+def _yaml_value(text: str) -> Any:
+    """``text`` read as YAML (``"512"`` -> 512, ``"{a: 1}"`` -> dict); a number YAML 1.1 keeps
+    as a string (``"1e-3"``) becomes a float; unparsable text stays the string."""
+    import yaml
+
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+    if isinstance(value, str):
+        try:
+            return float(value)
+        except ValueError:
+            return value
+    return value
+
+
+def _moved(cls: type, key: str, prefix: str = "") -> str | None:
+    """Where a key that config class ``cls`` no longer has lives now, from its ``MOVED`` class
+    mapping (old dotted key relative to ``cls`` -> new one), or None. ``prefix`` is ``cls``'s own
+    place in the whole config (``"model."``)."""
+    moved: Mapping[str, str] = getattr(cls, "MOVED", {})
+    hits = [
+        f"{prefix}{old} -> {prefix}{new}"
+        for old, new in moved.items()
+        if old == key or old.startswith(f"{key}.") or key.startswith(f"{old}.")
+    ]
+    return "; ".join(hits) or None
+
+
 def _require_dataclass(cfg: Any) -> None:
     if not dataclasses.is_dataclass(cfg) or isinstance(cfg, type):
         raise TypeError(f"expected a dataclass instance, got {type(cfg).__name__}")
@@ -178,6 +220,9 @@ def _set_path(cfg: Any, path: list[str], raw: Any, full_key: str) -> Any:
     names = [f.name for f in dataclasses.fields(cfg)]
     if name not in names:
         prefix = full_key[: len(full_key) - len(".".join(path))]
+        moved = _moved(type(cfg), ".".join(path), prefix)
+        if moved:
+            raise ConfigError(f"config key {full_key!r} has moved: {moved}")
         raise ConfigError(
             f"unknown config key {full_key!r}: {type(cfg).__name__} has no field {name!r} "
             f"(known: {', '.join(prefix + n for n in names)})"
@@ -186,6 +231,11 @@ def _set_path(cfg: Any, path: list[str], raw: Any, full_key: str) -> Any:
     current = getattr(cfg, name)
     if len(path) == 1:
         new = convert(raw, tp, full_key)
+    elif isinstance(current, Mapping) and len(path) == 2:
+        # One entry of an options mapping, e.g. model.attitude_options.hidden=512: the value is
+        # read as a YAML scalar here and typed by the owning dataclass.
+        value = _yaml_value(raw) if isinstance(raw, str) else raw
+        new = {**current, path[1]: value}
     else:
         optional, inner = _is_optional(tp)
         if current is None and optional and dataclasses.is_dataclass(inner):
@@ -277,6 +327,10 @@ def from_dict(cls: type[T], data: Mapping[str, Any], *, source: str = "", _prefi
     types_ = _field_types(cls)
     known = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(map(str, data)) - known)
+    for name in unknown:
+        moved = _moved(cls, name, _prefix)
+        if moved:
+            raise ConfigError(f"{where}config key {_prefix + name!r} has moved: {moved}")
     if unknown:
         raise ConfigError(
             f"{where}unknown config key {_prefix + unknown[0]!r} "

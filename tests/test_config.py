@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from typing import Literal, Optional
+from typing import Any, ClassVar, Literal, Optional
 
 import pytest
 
@@ -177,3 +177,59 @@ class TestYaml:
     def test_from_dict_nested_mapping(self):
         cfg = from_dict(Train, {"data": {"splits": ["a", "b"]}, "seed": 2})
         assert cfg.data.splits == ("a", "b") and cfg.seed == 2
+
+
+@dataclasses.dataclass(frozen=True)
+class Head:
+    """A section with an options mapping whose owner types the values (like ModelConfig)."""
+
+    MOVED: ClassVar[dict[str, str]] = {"kwargs": "options"}
+
+    options: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if "width" in self.options and not isinstance(self.options["width"], int | float):
+            raise ValueError(f"options.width must be a number, got {self.options['width']!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class WithHead:
+    MOVED: ClassVar[dict[str, str]] = {"loss.kappa": "head.options.kappa"}
+
+    head: Head = Head()
+    seed: int = 0
+
+
+class TestMappingFields:
+    def test_entry_set_by_key_as_yaml_scalar(self):
+        cfg = apply_overrides(
+            WithHead(),
+            ["head.options.width=512", "head.options.rate=1e-3", "head.options.on=true",
+             "head.options.norm=batch"],
+        )  # fmt: skip
+        assert cfg.head.options == {"width": 512, "rate": 0.001, "on": True, "norm": "batch"}
+
+    def test_whole_mapping_from_a_flow_mapping(self):
+        cfg = apply_overrides(WithHead(), ["head.options={width: 3, norm: group}"])
+        assert cfg.head.options == {"width": 3, "norm": "group"}
+        with pytest.raises(ConfigError, match=r"head\.options='5': expected .*mapping"):
+            apply_overrides(WithHead(), ["head.options=5"])
+
+    def test_owner_validation_applies(self):
+        with pytest.raises(ConfigError, match=r"options\.width must be a number, got 'wide'"):
+            apply_overrides(WithHead(), ["head.options.width=wide"])
+
+    def test_yaml_round_trip(self, tmp_path):
+        cfg = apply_overrides(WithHead(), ["head.options.width=2"])
+        save_yaml(cfg, tmp_path / "c.yaml")
+        assert load_yaml(tmp_path / "c.yaml", WithHead) == cfg
+        assert flatten(cfg) == {"head.options.width": 2, "seed": 0}
+
+    def test_moved_keys_say_where_they_live(self, tmp_path):
+        with pytest.raises(ConfigError, match=r"'loss\.kappa' has moved: .*head\.options\.kappa"):
+            apply_overrides(WithHead(), ["loss.kappa=5"])
+        with pytest.raises(ConfigError, match=r"'head\.kwargs\.x' has moved: head\.kwargs -> h"):
+            apply_overrides(WithHead(), ["head.kwargs.x=5"])
+        (tmp_path / "old.yaml").write_text("loss:\n  kappa: 5\n")
+        with pytest.raises(ConfigError, match=r"old\.yaml: config key 'loss' has moved"):
+            load_yaml(tmp_path / "old.yaml", WithHead)

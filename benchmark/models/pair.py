@@ -21,8 +21,9 @@ training mode the batch statistics differ from encoding B grey copies).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import torch
@@ -30,44 +31,29 @@ from torch import Tensor, nn
 
 from benchmark.models.encoder import Encoder
 from benchmark.models.heads import AttitudeHead, Raw, TranslationHead, check_option
+from benchmark.models.model_config import (
+    LEGACY_FIELDS,
+    SATELLITE_INPUTS,
+    ModelConfig,
+    check_satellite_input,
+)
 from benchmark.models.registry import create_encoder, create_head
+
+__all__ = [
+    "BLANK_GREY",
+    "SATELLITE_INPUTS",
+    "ModelConfig",
+    "PoseModel",
+    "PoseOutput",
+    "build_model",
+    "check_satellite_input",
+    "create_model",
+]
 
 # GoogLeNet's ImageNet input statistics; images enter the model as float RGB in [0, 1].
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
-# What the model feeds its encoder as the satellite image: the given image, or constant grey.
-SATELLITE_INPUTS = ("image", "blank")
 BLANK_GREY = 0.5  # the UAV-only control's satellite image, RGB in [0, 1]
-
-
-def check_satellite_input(value: object, where: str = "ModelConfig") -> str:
-    """``value`` if it is one of :data:`SATELLITE_INPUTS`; ValueError naming it otherwise."""
-    if value not in SATELLITE_INPUTS:
-        raise ValueError(
-            f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, got {value!r}"
-        )
-    return str(value)
-
-
-@dataclass
-class ModelConfig:
-    """Everything needed to rebuild a ``PoseModel`` (saved next to checkpoints)."""
-
-    encoder: str = "googlenet"
-    variant: str = "a-f"
-    width: float = 1.0
-    input_size: int = 224
-    attitude: str = "pd_re_net"
-    translation: str = "regression"
-    attitude_kwargs: dict[str, Any] = field(default_factory=dict)
-    translation_kwargs: dict[str, Any] = field(default_factory=dict)
-    encoder_kwargs: dict[str, Any] = field(default_factory=dict)
-    aux_weight: float = 0.3  # w1 = w2 of Algorithm 1 (paper Sec. 3.3)
-    channels_last: bool = True  # memory format only: 1.2-2x faster convolutions on CPU
-    satellite_input: str = "image"  # "blank": UAV-only control, the satellite image is grey
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 @dataclass
@@ -89,6 +75,8 @@ class PoseModel(nn.Module):
         aux_attitude_heads: one head per auxiliary level (``len(embedding_dims) - 1`` of them).
         aux_weights: ``w_i`` of Algorithm 1, one float for all or one per auxiliary head.
         satellite_input: ``"image"`` or ``"blank"`` (every satellite image replaced by grey).
+        shared_satellite: encode each distinct satellite image once when ``sat_ids`` is given;
+            False ignores ``sat_ids`` (every satellite image encoded).
     """
 
     def __init__(
@@ -101,9 +89,11 @@ class PoseModel(nn.Module):
         channels_last: bool = True,
         config: ModelConfig | None = None,
         satellite_input: str = "image",
+        shared_satellite: bool = True,
     ) -> None:
         super().__init__()
         self.satellite_input = check_satellite_input(satellite_input, "PoseModel")
+        self.shared_satellite = bool(shared_satellite)
         n_aux = len(encoder.embedding_dims) - 1
         if len(aux_attitude_heads) != n_aux:
             raise ValueError(
@@ -163,6 +153,8 @@ class PoseModel(nn.Module):
             )
         batch = uav.shape[0]
         inverse = None
+        if not self.shared_satellite:
+            sat_ids = None
         if sat_ids is not None:
             if sat_ids.shape != (batch,) or sat_ids.is_floating_point():
                 raise ValueError(
@@ -233,24 +225,28 @@ class PoseModel(nn.Module):
         )
 
 
-def build_model(config: ModelConfig) -> PoseModel:
-    """Build a ``PoseModel`` from a ``ModelConfig`` through the encoder and head registries."""
-    check_option(config.aux_weight, "aux_weight", "ModelConfig", inclusive=True)
-    check_satellite_input(config.satellite_input)
+def build_model(config: ModelConfig, input_size: int | None = None) -> PoseModel:
+    """Build a ``PoseModel`` from a ``ModelConfig`` through the encoder and head registries.
+
+    ``input_size`` (px) fills a config whose ``input_size`` is None (the dataset's size; 224 when
+    neither gives one); the model's ``config`` is the resolved config, so a checkpoint rebuilds
+    exactly this model.
+    """
+    config = config.resolved(input_size)
     encoder = create_encoder(
         config.encoder,
         variant=config.variant,
         width=config.width,
         input_size=config.input_size,
-        **config.encoder_kwargs,
+        **config.encoder_options,
     )
     dims = encoder.embedding_dims
     heads = [
-        create_head(config.attitude, "attitude", in_features=2 * d, **config.attitude_kwargs)
+        create_head(config.attitude, "attitude", in_features=2 * d, **config.attitude_options)
         for d in dims
     ]
     translation = create_head(
-        config.translation, "translation", in_features=2 * dims[-1], **config.translation_kwargs
+        config.translation, "translation", in_features=2 * dims[-1], **config.translation_options
     )
     return PoseModel(
         encoder,
@@ -261,14 +257,19 @@ def build_model(config: ModelConfig) -> PoseModel:
         config.channels_last,
         config,
         satellite_input=config.satellite_input,
+        shared_satellite=config.shared_satellite,
     )
 
 
-def create_model(**kwargs: Any) -> PoseModel:
-    """``create_model(variant='a-f', attitude='pd_re_net', ...)``: the fields of ``ModelConfig``."""
-    try:
-        config = ModelConfig(**kwargs)
-    except TypeError as err:
-        known = ", ".join(ModelConfig.__dataclass_fields__)
-        raise ValueError(f"create_model: {err}; known options: {known}") from None
+def create_model(config: ModelConfig | None = None, /, **fields: Any) -> PoseModel:
+    """``create_model(ModelConfig(...))``, or the same with keyword fields of ``ModelConfig``:
+    ``create_model(variant="a-f", attitude="pd_re_net", attitude_options={"kappa": 5})``
+    (``input_size`` defaults to 224 here). Fields given with a config replace its values."""
+    known = [f.name for f in dataclasses.fields(ModelConfig)]
+    for name in fields:
+        if name in LEGACY_FIELDS:
+            raise ValueError(f"create_model: {name} is now called {LEGACY_FIELDS[name]}")
+        if name not in known:
+            raise ValueError(f"create_model: unknown field {name!r}; known: {', '.join(known)}")
+    config = ModelConfig(**fields) if config is None else dataclasses.replace(config, **fields)
     return build_model(config)

@@ -1,46 +1,44 @@
 """Train one unit and evaluate it on its splits; runs in a worker process.
 
-Every split is evaluated twice: with each pair's true satellite image, and with the satellite image
-of another place (the satellite-swap probe, ``PairDataset(..., satellite="swap")``). Results are
-keyed by :func:`eval_key`: ``standard/test`` and ``standard/test/swap``. The swap summary also holds
-the paired per-frame effect of the swap on the yaw and geodesic errors with its 95% flight
-bootstrap interval (``swap_dpsi_diff_deg``, ``swap_dpsi_boot_lo_deg``, ...,
-``benchmark.evaluation.paired.swap_effect``), so the claims need no predictions files.
-
-Everything a unit produces lives in ``<workdir>/units/<key>/``: the training checkpoint (resumed
-if present), one predictions CSV and one metrics JSON per evaluated split and satellite mode
-(``eval/standard__test.csv``, ``eval/standard__test__swap.csv``), and ``unit.json`` with
-the config. A unit whose files are complete costs nothing to "run" again, so an interrupted
-reproduction resumes where it stopped: mid-training from the last epoch's checkpoint, after
-training from the evaluations already written.
+A unit is ``benchmark.training.pipeline.train_and_evaluate`` (the same train-then-evaluate path
+as ``uavbench train``) into ``<workdir>/units/<key>/``: the training checkpoint
+(``train/checkpoint.pt``, resumed if present), one predictions CSV and one metrics JSON per
+evaluated split and satellite mode (``eval/standard__test.csv``, ``eval/standard__test__swap.csv``;
+keys :func:`eval_key`: ``standard/test`` and ``standard/test/swap``), ``history.json`` and
+``config.yaml``. A unit whose files are complete costs nothing to "run" again, so an interrupted
+reproduction resumes where it stopped.
 """
 
 from __future__ import annotations
 
-import json
 import os
-import re
 import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from benchmark.config import to_dict
 from benchmark.data.swap import SATELLITE_MODES
 from benchmark.training.config import TrainConfig
+from benchmark.training.pipeline import (
+    EVAL_BATCH,
+    SWAP_SUFFIX,
+    eval_key,
+    eval_keys,
+    split_filename,
+    train_and_evaluate,
+)
 
-SWAP_SUFFIX = "/swap"
-
-
-def eval_key(split: str, satellite: str) -> str:
-    """Where one evaluation's numbers live: ``split`` (true image) or ``split + "/swap"``."""
-    if satellite not in SATELLITE_MODES:
-        raise ValueError(f"satellite must be one of {SATELLITE_MODES}, got {satellite!r}")
-    return split if satellite == "true" else split + SWAP_SUFFIX
-
-
-def eval_keys(splits: list[str] | tuple[str, ...]) -> list[str]:
-    return [eval_key(s, m) for s in splits for m in SATELLITE_MODES]
+__all__ = [
+    "SATELLITE_MODES",
+    "SWAP_SUFFIX",
+    "UnitResult",
+    "UnitTask",
+    "eval_key",
+    "eval_keys",
+    "run_unit",
+    "split_filename",
+    "worker_init",
+]
 
 
 @dataclass
@@ -49,7 +47,7 @@ class UnitTask:
     cfg: TrainConfig
     eval_splits: list[str]
     unit_dir: Path
-    eval_batch: int = 64
+    eval_batch: int = EVAL_BATCH
 
 
 @dataclass
@@ -61,11 +59,6 @@ class UnitResult:
     predictions: dict[str, str] = field(default_factory=dict)  # eval_key -> CSV path
     seconds: float = 0.0
     error: str = ""
-
-
-def split_filename(split: str) -> str:
-    """``height600/test -> height600__test`` (file-system safe, reversible enough to read)."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", split.replace("/", "__"))
 
 
 def _die_with_parent() -> None:
@@ -103,43 +96,12 @@ def run_unit(task: UnitTask) -> UnitResult:
 
 
 def _run_unit(task: UnitTask, start: float) -> UnitResult:
-    from benchmark.training.build import run_training
-
-    task.unit_dir.mkdir(parents=True, exist_ok=True)
-    (task.unit_dir / "unit.json").write_text(json.dumps(to_dict(task.cfg), indent=2, default=str))
-    trained = run_training(task.cfg, task.unit_dir / "train", progress=False)
-    model = trained.model.eval()
-    result = UnitResult(task.key, True, history=list(trained.history))
-    for split in task.eval_splits:
-        for satellite in SATELLITE_MODES:  # true first: the swap summary compares with it
-            key = eval_key(split, satellite)
-            result.metrics[key], result.predictions[key] = _evaluate_split(
-                task, model, split, satellite
-            )
-    result.seconds = time.perf_counter() - start
-    return result
-
-
-def _evaluate_split(task: UnitTask, model, split: str, satellite: str) -> tuple[dict, str]:
-    """Evaluate one split in one satellite mode, or read the files a previous run wrote."""
-    import pandas as pd
-
-    from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import evaluate
-    from benchmark.evaluation.paired import swap_effect
-
-    stem = task.unit_dir / "eval" / split_filename(eval_key(split, satellite))
-    csv_path, json_path = stem.with_suffix(".csv"), stem.with_suffix(".json")
-    if json_path.is_file() and csv_path.is_file():
-        return json.loads(json_path.read_text()), str(csv_path)
-    dataset = PairDataset(task.cfg.data.root, split, verify="size", satellite=satellite)
-    summary, _ = evaluate(model, dataset, out_csv=csv_path, batch_size=task.eval_batch)
-    if satellite == "swap":
-        # Both frames as written (10 significant digits): identical predictions give a zero
-        # difference, not the rounding error of one of them.
-        true_csv = (task.unit_dir / "eval" / split_filename(split)).with_suffix(".csv")
-        summary.update(swap_effect(pd.read_csv(true_csv), pd.read_csv(csv_path)))
-    tmp = json_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(json_path)  # written last: its presence means the split is done
-    return summary, str(csv_path)
+    done = train_and_evaluate(task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch)
+    return UnitResult(
+        task.key,
+        True,
+        history=list(done.history),
+        metrics=done.metrics,
+        predictions={k: str(v) for k, v in done.predictions.items()},
+        seconds=time.perf_counter() - start,
+    )

@@ -3,8 +3,10 @@ invocation in each, a nested run per (variant, sweep value, seed).
 
 Each nested run carries the flattened train config as params, the per-epoch training history as
 metrics (sent in batches), the evaluation summary of each split as ``<split>/<metric>``, the
-predictions CSVs and the config as artifacts, and the tags table, head, encoder, seed, git commit,
-dataset manifest hash and ``run_key``. :meth:`Logbook.finished` finds a job's finished run so a
+predictions CSVs and the config as artifacts, and the tags of the trained model
+(``benchmark.training.identity.run_tags``, the tags ``uavbench train`` sets: ``model_key`` = the
+unit key, heads, head options and versions, encoder, seed, dataset) plus table, label, sweep value,
+git commit and ``run_key`` (the job's key). :meth:`Logbook.finished` finds a job's finished run so a
 second invocation neither retrains nor logs it again.
 """
 
@@ -16,11 +18,11 @@ from pathlib import Path
 from typing import Any
 
 from benchmark.config import flatten
-from benchmark.models.registry import head_versions
 from benchmark.runner.execute import eval_keys
 from benchmark.runner.plan import Unit, job_key
 from benchmark.runner.specs import Job
 from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
+from benchmark.training.identity import run_tags
 
 SECONDS_METRIC = "unit_seconds"  # wall time of the unit's training + evaluation in its worker
 
@@ -86,15 +88,11 @@ class Logbook:
     ) -> None:
         cfg = unit.cfg
         tags: dict[str, Any] = {
+            # The trained model's tags, as ``uavbench train`` sets them (one identity for both).
+            **run_tags(cfg, self.provenance.get("dataset_manifest", "")),
             "table": job.table,
             "label": job.label,
             "x": job.x if job.x is not None else "",
-            "head": cfg.model.attitude,
-            "translation_head": cfg.model.translation,
-            "satellite_input": cfg.model.satellite_input,
-            "head_versions": json.dumps(head_versions(cfg.model.attitude, cfg.model.translation)),
-            "encoder": f"{cfg.model.encoder} {cfg.model.variant} w{cfg.model.width:g}",
-            "seed": cfg.seed,
             "unit": unit.key,
             RUN_KEY_TAG: job_key(job, unit.key),
             **self.provenance,

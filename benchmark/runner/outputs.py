@@ -293,8 +293,9 @@ def _readme(
         )
     lines += [
         "",
-        f"Profile: width {profile.width:g} GoogLeNet, {profile.epochs} epochs, {profile.optimizer} "
-        f"lr {profile.lr:g} ({profile.lr_schedule}), batch {profile.batch_size}. Dataset profile "
+        f"Profile: width {profile.width:g} GoogLeNet, {profile.optim.epochs} epochs, "
+        f"{profile.optim.name} lr {profile.optim.lr:g} ({profile.optim.lr_schedule}), "
+        f"batch {profile.optim.batch_size}. Dataset profile "
         f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery).",
         "",
         "## Findings",

@@ -2,31 +2,25 @@
 
 Many table entries share a model (Pd/Re-Net on ``standard/train`` appears in Tables 1-4, Fig. 6,
 Fig. 7 at kappa 10 and Fig. 9 as variant ``/``). A :class:`Unit` is one (train config, seed): it is
-trained once and evaluated on the union of the splits its jobs need. Its key hashes the train
-config without machine-specific paths, the dataset's manifest hash and the versions of its two
-heads, so the same reproduction on another machine finds the same keys in a shared tracking store,
-and a head whose maths changed (version bump) is trained again.
+trained once and evaluated on the union of the splits its jobs need. Its key is
+``benchmark.training.identity.run_key``: the train config without machine-specific paths (head
+options canonical: a head's default equals no value), the dataset's manifest hash and the versions
+of its two heads, so the same reproduction on another machine finds the same keys in a shared
+tracking store, a head whose maths changed (version bump) is trained again, and ``uavbench train``
+with the same config and data gets the same key.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
-import inspect
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from benchmark.config import config_hash
 from benchmark.runner.profiles import ReproProfile
-from benchmark.runner.specs import Job, TableSpec, VariantSpec
-from benchmark.training.config import (
-    DataConfig,
-    LossConfig,
-    ModelSection,
-    OptimConfig,
-    TrainConfig,
-)
+from benchmark.runner.specs import Job, TableSpec
+from benchmark.training.config import DataConfig, TrainConfig
+from benchmark.training.identity import run_key
 
 
 @dataclass
@@ -67,25 +61,6 @@ class Unit:
         return f"{job.label}{extra} on {self.cfg.data.train_split}, seed {self.cfg.seed}"
 
 
-def head_default(attitude: str, option: str) -> object:
-    """The default of ``option`` (e.g. kappa) in the attitude head's constructor, or None."""
-    from benchmark.models.registry import get_head_class
-
-    parameter = inspect.signature(get_head_class(attitude, "attitude")).parameters.get(option)
-    if parameter is None or parameter.default is inspect.Parameter.empty:
-        return None
-    return parameter.default
-
-
-def loss_config(variant: VariantSpec) -> LossConfig:
-    """Spell a variant's kappa so that the head default and no value hash alike (Fig. 7's kappa
-    10 is the same model as Table 1's Pd/Re-Net)."""
-    kappa = variant.kappa
-    if kappa is not None and head_default(variant.attitude, "kappa") == kappa:
-        kappa = None
-    return LossConfig(kappa=kappa)
-
-
 def val_split_for(train_split: str, available: list[str]) -> str | None:
     """``X/val`` for ``X/train`` when the dataset has it (standard, frames and towns do; the
     height splits do not)."""
@@ -99,7 +74,8 @@ def val_split_for(train_split: str, available: list[str]) -> str | None:
 def train_config(
     job: Job, profile: ReproProfile, seed: int, data_root: Path, splits: list[str]
 ) -> TrainConfig:
-    v = job.variant
+    """The unit config of ``job``: the row's model at the profile's width, the profile's
+    optimiser, one torch thread, validation on the training family's val split."""
     return TrainConfig(
         data=DataConfig(
             root=str(data_root),
@@ -107,36 +83,17 @@ def train_config(
             val_split=val_split_for(job.train_split, splits),
             verify="size",
         ),
-        model=ModelSection(
-            variant=v.encoder_variant,
-            width=profile.width,
-            attitude=v.attitude,
-            translation=v.translation,
-            satellite_input=v.satellite_input,
-        ),
-        optim=OptimConfig(
-            name=profile.optimizer,
-            lr=profile.lr,
-            batch_size=profile.batch_size,
-            epochs=profile.epochs,
-            lr_schedule=profile.lr_schedule,
-            grad_clip=profile.grad_clip,
-        ),
-        loss=loss_config(v),
+        model=job.variant.model_config(width=profile.width),
+        optim=profile.optim,
         seed=seed,
         threads=1,
     )
 
 
 def unit_key(cfg: TrainConfig, dataset_hash: str) -> str:
-    """Stable across machines: the config without its data path, the dataset identity and the
-    heads' versions."""
-    from benchmark.models.registry import head_versions
-
-    portable = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""), threads=None)
-    versions = head_versions(cfg.model.attitude, cfg.model.translation)
-    text = json.dumps([config_hash(portable), dataset_hash, versions])
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
+    """Stable across machines: ``benchmark.training.identity.run_key``, the key ``uavbench
+    train`` gives the same config and data."""
+    return run_key(cfg, dataset_hash)
 
 
 def job_key(job: Job, unit: str) -> str:

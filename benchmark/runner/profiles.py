@@ -16,18 +16,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from benchmark.training.config import OptimConfig
+
 
 @dataclass(frozen=True)
 class ReproProfile:
+    """A reproduction's scale: the dataset profile, the encoder width every table row trains at
+    (the rest of the model comes from the row, ``benchmark.runner.specs``) and the optimiser
+    (``TrainConfig.optim`` of every unit)."""
+
     name: str
     dataset: str  # ``uavbench simulate`` profile
     width: float  # GoogLeNet width multiplier (paper: 1.0)
-    epochs: int
-    optimizer: str  # sgd | adam | adamw
-    lr: float
-    lr_schedule: str  # constant | cosine
-    batch_size: int
-    grad_clip: float | None = None
+    optim: OptimConfig
     seeds: int = 1  # default number of seeds
     dataset_size: int | None = None  # standard-split pairs; None: the dataset profile's own
 
@@ -37,33 +38,22 @@ PROFILES: dict[str, ReproProfile] = {
         name="smoke",
         dataset="smoke",
         width=0.25,
-        epochs=1,
-        optimizer="adam",
-        lr=1e-3,
-        lr_schedule="constant",
-        batch_size=8,
+        optim=OptimConfig(name="adam", lr=1e-3, lr_schedule="constant", batch_size=8, epochs=1),
     ),
     "quick": ReproProfile(
         name="quick",
         dataset="quick",
         width=0.25,
-        epochs=5,
-        optimizer="adam",
-        lr=3e-4,
-        lr_schedule="cosine",
-        batch_size=20,
-        grad_clip=10.0,
+        optim=OptimConfig(
+            name="adam", lr=3e-4, lr_schedule="cosine", batch_size=20, epochs=5, grad_clip=10.0
+        ),
         seeds=3,
     ),
     "paper": ReproProfile(
         name="paper",
         dataset="paper",
         width=1.0,
-        epochs=30,
-        optimizer="sgd",
-        lr=1e-3,
-        lr_schedule="constant",
-        batch_size=20,
+        optim=OptimConfig(name="sgd", lr=1e-3, lr_schedule="constant", batch_size=20, epochs=30),
     ),
 }
 

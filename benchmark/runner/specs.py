@@ -45,6 +45,8 @@ from typing import Any
 
 import yaml
 
+from benchmark.models.model_config import ModelConfig, parse_scalar
+
 KINDS = ("table", "sweep", "cost")
 SATELLITE_INPUTS = ("image", "blank")  # benchmark.models.pair.SATELLITE_INPUTS
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
@@ -54,19 +56,46 @@ class SpecError(ValueError):
     """A spec file is malformed; the message names the file and the field."""
 
 
+OPTION_FIELDS = ("attitude_options", "translation_options", "encoder_options")
+
+
 @dataclass(frozen=True)
 class VariantSpec:
-    """One model of a table: heads, encoder variant and options (``kappa=None``: head default)."""
+    """One model of a table (a spec row): its heads, encoder and their options, and where it
+    trains. :meth:`model_config` turns it into the ``benchmark.models.ModelConfig`` it trains."""
 
     label: str
     paper_model: str
     attitude: str
     translation: str = "regression"
+    encoder: str = "googlenet"
     encoder_variant: str = "/"
-    kappa: float | None = None
+    attitude_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    translation_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    encoder_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    aux_weight: float = 0.3
     satellite_input: str = "image"  # "blank": the UAV-only control
     train_split: str | None = None  # None: the table's
     eval_splits: tuple[str, ...] | None = None  # None: the table's
+
+    def __hash__(self) -> int:  # the option dicts are not hashable; their repr is
+        return hash(repr(self))
+
+    def model_config(self, width: float = 1.0) -> ModelConfig:
+        """The row's model at encoder ``width`` (the profile's), input size from the dataset.
+        Raises ValueError naming the head and its options when an option does not fit."""
+        return ModelConfig(
+            encoder=self.encoder,
+            encoder_options=self.encoder_options,
+            variant=self.encoder_variant,
+            width=width,
+            attitude=self.attitude,
+            attitude_options=self.attitude_options,
+            translation=self.translation,
+            translation_options=self.translation_options,
+            aux_weight=self.aux_weight,
+            satellite_input=self.satellite_input,
+        )
 
 
 @dataclass(frozen=True)
@@ -147,27 +176,32 @@ def _fill(text: str, x: str | None) -> str:
     return text if x is None else text.replace("{x}", x)
 
 
+def _outside_sweep(v: VariantSpec, name: str, source: Path) -> SpecError:
+    return SpecError(f"{source}: variant {v.label!r} field {name!r} uses {{x}} outside a sweep")
+
+
 def _substitute_variant(v: VariantSpec, x: str | None, source: Path) -> VariantSpec:
+    """``v`` with ``{x}`` replaced in its string fields, split lists and option values; an option
+    value that held ``{x}`` is then read as a YAML scalar (``"5"`` -> 5)."""
     changes: dict[str, Any] = {}
     for f in dataclasses.fields(v):
         value = getattr(v, f.name)
         if isinstance(value, tuple) and any("{x}" in s for s in value):
             if x is None:
-                raise SpecError(
-                    f"{source}: variant {v.label!r} field {f.name!r} uses {{x}} outside a sweep"
-                )
+                raise _outside_sweep(v, f.name, source)
             changes[f.name] = tuple(_fill(s, x) for s in value)
-        if isinstance(value, str) and "{x}" in value:
+        elif isinstance(value, str) and "{x}" in value:
             if x is None:
-                raise SpecError(
-                    f"{source}: variant {v.label!r} field {f.name!r} uses {{x}} outside a sweep"
-                )
+                raise _outside_sweep(v, f.name, source)
             changes[f.name] = _fill(value, x)
-    if isinstance(changes.get("kappa"), str):
-        try:
-            changes["kappa"] = float(changes["kappa"])
-        except ValueError as err:
-            raise SpecError(f"{source}: kappa {changes['kappa']!r} is not a number") from err
+        elif f.name in OPTION_FIELDS:
+            swept = [k for k, o in value.items() if isinstance(o, str) and "{x}" in o]
+            if swept and x is None:
+                raise _outside_sweep(v, f"{f.name}.{swept[0]}", source)
+            if swept:
+                changes[f.name] = {
+                    k: parse_scalar(_fill(o, x)) if k in swept else o for k, o in value.items()
+                }
     return dataclasses.replace(v, **changes)
 
 
@@ -176,29 +210,58 @@ def _variant_from(raw: Any, source: Path, index: int) -> VariantSpec:
     if not isinstance(raw, dict):
         raise SpecError(f"{where} must be a mapping, got {type(raw).__name__}")
     fields = {f.name for f in dataclasses.fields(VariantSpec)}
+    if "kappa" in raw:
+        raise SpecError(
+            f"{where}: field 'kappa' has moved: write attitude_options: {{kappa: {raw['kappa']}}} "
+            "(any option of the head can be set there)"
+        )
     unknown = sorted(set(raw) - fields)
     if unknown:
         raise SpecError(f"{where}: unknown fields {unknown}; expected some of {sorted(fields)}")
     for required in ("label", "paper_model", "attitude"):
         if required not in raw:
             raise SpecError(f"{where}: missing field {required!r}")
-    kappa = raw.get("kappa")
-    if kappa is not None and not isinstance(kappa, str):
-        if not isinstance(kappa, int | float) or kappa <= 0:
-            raise SpecError(f"{where}: kappa must be a number > 0, got {kappa!r}")
-        raw = {**raw, "kappa": float(kappa)}
     if raw.get("satellite_input", "image") not in SATELLITE_INPUTS:
         raise SpecError(
             f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, "
             f"got {raw['satellite_input']!r}"
         )
-    if "eval_splits" in raw:
-        splits = raw["eval_splits"]
-        if not isinstance(splits, list) or not splits:
-            raise SpecError(f"{where}: eval_splits must be a non-empty list, got {splits!r}")
-        raw = {**raw, "eval_splits": tuple(str(s) for s in splits)}
-    keep = ("kappa", "eval_splits")
-    return VariantSpec(**{k: (str(v) if k not in keep else v) for k, v in raw.items()})
+    values: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key in OPTION_FIELDS:
+            if not isinstance(value, dict):
+                raise SpecError(
+                    f"{where}: {key} must be a mapping, e.g. {{kappa: 5}}, got {value!r}"
+                )
+            values[key] = {str(k): v for k, v in value.items()}
+        elif key == "eval_splits":
+            if not isinstance(value, list) or not value:
+                raise SpecError(f"{where}: eval_splits must be a non-empty list, got {value!r}")
+            values[key] = tuple(str(s) for s in value)
+        elif key == "aux_weight":
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise SpecError(f"{where}: aux_weight must be a number, got {value!r}")
+            values[key] = float(value)
+        else:
+            values[key] = str(value)
+    return VariantSpec(**values)
+
+
+def _check_models(spec: TableSpec) -> None:
+    """Build every row's ``ModelConfig`` (per sweep value) now: an unknown head or a head option
+    the head does not take is reported with the file and the row before anything trains."""
+    values: tuple[str | None, ...] = spec.sweep_values if spec.kind == "sweep" else (None,)
+    for index, variant in enumerate(spec.variants):
+        for x in values:
+            try:
+                _substitute_variant(variant, x, spec.source).model_config()
+            except SpecError:
+                raise
+            except (TypeError, ValueError) as err:
+                at = f" (sweep value {x})" if x is not None else ""
+                raise SpecError(
+                    f"{spec.source}: variants[{index}] ({variant.label!r}){at}: {err}"
+                ) from None
 
 
 def load_spec(path: str | Path) -> TableSpec:
@@ -246,6 +309,7 @@ def load_spec(path: str | Path) -> TableSpec:
     if spec.paper_splits and len(spec.paper_splits) != len(spec.eval_splits):
         raise SpecError(f"{path}: paper_splits must have one entry per eval_splits entry")
     spec.jobs()  # surfaces substitution errors now, not mid-run
+    _check_models(spec)  # and unknown heads or head options
     return spec
 
 

@@ -1,28 +1,23 @@
-"""Training: the train config, the deterministic resumable loop, and model/dataset building.
+"""Training: the train config, the deterministic resumable loop, model/dataset building, the one
+train-then-evaluate path and the run identity.
 
-``run_training(cfg, out_dir, on_epoch_end=...)`` is what a runner calls; this package never imports
-``benchmark.tracking`` (connect a tracker through ``on_epoch_end``) except in ``command.py``, the
-``uavbench train`` CLI. Checkpoints are read with ``benchmark.models.checkpoint`` (re-exported
-here).
+``train_and_evaluate(cfg, out_dir, eval_splits)`` is what ``uavbench train`` and every
+``uavbench reproduce`` unit call; ``run_key`` / ``run_tags`` identify its trained model the same
+way for both. This package never imports ``benchmark.tracking`` (connect a tracker through
+``on_epoch_end``) except in ``command.py``, the ``uavbench train`` CLI. Checkpoints are read with
+``benchmark.models.checkpoint`` (re-exported here).
 """
 
 from benchmark.models.checkpoint import load_checkpoint, load_trained_model
-from benchmark.training.build import (
-    image_size_of,
-    model_factory,
-    open_datasets,
-    predictions_csv_path,
-    run_training,
-    train_and_evaluate,
-)
+from benchmark.training.build import image_size_of, model_factory, open_datasets, run_training
 from benchmark.training.config import (
     DataConfig,
-    LossConfig,
-    ModelSection,
+    ModelConfig,
     OptimConfig,
     TrainConfig,
     load_train_config,
 )
+from benchmark.training.identity import MODEL_KEY_TAG, portable_config, run_key, run_tags
 from benchmark.training.loop import (
     CHECKPOINT,
     CheckpointMismatchError,
@@ -33,18 +28,28 @@ from benchmark.training.loop import (
     train,
     translation_labels,
 )
+from benchmark.training.pipeline import (
+    TrainEvalResult,
+    eval_key,
+    eval_keys,
+    split_filename,
+    train_and_evaluate,
+)
 
 __all__ = [
     "CHECKPOINT",
+    "MODEL_KEY_TAG",
     "CheckpointMismatchError",
     "DataConfig",
-    "LossConfig",
-    "ModelSection",
+    "ModelConfig",
     "NonFiniteLossError",
     "OptimConfig",
     "TrainConfig",
+    "TrainEvalResult",
     "TrainResult",
     "derive_seed",
+    "eval_key",
+    "eval_keys",
     "image_size_of",
     "load_checkpoint",
     "load_train_config",
@@ -52,8 +57,11 @@ __all__ = [
     "make_optimizer",
     "model_factory",
     "open_datasets",
-    "predictions_csv_path",
+    "portable_config",
+    "run_key",
+    "run_tags",
     "run_training",
+    "split_filename",
     "train",
     "train_and_evaluate",
     "translation_labels",

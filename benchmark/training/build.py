@@ -1,4 +1,6 @@
-"""From a ``TrainConfig`` to datasets and a model; from a checkpoint back to a model."""
+"""From a ``TrainConfig`` to datasets and a model, and :func:`run_training` (no evaluation; the
+train-then-evaluate path of ``uavbench train`` and ``uavbench reproduce`` is
+``benchmark.training.pipeline``)."""
 
 from __future__ import annotations
 
@@ -52,35 +54,21 @@ def image_size_of(dataset: Dataset) -> int:
 
 
 def model_factory(cfg: TrainConfig, input_size: int) -> Callable[[], torch.nn.Module]:
-    """A zero-argument builder of the ``PoseModel`` of ``cfg`` (called after seeding)."""
-    from benchmark.models import create_model
+    """A zero-argument builder of the ``PoseModel`` of ``cfg.model`` at the dataset's
+    ``input_size`` (px), called after seeding. A ``model.input_size`` that differs from the
+    dataset's, or an option value the head refuses (e.g. ``kappa=0``), is a ConfigError."""
+    from benchmark.models import build_model
 
-    m = cfg.model
-    if m.input_size is not None and m.input_size != input_size:
-        raise ConfigError(
-            f"model.input_size={m.input_size} but the dataset images are {input_size} px; "
-            "leave model.input_size unset to follow the dataset"
-        )
+    try:
+        resolved = cfg.model.resolved(input_size)
+    except ValueError as err:
+        raise ConfigError(f"model.{err}") from None
 
     def build() -> torch.nn.Module:
         try:
-            return create_model(
-                encoder=m.encoder,
-                variant=m.variant,
-                width=m.width,
-                input_size=input_size,
-                attitude=m.attitude,
-                translation=m.translation,
-                attitude_kwargs=cfg.loss.attitude_kwargs(),
-                aux_weight=cfg.loss.aux_weight,
-                channels_last=m.channels_last,
-                satellite_input=m.satellite_input,
-            )
-        except TypeError as err:  # an option the chosen head does not take (e.g. loss.kappa)
-            raise ConfigError(
-                f"model.attitude={m.attitude!r} does not accept the loss options "
-                f"{cfg.loss.attitude_kwargs()}: {err}"
-            ) from err
+            return build_model(resolved)
+        except (TypeError, ValueError) as err:  # a head or encoder refusing an option's value
+            raise ConfigError(f"model: {err}") from err
 
     return build
 
@@ -99,45 +87,3 @@ def run_training(
     return train(
         cfg, factory, train_set, val_set, out_dir, on_epoch_end=on_epoch_end, progress=progress
     )
-
-
-def predictions_csv_path(out_dir: str | Path, split: str) -> Path:
-    """``<out_dir>/predictions/<split with / replaced by _>.csv``."""
-    return Path(out_dir) / "predictions" / (split.replace("/", "_") + ".csv")
-
-
-def train_and_evaluate(
-    cfg: TrainConfig,
-    out_dir: str | Path,
-    eval_splits: list[str] | tuple[str, ...],
-    *,
-    on_epoch_end: EpochCallback | None = None,
-    progress: bool = True,
-    datasets: tuple[Dataset, Dataset | None] | None = None,
-) -> tuple[TrainResult, dict[str, dict[str, float]]]:
-    """Train (or resume, or reuse a finished checkpoint) into ``out_dir``, then evaluate every
-    split of ``cfg.data.root`` in ``eval_splits``. Writes ``history.json`` and
-    :func:`predictions_csv_path` per split; returns the result and ``{split: summary}``."""
-    import json
-
-    from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import evaluate
-
-    result = run_training(
-        cfg, out_dir, on_epoch_end=on_epoch_end, progress=progress, datasets=datasets
-    )
-    out_dir = Path(out_dir)
-    (out_dir / "history.json").write_text(json.dumps(result.history, indent=1) + "\n")
-    summaries = {}
-    for split in eval_splits:
-        summary, _ = evaluate(
-            result.model,
-            PairDataset(cfg.data.root, split, verify=cfg.data.verify),
-            out_csv=predictions_csv_path(out_dir, split),
-            batch_size=max(cfg.optim.batch_size, 32),
-            shared_satellite=cfg.model.shared_satellite,
-            progress=progress,
-            desc=f"eval {split}",
-        )
-        summaries[split] = summary
-    return result, summaries

@@ -5,18 +5,23 @@ through ``on_epoch_end``. Example::
 
     uavbench train --set data.root=data/quick-s0 --set model.attitude=re_net_r --set optim.epochs=5
 
-The flattened config becomes the run's params; per-epoch metrics are logged in batches; the
-predictions CSV of each evaluated split, the config and the history are artifacts. A non-finite
-loss ends the run FAILED (exit code 1); Ctrl-C ends it KILLED, and the same command resumes from
-the last epoch's checkpoint.
+Every head and encoder option is settable, e.g. ``--set model.attitude_options.hidden=512``,
+``--set model.attitude=pd_net_e --set model.attitude_options.direction_weight=0``,
+``--set model.encoder_options.norm=batch``.
+
+Training and evaluation are ``benchmark.training.pipeline.train_and_evaluate``, the path every
+``uavbench reproduce`` unit takes (same files: ``train/checkpoint.pt``, ``eval/<split>.csv/.json``
+with the true and the swapped satellite image, ``history.json``, ``config.yaml``), and the run's
+key and tags are ``benchmark.training.identity``'s, a reproduce unit's. The flattened config
+becomes the run's params; per-epoch metrics are logged in batches; the evaluation CSVs, the config
+and the history are artifacts. A non-finite loss ends the run FAILED (exit code 1); Ctrl-C ends it
+KILLED, and the same command resumes from the last epoch's checkpoint and the evaluations already
+written.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import hashlib
-import json
 import sys
 from pathlib import Path
 
@@ -33,9 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="KEY=VALUE",
         help="override a config field, e.g. --set optim.lr=0.01 (repeatable)",
     )
-    parser.add_argument(
-        "--out", type=Path, help="output directory (default runs/train-<config hash>)"
-    )
+    parser.add_argument("--out", type=Path, help="output directory (default runs/train-<run key>)")
     parser.add_argument(
         "--eval-split",
         action="append",
@@ -52,10 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.config import ConfigError, config_hash, flatten, save_yaml
+    from benchmark.config import ConfigError, flatten
     from benchmark.errors import UsageError
-    from benchmark.models.registry import head_versions
     from benchmark.training.config import load_train_config
+    from benchmark.training.identity import run_key, run_tags
+    from benchmark.training.pipeline import eval_keys
 
     try:
         cfg = load_train_config(args.config, args.overrides)
@@ -67,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         )
     eval_splits = args.eval_splits or ["standard/test"]
     from benchmark.data import list_splits
-    from benchmark.tracking import create_tracker, git_commit, manifest_sha256
+    from benchmark.tracking import RUN_KEY_TAG, create_tracker, git_commit, manifest_sha256
 
     try:
         manifest = manifest_sha256(cfg.data.root)
@@ -82,76 +86,65 @@ def run(args: argparse.Namespace) -> int:
                 f"{what}={split!r} is not a split of {cfg.data.root}; available: "
                 f"{', '.join(available)}"
             )
-    # The run's identity: config, evaluated splits, dataset content (not where it lives) and the
-    # versions of the heads' maths.
-    portable = dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""))
-    try:
-        versions = head_versions(cfg.model.attitude, cfg.model.translation)
-    except ValueError as err:
-        raise UsageError(f"model: {err}") from None
-    identity = json.dumps([config_hash(portable), sorted(eval_splits), manifest, versions])
-    run_key = hashlib.sha256(identity.encode()).hexdigest()[:16]
-    out = args.out or Path("runs") / f"train-{config_hash(cfg)}"
+    # The trained model's identity and tags, computed as for a reproduce unit
+    # (benchmark.training.identity): config without paths, dataset content, head versions.
+    key = run_key(cfg, manifest)
+    out = args.out or Path("runs") / f"train-{key}"
 
     tracker = create_tracker("null" if args.no_track else "mlflow", args.tracking_uri)
-    done = tracker.find_finished_run(args.experiment, run_key)
+    done = tracker.find_finished_run(args.experiment, key)
     if done is not None and not args.force:
-        print(
-            f"already finished: run {done.run_id} ({done.backend}) has this config, splits and "
-            "dataset; --force reruns"
-        )
-        return 0
+        logged = {k.rpartition("/")[0] for k in done.metrics}
+        if set(eval_keys(eval_splits)) <= logged:
+            print(
+                f"already finished: run {done.run_id} ({done.backend}) has this model and "
+                "these splits; --force reruns"
+            )
+            return 0
     tags = {
-        "run_key": run_key,
-        "config_hash": config_hash(cfg),
-        "head": cfg.model.attitude,
-        "translation_head": cfg.model.translation,
-        "head_versions": json.dumps(versions),
-        "encoder": f"{cfg.model.encoder}:{cfg.model.variant}",
-        "seed": cfg.seed,
+        **run_tags(cfg, manifest),
+        RUN_KEY_TAG: key,
         "git_commit": git_commit() or "unknown",
-        "dataset_manifest_sha256": manifest,
         "output_dir": str(out.resolve()),
     }
     variant = "plain" if cfg.model.variant == "/" else cfg.model.variant
     name = f"{cfg.model.attitude}/{variant}/seed{cfg.seed}"
-    out.mkdir(parents=True, exist_ok=True)
-    save_yaml(cfg, out / "config.yaml", header=f"uavbench train config {config_hash(cfg)}")
     from benchmark.data import DatasetError
-    from benchmark.training.loop import NonFiniteLossError
+    from benchmark.training.loop import CheckpointMismatchError, NonFiniteLossError
 
     try:
         with tracker.start_run(args.experiment, name, tags=tags) as tracked:
             tracked.log_params(flatten(cfg))
-            tracked.log_artifact(out / "config.yaml")
             summaries = _train_and_evaluate(cfg, out, eval_splits, tracked, quiet=args.quiet)
     except NonFiniteLossError as err:
         print(f"uavbench train: {err}", file=sys.stderr)
         print(f"the run is marked FAILED in {tracker.uri}", file=sys.stderr)
         return 1
-    except (ConfigError, DatasetError) as err:
+    except (ConfigError, DatasetError, CheckpointMismatchError) as err:
         raise UsageError(str(err)) from None
     for split, summary in summaries.items():
         keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
-        cells = ", ".join(f"{k}={summary[k]:.3f}" for k in keys)
+        cells = ", ".join(f"{k}={summary[k]:.3f}" for k in keys if k in summary)
         print(f"{split}: n={int(summary['n'])} {cells}")
     print(f"outputs in {out}; tracked in {tracker.uri}")
     return 0
 
 
 def _train_and_evaluate(cfg, out: Path, eval_splits: list[str], tracked, *, quiet: bool) -> dict:
-    from benchmark.training.build import train_and_evaluate
+    """The one train-then-evaluate path (benchmark.training.pipeline), logged to ``tracked``."""
+    from benchmark.training.pipeline import train_and_evaluate
 
-    _, summaries = train_and_evaluate(
+    done = train_and_evaluate(
         cfg,
         out,
         eval_splits,
         on_epoch_end=lambda epoch, m: tracked.log_metrics(m, step=epoch),
         progress=not quiet,
     )
+    tracked.log_artifact(out / "config.yaml")
     tracked.log_artifact(out / "history.json")
-    for split, summary in summaries.items():
-        tracked.log_metrics({f"{split}/{k}": v for k, v in summary.items()}, step=cfg.optim.epochs)
+    for key, summary in done.metrics.items():
+        tracked.log_metrics({f"{key}/{k}": v for k, v in summary.items()}, step=cfg.optim.epochs)
     if eval_splits:
-        tracked.log_artifact(out / "predictions")
-    return summaries
+        tracked.log_artifact(out / "eval")
+    return done.metrics

@@ -51,7 +51,7 @@ class TestSharedSatellite:
             assert_outputs_close(a, b, **tol)
 
     def test_batchnorm_encoder_exact_in_eval_mode(self):
-        model = small_model(variant="a-f", encoder_kwargs={"norm": "batch"})
+        model = small_model(variant="a-f", encoder_options={"norm": "batch"})
         uav, sat, ids, _, _ = batch()
         model.train()(uav, sat)  # move the running statistics away from their initial values
         model.eval()
@@ -160,9 +160,11 @@ class TestConfiguration:
             ({"translation": "pd_re_net"}, "unknown translation head 'pd_re_net'"),
             ({"encoder": "vgg"}, "unknown encoder 'vgg'.*googlenet"),
             ({"variant": "b"}, "unknown encoder variant 'b'"),
-            ({"width": 0.0}, "width must be > 0, got 0.0"),
+            ({"width": 0.0}, "width must be > 0 and finite, got 0.0"),
             ({"input_size": 24}, "input_size must be an int >= 32 px, got 24"),
-            ({"attitude_kwargs": {"kappa": 0.0}}, "kappa must be > 0.0, got 0.0"),
+            ({"attitude_options": {"kappa": 0.0}}, "kappa must be > 0.0, got 0.0"),
+            ({"attitude_options": {"kapa": 5}}, "attitude head 'pd_re_net' takes no option 'kapa'"),
+            ({"attitude_kwargs": {"kappa": 5}}, "attitude_kwargs is now called attitude_options"),
             ({"aux_weight": -1.0}, "aux_weight must be >= 0.0, got -1.0"),
             ({"colour": "red"}, "colour"),
             ({"satellite_input": "grey"}, "satellite_input must be one of .*got 'grey'"),
@@ -176,7 +178,8 @@ class TestConfiguration:
         model = small_model(variant="a-f", attitude="re_net_q")
         model.translation_head.set_statistics(torch.tensor([1.0, 2, 3]), torch.tensor([4.0, 5, 6]))
         config = ModelConfig(**model.config.to_dict())
-        clone = create_model(**config.to_dict())
+        assert config == model.config and config.input_size == 32
+        clone = create_model(config)
         clone.load_state_dict(model.state_dict())
         torch.testing.assert_close(clone.translation_head.std, torch.tensor([4.0, 5, 6]))
         uav, sat, ids, _, _ = batch()

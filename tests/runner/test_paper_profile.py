@@ -36,12 +36,9 @@ class TinyPairs(Dataset):
 
 def test_paper_profile_runs_a_training_step_on_cpu(tmp_path):
     profile = PROFILES["paper"]
-    assert (profile.width, profile.optimizer, profile.lr, profile.batch_size) == (
-        1.0,
-        "sgd",
-        1e-3,
-        20,
-    )
+    assert profile.width == 1.0
+    assert (profile.optim.name, profile.optim.lr, profile.optim.batch_size) == ("sgd", 1e-3, 20)
+    assert profile.optim.momentum == 0.9  # the paper's SGDM (Sec. 3.3)
     # The heaviest model of the paper profile: Pd/Re-Net with AGTFM (Table 5).
     job = next(
         j for j in load_specs(only=["table5"])[0].jobs() if j.variant.encoder_variant == "a-f"

@@ -21,19 +21,25 @@ SPLITS = (
 
 
 def plan(seeds=(0,), root="/data/a", only=None):
+    """The units of the repository's specs on the quick profile."""
     return plan_units(
         load_specs(only=only), PROFILES["quick"], list(seeds), Path(root), SPLITS, "h"
     )
 
 
 class TestPlanUnits:
-    def test_every_table_trains_33_models_per_seed(self):
+    def test_the_paper_tables_train_32_models_per_seed(self):
         # 8 attitude heads + Re-Net-T + 2 heads x 5 heights + 4 other kappas + 3 other encoders
         # + the UAV-only control on standard/train (Tables 1-5 and leakage share it)
-        # + Pd/Re-Net and the control on frames/train (leakage) + 3 models on towns/train
-        # + the antipodally symmetric Pd-Net-Q of the extended comparison
-        assert len(plan()) == 33
-        assert len(plan(seeds=(0, 1, 2))) == 99
+        # + Pd/Re-Net and the control on frames/train (leakage) + 3 models on towns/train.
+        # (The extended table adds one unit per head beyond the paper; it grows with the registry.)
+        paper = [s.name for s in load_specs() if s.name != "extended"]
+        assert len(plan(only=paper)) == 32
+        assert len(plan(seeds=(0, 1, 2), only=paper)) == 96
+        extra = {u.key for u in plan()} - {u.key for u in plan(only=paper)}
+        for unit in plan():
+            if unit.key in extra:
+                assert {j.table for j in unit.jobs} == {"extended"}
 
     def test_control_is_its_own_unit(self):
         units = plan()
@@ -57,7 +63,7 @@ class TestPlanUnits:
         assert tables == {
             "table1", "table2", "table3", "table4", "fig6", "fig7", "fig9", "leakage", "extended"
         }  # fmt: skip
-        assert shared[0].cfg.loss.kappa is None
+        assert shared[0].cfg.model.attitude_options == {}  # kappa 10 is the head's default
 
     def test_eval_splits_are_the_union(self):
         unit = next(
@@ -94,7 +100,7 @@ class TestPlanUnits:
             load_specs(only=["table1"]), PROFILES["quick"], [0], Path("/d"), SPLITS, "h2"
         )
         assert {u.key for u in a}.isdisjoint({u.key for u in b})
-        assert len({u.key for u in plan(seeds=(0, 1))}) == 66
+        assert len({u.key for u in plan(seeds=(0, 1))}) == 2 * len(plan())
 
     def test_a_head_version_bump_changes_only_that_heads_keys(self, monkeypatch):
         from benchmark.models import get_head_class
@@ -126,3 +132,23 @@ class TestValSplitFor:
     def test_only_when_present(self):
         assert val_split_for("standard/train", SPLITS) == "standard/val"
         assert val_split_for("height600/train", SPLITS) is None
+
+
+class TestUnitConfigs:
+    def test_row_options_reach_the_unit_config(self):
+        fig7 = [u for u in plan(only=["fig7"])]
+        kappas = sorted(u.cfg.model.attitude_options.get("kappa", 10.0) for u in fig7)
+        assert kappas == [1.0, 5.0, 10.0, 20.0, 50.0]
+
+    def test_profile_supplies_width_and_optimiser(self):
+        profile = PROFILES["quick"]
+        for unit in plan(only=["table1"]):
+            assert unit.cfg.model.width == profile.width
+            assert unit.cfg.optim == profile.optim
+            assert unit.cfg.threads == 1 and unit.cfg.model.input_size is None
+
+    def test_unit_key_is_the_train_run_key(self):
+        from benchmark.training.identity import run_key
+
+        for unit in plan(only=["table1"]):
+            assert unit.key == run_key(unit.cfg, "h")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 
 import pandas as pd
 import pytest
@@ -124,6 +125,26 @@ class TestReproduceSmoke:
                 got = digests["predictions"]["standard__test.csv"]
                 assert got == hashlib.sha256(csv.read_bytes()).hexdigest()
 
+    def test_unit_files_are_those_of_uavbench_train(self, full_run, smoke_dataset):
+        """One train-then-evaluate path: every unit directory has the layout of a
+        ``uavbench train`` output, and its saved config gives back the unit's key."""
+        from benchmark.tracking import manifest_sha256
+        from benchmark.training import load_train_config, run_key
+
+        tmp, _ = full_run
+        manifest = manifest_sha256(smoke_dataset)
+        unit_dirs = sorted((tmp / "runs" / "units").iterdir())
+        assert unit_dirs
+        for unit_dir in unit_dirs:
+            cfg = load_train_config(unit_dir / "config.yaml")
+            assert run_key(cfg, manifest) == unit_dir.name
+            assert (unit_dir / "train" / "checkpoint.pt").is_file()
+            assert (unit_dir / "history.json").is_file()
+            names = {p.name for p in (unit_dir / "eval").iterdir()}
+            split = cfg.data.val_split or cfg.data.train_split.replace("train", "test")
+            stem = split.replace("/", "__")
+            assert {f"{stem}.csv", f"{stem}.json", f"{stem}__swap.csv"} <= names, unit_dir
+
     def test_paper_numbers_beside_ours(self, full_run):
         tmp, _ = full_run
         table1 = (tmp / "reports" / "table1.md").read_text()
@@ -153,7 +174,9 @@ class TestReproduceSmoke:
         tmp, _ = full_run
         monkeypatch.chdir(tmp)
         assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
-        assert "33 training runs (33 already in the tracking store)" in capsys.readouterr().out
+        out = capsys.readouterr().out
+        counts = re.search(r"(\d+) training runs \((\d+) already in the tracking store\)", out)
+        assert counts and counts[1] == counts[2] and int(counts[1]) >= 33
 
     def test_second_invocation_keeps_the_numbers_and_train_times(
         self, full_run, smoke_dataset, monkeypatch
@@ -180,7 +203,9 @@ class TestReproduceSmoke:
 
 class TestReproduceFailures:
     def test_non_finite_loss_marks_run_failed(self, tmp_path, smoke_dataset, monkeypatch, capsys):
-        broken = dataclasses.replace(profiles_module.PROFILES["smoke"], lr=1e30, optimizer="sgd")
+        smoke = profiles_module.PROFILES["smoke"]
+        optim = dataclasses.replace(smoke.optim, lr=1e30, name="sgd")
+        broken = dataclasses.replace(smoke, optim=optim)
         monkeypatch.setitem(profiles_module.PROFILES, "smoke", broken)
         monkeypatch.chdir(tmp_path)
         assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "2") == 1

@@ -64,7 +64,11 @@ class TestRepositorySpecs:
 
     def test_sweeps_substitute_values(self):
         fig7 = {s.name: s for s in load_specs()}["fig7"]
-        assert [j.variant.kappa for j in fig7.jobs()] == [1.0, 5.0, 10.0, 20.0, 50.0]
+        kappas = [j.variant.attitude_options["kappa"] for j in fig7.jobs()]
+        assert kappas == [1, 5, 10, 20, 50]  # YAML scalars; ModelConfig types them as floats
+        assert [j.variant.model_config().attitude_options for j in fig7.jobs()] == [
+            {"kappa": 1.0}, {"kappa": 5.0}, {}, {"kappa": 20.0}, {"kappa": 50.0},
+        ]  # fmt: skip
         fig5 = {s.name: s for s in load_specs()}["fig5"]
         assert fig5.jobs()[0].train_split == "height600/train"
         assert fig5.jobs()[0].eval_splits == ("height600/test",)
@@ -102,8 +106,39 @@ class TestLoadSpec:
             ("metrics:", "metricz:", r"unknown fields \['metricz'\]"),
             (
                 "attitude: pd_re_net}",
-                "attitude: pd_re_net, kappa: -1}",
-                "kappa must be a number > 0",
+                "attitude: pd_re_net, kappa: 5}",
+                r"field 'kappa' has moved: write attitude_options: \{kappa: 5\}",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, attitude_options: {kapa: 5}}",
+                r"variants\[0\] \('A'\): attitude_options: attitude head 'pd_re_net' takes no "
+                r"option 'kapa'; it takes: alpha \(default",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: re_net_r, attitude_options: {kappa: 5}}",
+                r"attitude head 're_net_r' takes no option 'kappa'; it takes: hidden",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, translation_options: {direction_weight: 0}}",
+                r"translation head 'regression' takes no option 'direction_weight'",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, encoder_options: {norm: [1]}}",
+                r"encoder_options.norm=\[1\]: expected str",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, attitude_options: 5}",
+                r"attitude_options must be a mapping",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: nope}",
+                r"variants\[0\] \('A'\): unknown attitude head 'nope'",
             ),
             (
                 "attitude: pd_re_net}",
@@ -153,3 +188,70 @@ class TestLoadSpec:
     def test_unknown_table_in_only(self):
         with pytest.raises(SpecError, match="unknown table"):
             load_specs(only=["table99"])
+
+
+SWEEP = """# Paper Fig. 7: a test sweep.
+name: f7
+title: test
+kind: sweep
+paper_figure: 7
+sweep: kappa
+sweep_values: [1, 2.5, 1e-3]
+eval_splits: [standard/test]
+metrics: [dphi_deg]
+variants:
+  - {label: A, paper_model: Pd/Re-Net, attitude: pd_net_e, encoder_variant: "/",
+     attitude_options: {kappa: "{x}", hidden: 64, direction_weight: 0},
+     translation: re_net_t, translation_options: {scale_weight: "{x}"},
+     encoder_options: {norm: batch}}
+"""
+
+
+class TestRowOptions:
+    def test_any_head_and_encoder_option_per_row_with_sweep_values(self, tmp_path):
+        spec = load_spec(write(tmp_path, "f7", SWEEP))
+        configs = [j.variant.model_config(width=0.25) for j in spec.jobs()]
+        assert [c.attitude_options for c in configs] == [
+            {"kappa": k, "hidden": 64, "direction_weight": 0.0} for k in (1.0, 2.5, 0.001)
+        ]
+        # scale_weight 1 is re_net_t's default: the same model as no value
+        assert [c.translation_options for c in configs] == [
+            {},
+            {"scale_weight": 2.5},
+            {"scale_weight": 0.001},
+        ]
+        assert {c.encoder_options["norm"] for c in configs} == {"batch"}
+        assert {(c.width, c.variant, c.translation) for c in configs} == {(0.25, "/", "re_net_t")}
+
+    def test_default_value_is_the_same_model_as_no_value(self, tmp_path):
+        text = SWEEP.replace("sweep_values: [1, 2.5, 1e-3]", "sweep_values: [10, 5]")
+        text = text.replace(", hidden: 64, direction_weight: 0", "")
+        text = text.replace(
+            'translation: re_net_t, translation_options: {scale_weight: "{x}"},', ""
+        )
+        text = text.replace(",\n     encoder_options: {norm: batch}}", "}")
+        default, five = load_spec(write(tmp_path, "f7", text)).jobs()
+        assert (
+            default.variant.model_config()
+            == load_spec(write(tmp_path, "f7", text.replace('{kappa: "{x}"}', "{}")))
+            .jobs()[0]
+            .variant.model_config()
+        )
+        assert five.variant.model_config().attitude_options == {"kappa": 5.0}
+
+    def test_option_error_names_sweep_value(self, tmp_path):
+        text = SWEEP.replace("sweep_values: [1, 2.5, 1e-3]", "sweep_values: [1, wide]")
+        with pytest.raises(SpecError) as err:
+            load_spec(write(tmp_path, "f7", text))
+        assert "f7.yaml: variants[0] ('A') (sweep value wide)" in str(err.value)
+        assert "kappa='wide': expected float" in str(err.value)
+
+    def test_placeholder_in_option_outside_sweep(self, tmp_path):
+        path = write(
+            tmp_path,
+            "t1",
+            GOOD.replace("attitude: pd_re_net}", 'attitude: pd_re_net, attitude_options: '
+                         '{kappa: "{x}"}}'),
+        )  # fmt: skip
+        with pytest.raises(SpecError, match=r"field 'attitude_options.kappa' uses \{x\} outside"):
+            load_spec(path)

@@ -94,8 +94,11 @@ class TestTrainCommandEndToEnd:
             str(tmp_path / "out"),
         ]
         assert main([*base, "--set", "optim.epochs=2"]) == 0
-        pred = pd.read_csv(tmp_path / "out" / "predictions" / "standard_test.csv")
+        # The files of a reproduce unit (benchmark.training.pipeline): true and swapped satellite.
+        pred = pd.read_csv(tmp_path / "out" / "eval" / "standard__test.csv")
         assert len(pred) > 0 and {"dpsi_deg", "dphi_deg", "uncertainty"} <= set(pred.columns)
+        swap = json.loads((tmp_path / "out" / "eval" / "standard__test__swap.json").read_text())
+        assert "swap_dphi_diff_deg" in swap
         history = json.loads((tmp_path / "out" / "history.json").read_text())
         assert [h["epoch"] for h in history] == [1, 2]
 
@@ -103,17 +106,18 @@ class TestTrainCommandEndToEnd:
         exp = client.get_experiment_by_name("train")
         (run,) = client.search_runs([exp.experiment_id])
         assert run.info.status == "FINISHED"
-        assert (
-            run.data.params["optim.batch_size"] == "4" and run.data.params["loss.kappa"] == "None"
-        )
+        assert run.data.params["optim.batch_size"] == "4"
+        assert run.data.params["model.attitude"] == "pd_re_net"
         assert run.data.tags["head"] == "pd_re_net" and len(run.data.tags["run_key"]) == 16
+        assert run.data.tags["model_key"] == run.data.tags["run_key"]
         steps = [m.step for m in client.get_metric_history(run.info.run_id, "train_loss_total")]
         assert steps == [1, 2]
         assert "standard/test/dphi_deg" in run.data.metrics
+        assert "standard/test/swap/dphi_deg" in run.data.metrics
 
         # uavbench evaluate on the checkpoint reproduces the predictions byte for byte.
-        first = (tmp_path / "out" / "predictions" / "standard_test.csv").read_bytes()
-        ckpt = str(tmp_path / "out" / "checkpoint.pt")
+        first = (tmp_path / "out" / "eval" / "standard__test.csv").read_bytes()
+        ckpt = str(tmp_path / "out" / "train" / "checkpoint.pt")
         assert (
             main(["evaluate", "--quiet", "--checkpoint", ckpt, "--out", str(tmp_path / "ev")]) == 0
         )

@@ -1,0 +1,149 @@
+"""Train, then evaluate: the one path of ``uavbench train`` and of each ``reproduce`` unit.
+
+:func:`train_and_evaluate` trains (or resumes, or reuses the finished checkpoint) and evaluates
+every requested split twice: with each pair's true satellite image, and with the satellite image of
+another place (the satellite-swap probe, ``PairDataset(..., satellite="swap")``). Results are keyed
+by :func:`eval_key`: ``standard/test`` and ``standard/test/swap``. The swap summary also holds the
+paired per-frame effect of the swap on the yaw and geodesic errors with its 95% flight bootstrap
+interval (``swap_dpsi_diff_deg``, ``swap_dpsi_boot_lo_deg``, ...,
+``benchmark.evaluation.paired.swap_effect``), so the claims need no predictions files.
+
+Layout of ``out_dir``::
+
+    config.yaml                   the train config (``uavbench train --config`` reads it back)
+    train/checkpoint.pt           written every epoch, resumed from (benchmark.training.loop)
+    history.json                  per-epoch training and validation metrics
+    eval/standard__test.csv       per-frame predictions, true satellite image
+    eval/standard__test.json      its summary (written last: its presence means the split is done)
+    eval/standard__test__swap.csv / .json   the same with the swapped satellite image
+
+Running it again costs nothing once its files are complete, so an interrupted run resumes where it
+stopped: mid-training from the last epoch's checkpoint, after training from the evaluations already
+written. Evaluation datasets are opened with ``cfg.data.verify`` and batches of ``eval_batch``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch.utils.data import Dataset
+
+from benchmark.config import save_yaml
+from benchmark.data.swap import SATELLITE_MODES
+from benchmark.training.build import run_training
+from benchmark.training.config import TrainConfig
+from benchmark.training.loop import EpochCallback, TrainResult
+
+SWAP_SUFFIX = "/swap"
+EVAL_BATCH = 64  # pairs per evaluation batch (eval mode: per-sample results, any size would do)
+
+
+def eval_key(split: str, satellite: str) -> str:
+    """Where one evaluation's numbers live: ``split`` (true image) or ``split + "/swap"``."""
+    if satellite not in SATELLITE_MODES:
+        raise ValueError(f"satellite must be one of {SATELLITE_MODES}, got {satellite!r}")
+    return split if satellite == "true" else split + SWAP_SUFFIX
+
+
+def eval_keys(splits: list[str] | tuple[str, ...]) -> list[str]:
+    """Every key :func:`train_and_evaluate` fills for ``splits``, true then swap per split."""
+    return [eval_key(s, m) for s in splits for m in SATELLITE_MODES]
+
+
+def split_filename(split: str) -> str:
+    """``height600/test -> height600__test`` (file-system safe, reversible enough to read)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", split.replace("/", "__"))
+
+
+def eval_paths(out_dir: str | Path, key: str) -> tuple[Path, Path]:
+    """``(csv, json)`` of one :func:`eval_key` under ``out_dir/eval``."""
+    stem = Path(out_dir) / "eval" / split_filename(key)
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+@dataclass
+class TrainEvalResult:
+    """What :func:`train_and_evaluate` produced."""
+
+    trained: TrainResult
+    metrics: dict[str, dict[str, float]] = field(default_factory=dict)  # eval_key -> summary
+    predictions: dict[str, Path] = field(default_factory=dict)  # eval_key -> CSV
+
+    @property
+    def history(self) -> list[dict[str, float]]:
+        return self.trained.history
+
+
+def train_and_evaluate(
+    cfg: TrainConfig,
+    out_dir: str | Path,
+    eval_splits: list[str] | tuple[str, ...],
+    *,
+    on_epoch_end: EpochCallback | None = None,
+    progress: bool = False,
+    datasets: tuple[Dataset, Dataset | None] | None = None,
+    eval_batch: int = EVAL_BATCH,
+) -> TrainEvalResult:
+    """Train ``cfg`` into ``out_dir/train`` (resuming), then evaluate each split of
+    ``cfg.data.root`` in ``eval_splits`` with the true and the swapped satellite image (files
+    already written are read back, not recomputed). See the module doc for the layout."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    save_yaml(cfg, out_dir / "config.yaml", header="uavbench train config")
+    trained = run_training(
+        cfg, out_dir / "train", on_epoch_end=on_epoch_end, progress=progress, datasets=datasets
+    )
+    (out_dir / "history.json").write_text(json.dumps(trained.history, indent=1) + "\n")
+    model = trained.model.eval()
+    result = TrainEvalResult(trained)
+    for split in eval_splits:
+        for satellite in SATELLITE_MODES:  # true first: the swap summary compares with it
+            key = eval_key(split, satellite)
+            result.metrics[key], result.predictions[key] = _evaluate_split(
+                cfg, model, out_dir, split, satellite, eval_batch, progress
+            )
+    return result
+
+
+def _evaluate_split(
+    cfg: TrainConfig,
+    model: torch.nn.Module,
+    out_dir: Path,
+    split: str,
+    satellite: str,
+    batch_size: int,
+    progress: bool,
+) -> tuple[dict[str, float], Path]:
+    """Evaluate one split in one satellite mode, or read the files a previous run wrote."""
+    import pandas as pd
+
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.evaluate import evaluate
+    from benchmark.evaluation.paired import swap_effect
+
+    csv_path, json_path = eval_paths(out_dir, eval_key(split, satellite))
+    if json_path.is_file() and csv_path.is_file():
+        return json.loads(json_path.read_text()), csv_path
+    dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify, satellite=satellite)
+    summary, _ = evaluate(
+        model,
+        dataset,
+        out_csv=csv_path,
+        batch_size=batch_size,
+        shared_satellite=cfg.model.shared_satellite,
+        progress=progress,
+        desc=f"eval {eval_key(split, satellite)}",
+    )
+    if satellite == "swap":
+        # Both frames as written (10 significant digits): identical predictions give a zero
+        # difference, not the rounding error of one of them.
+        true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
+        summary.update(swap_effect(pd.read_csv(true_csv), pd.read_csv(csv_path)))
+    tmp = json_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(json_path)  # written last: its presence means the split is done
+    return summary, csv_path
