@@ -164,6 +164,12 @@ def train(
     start_epoch = 0
     if ckpt_path.exists():
         ckpt = load_checkpoint(ckpt_path)
+        if ckpt["format"] != CHECKPOINT_FORMAT:
+            raise CheckpointMismatchError(
+                f"{ckpt_path} is a checkpoint of format {ckpt['format']} (before the one model "
+                f"config of format {CHECKPOINT_FORMAT}); training cannot resume it: use another "
+                "output directory or delete the checkpoint (uavbench evaluate still reads it)"
+            )
         if ckpt["config_hash"] != chash:
             raise CheckpointMismatchError(
                 f"{ckpt_path} was written by a different config (hash {ckpt['config_hash']}, "

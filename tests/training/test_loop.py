@@ -89,6 +89,14 @@ class TestTrain:
         with pytest.raises(CheckpointMismatchError, match="different config"):
             run(tiny_config("optim.epochs=1", "optim.lr=0.01"), tiny_data, tmp_path / "o")
 
+    def test_checkpoint_of_the_previous_format_refused_with_advice(self, tiny_data, tmp_path):
+        run(tiny_config("optim.epochs=1"), tiny_data, tmp_path / "o")
+        ckpt = load_checkpoint(tmp_path / "o" / CHECKPOINT)
+        torch.save({**ckpt, "format": 1}, tmp_path / "o" / CHECKPOINT)
+        with pytest.raises(CheckpointMismatchError, match=r"o/checkpoint.pt is a checkpoint of "
+                           r"format 1 .*use another output directory"):  # fmt: skip
+            run(tiny_config("optim.epochs=2"), tiny_data, tmp_path / "o")
+
     def test_non_finite_loss_stops_with_message(self, tiny_data, tmp_path):
         cfg = tiny_config("optim.lr=1e30", "optim.epochs=3")
         with pytest.raises(NonFiniteLossError, match=r"non-finite loss at epoch \d+, step \d+"):
