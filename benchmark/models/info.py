@@ -11,7 +11,8 @@ the dense layers alone.
 
 Size is float32 parameters (4 bytes each) in MB = 10^6 bytes (MiB in brackets). Latency is the
 median wall time of one pair (batch 1, eval mode, no grad) over ``--repeats`` timed runs after
-``--warmup`` untimed ones, with ``--threads`` torch threads.
+``--warmup`` untimed ones, with ``--threads`` torch threads. Head and encoder options are set as
+in ``uavbench train``: ``--set attitude_options.hidden=512`` (``benchmark.models.ModelConfig``).
 """
 
 from __future__ import annotations
@@ -20,13 +21,18 @@ import argparse
 import json
 import statistics
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import torch
 from torch import nn
 from torch.utils.flop_counter import FlopCounterMode
 
+from benchmark.models.model_config import parse_scalar
 from benchmark.models.pair import PoseModel, create_model
+
+OPTION_FIELDS = ("attitude_options", "translation_options", "encoder_options")
 
 HELP = "parameters, size, MFLOPs and CPU latency per pair of a model (paper Table 6)"
 
@@ -100,7 +106,10 @@ def model_info(
     translation: str = "regression",
     repeats: int = 10,
     warmup: int = 3,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> ModelInfo:
+    """Measure one model; ``options`` maps ``attitude_options`` / ``translation_options`` /
+    ``encoder_options`` to the options of that head or encoder (``ModelConfig``)."""
     model = create_model(
         encoder=encoder,
         variant=variant,
@@ -108,6 +117,7 @@ def model_info(
         input_size=input_size,
         attitude=head,
         translation=translation,
+        **{k: dict(v) for k, v in (options or {}).items()},
     )
     n_params = count_parameters(model)
     flops, dense = count_flops(model, input_size, training=False)
@@ -162,6 +172,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead")
+    parser.add_argument(
+        "--set",
+        dest="options",
+        action="append",
+        default=[],
+        metavar="FIELD.OPTION=VALUE",
+        help="a head or encoder option, e.g. --set attitude_options.hidden=512 (fields: "
+        f"{', '.join(OPTION_FIELDS)}; repeatable)",
+    )
+
+
+def parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
+    """``["attitude_options.hidden=512"]`` -> ``{"attitude_options": {"hidden": 512}}`` (values
+    read as YAML scalars; the head's signature types them). ValueError naming a bad item."""
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        field, dot, option = key.strip().partition(".")
+        if not sep or not dot or not option or field not in OPTION_FIELDS:
+            raise ValueError(
+                f"--set {item!r}: expected FIELD.OPTION=VALUE with FIELD one of "
+                f"{', '.join(OPTION_FIELDS)}, e.g. attitude_options.hidden=512"
+            )
+        out.setdefault(field, {})[option] = parse_scalar(value)
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -174,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
         )
     torch.set_num_threads(args.threads)
     try:
+        options = parse_options(args.options)
         info = model_info(
             head=args.head,
             encoder=args.encoder,
@@ -183,6 +219,7 @@ def run(args: argparse.Namespace) -> int:
             translation=args.translation,
             repeats=args.repeats,
             warmup=args.warmup,
+            options=options,
         )
     except ValueError as err:  # bad configuration: unknown head/encoder/variant, size, width
         raise UsageError(str(err)) from None

@@ -60,9 +60,28 @@ class TestModelInfoCommand:
         assert info["size_mb"] == pytest.approx(4 * info["parameters"] / 1e6)
         assert info["latency_ms"] > 0
 
+    def test_head_options(self, capsys):
+        args = ["model-info", "--width", "0.25", "--size", "32", "--repeats", "1", "--json"]
+        extra = ["--set", "attitude_options.hidden=32", "--set", "translation_options.hidden=16"]
+        assert main([*args, "--head", "re_net_r", "--variant", "/", *extra]) == 0
+        info = json.loads(capsys.readouterr().out)
+        model = create_model(
+            variant="/",
+            width=0.25,
+            input_size=32,
+            attitude="re_net_r",
+            attitude_options={"hidden": 32},
+            translation_options={"hidden": 16},
+        )
+        assert info["parameters"] == count_parameters(model)
+        default = create_model(variant="/", width=0.25, input_size=32, attitude="re_net_r")
+        assert info["parameters"] < count_parameters(default)  # fmt: skip
+
     @pytest.mark.parametrize(
         ("flags", "message"),
         [
+            (["--set", "attitude_options.kapa=1"], "attitude head 'pd_re_net' takes no option"),
+            (["--set", "hidden=1"], "expected FIELD.OPTION=VALUE"),
             (["--head", "nope"], "unknown attitude head 'nope'"),
             (["--variant", "x"], "unknown encoder variant 'x'"),
             (["--size", "16"], "got 16"),
