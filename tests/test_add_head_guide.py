@@ -1,0 +1,155 @@
+"""The README's "Adding a head in one file" guide, executed exactly as written in a scratch copy.
+
+The copy holds the working tree's files (tracked and not ignored) as a fresh git repository with
+one commit. The test then follows the guide: saves the README's Python block under the path the
+README names, runs the README's shell commands as they are (``uavbench`` is the installed console
+script; ``PYTHONPATH`` points it at the copy, as ``pip install -e .`` in a clone would), inserts
+the README's YAML line under ``variants:`` of the spec it names, and runs the smoke reproduction
+of that table. It asserts the acceptance of issue 13: a head with a new option, trained with that
+option and swept in a table, touches one new Python file and one YAML line, nothing else
+(``git status`` / ``git diff`` of the copy); the new head's rows are in the rendered table.
+
+Cost: the smoke dataset (session fixture) and the heading-cue audit's two extra datasets are
+rendered once per session and copied in, so the guide's ``uavbench simulate`` finds its dataset
+complete; the rest is one smoke training and the smoke ``extended`` table (one seed per head).
+Measured on this 2-core machine at load average ~4 (other agents running): 83-85 s for the test
+itself (simulate 7 s, train 11 s, reproduce 58 s), plus 66-81 s of session fixtures (the smoke
+dataset and the audit's datasets, which the smoke reproduction test renders too). It stays in the
+default suite (under the ~90 s mark for ``slow``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SECTION = "## Adding a head in one file"
+
+
+def guide() -> str:
+    text = (REPO / "README.md").read_text(encoding="utf-8")
+    assert SECTION in text, f"README.md has no section {SECTION!r}"
+    return text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+
+
+def blocks(section: str, language: str) -> list[str]:
+    return re.findall(rf"```{language}\n(.*?)```", section, flags=re.DOTALL)
+
+
+def commands(section: str) -> list[str]:
+    """Every line of the guide's bash blocks (backslash continuations joined)."""
+    out = []
+    for block in blocks(section, "bash"):
+        out += [c.strip() for c in block.replace("\\\n", " ").splitlines() if c.strip()]
+    return out
+
+
+def git(cwd: Path, *args: str) -> str:
+    env = {**os.environ, "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t",
+           "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}  # fmt: skip
+    done = subprocess.run(
+        ["git", *args], cwd=cwd, env=env, capture_output=True, text=True, check=True
+    )
+    return done.stdout
+
+
+def scratch_copy(dest: Path) -> Path:
+    """The working tree's tracked and unignored files, copied, as a one-commit git repository."""
+    listed = git(REPO, "ls-files", "-z", "--cached", "--others", "--exclude-standard")
+    for name in filter(None, listed.split("\0")):
+        source = REPO / name
+        if source.is_file():  # a tracked file deleted in the working tree is skipped
+            (dest / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(source, dest / name)
+    git(dest, "init", "-q")
+    git(dest, "add", "-A")
+    git(dest, "commit", "-q", "-m", "scratch copy")
+    return dest
+
+
+@pytest.fixture(scope="module")
+def cue_datasets(smoke_dataset) -> list[Path]:
+    """The smoke dataset and the heading-cue audit's extra datasets beside it (rendered once per
+    session, shared with any other test of the smoke reproduction)."""
+    from benchmark.runner.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
+
+    return cue_dataset_roots(smoke_dataset, CUE_EXTRA_SEEDS, quiet=True)
+
+
+def run(command: str, cwd: Path) -> str:
+    env = {**os.environ, "PYTHONPATH": str(cwd), "OMP_NUM_THREADS": "1"}
+    done = subprocess.run(command, shell=True, cwd=cwd, env=env, capture_output=True, text=True)
+    assert done.returncode == 0, f"{command}\nexit {done.returncode}\n{done.stdout}{done.stderr}"
+    return done.stdout
+
+
+def test_guide_runs_and_touches_one_file_and_one_line(tmp_path, cue_datasets):
+    section = guide()
+    repo = scratch_copy(tmp_path / "repo")
+    data = repo / "data"
+    data.mkdir()
+    for root in cue_datasets:  # named as the smoke profile's reproduction names them
+        shutil.copytree(root, data / root.name.replace(cue_datasets[0].name, "smoke-s0", 1))
+    probe = run('python -c "import benchmark, baselines; print(benchmark.__file__)"', repo)
+    assert probe.strip() == str(repo / "benchmark" / "__init__.py")
+
+    # 1. the head: the README's code block, saved where the README says
+    saved = re.search(r"Save this as `(baselines/\w+\.py)`", section)
+    assert saved is not None, "the guide must say where to save the head"
+    head_file = saved.group(1)
+    (repo / head_file).write_text(blocks(section, "python")[0])
+
+    # 2-4. the README's commands and its one YAML line, in the README's order
+    spec_path = re.search(r"one line under `variants:` in `(reports/configs/\w+\.yaml)`", section)
+    assert spec_path is not None, "the guide must name the spec the YAML line goes into"
+    (yaml_line,) = [line for b in blocks(section, "yaml") for line in b.splitlines() if line]
+    cmds = commands(section)
+    reproduce = [i for i, c in enumerate(cmds) if c.startswith("uavbench reproduce")]
+    assert len(reproduce) == 1 and cmds[0].startswith("uavbench simulate")
+    assert any(c.startswith("uavbench train") and "attitude_options." in c for c in cmds)
+    for command in cmds[: reproduce[0]]:
+        run(command, repo)
+    spec = repo / spec_path.group(1)
+    lines = spec.read_text().splitlines(keepends=True)
+    last_row = max(i for i, line in enumerate(lines) if line.startswith("  - {"))
+    lines.insert(last_row + 1, yaml_line + "\n")
+    spec.write_text("".join(lines))
+    for command in cmds[reproduce[0] :]:
+        run(command, repo)
+
+    # exactly one new Python file and one YAML line changed
+    status = sorted(git(repo, "status", "--porcelain", "--untracked-files=all").splitlines())
+    assert status == [f" M {spec_path.group(1)}", f"?? {head_file}"], status
+    diff = git(repo, "diff", "--unified=0", "--", spec_path.group(1)).splitlines()
+    changed = [line for line in diff if line[:1] in "+-" and line[:3] not in ("+++", "---")]
+    assert changed == [f"+{yaml_line}"]
+
+    # the new head trained with its option (the train command) and in the rendered table
+    label = re.search(r"label: ([^,]+),", yaml_line).group(1)
+    out = re.search(r"--out (\S+)", cmds[reproduce[0]]).group(1)
+    table = (repo / out / f"{spec.stem}.md").read_text()
+    for split in ("standard/test", "generalized/test"):
+        row = next((r for r in table.splitlines() if f"| `{split}` | {label} |" in r), None)
+        assert row is not None and "not run" not in row, (split, table)
+    results = pd.read_csv(repo / out / "results.csv")
+    assert set(results.loc[results["label"] == label, "split"]) >= {
+        "standard/test",
+        "generalized/test",
+    }
+    name = re.search(r'@register_head\("(\w+)"\)', blocks(section, "python")[0]).group(1)
+    train = next(c for c in cmds if c.startswith("uavbench train"))
+    option, value = re.search(r"model\.attitude_options\.(\w+)=(\S+)", train).groups()
+    assert f"attitude: {name}" in yaml_line and f"attitude_options: {{{option}: {value}}}" in (
+        yaml_line
+    )
+    configs = [yaml.safe_load(p.read_text()) for p in (repo / "runs").glob("train-*/config.yaml")]
+    assert [c["model"]["attitude"] for c in configs] == [name]
+    assert configs[0]["model"]["attitude_options"] == {option: yaml.safe_load(value)}
