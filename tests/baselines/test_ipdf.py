@@ -97,6 +97,37 @@ class TestScores:
         torch.testing.assert_close(head(x)["logits"], whole)
 
 
+class TestReluScores:
+    @pytest.mark.parametrize("batch", [1, 3, 8])
+    def test_gradcheck_float64_all_inputs(self, batch, monkeypatch):
+        monkeypatch.setattr(ipdf, "CHUNK_ELEMENTS", 40)  # several chunks, a short last one
+        g = torch.Generator().manual_seed(batch)
+        e, r, w = (
+            torch.randn(*s, generator=g, dtype=torch.float64) for s in ((batch, 4), (11, 4), (4,))
+        )
+        inputs = (e.requires_grad_(), r.requires_grad_(), w.requires_grad_())
+        assert torch.autograd.gradcheck(ipdf._ReluScores.apply, inputs)
+
+    def test_parameter_gradients_match_plain_autograd(self):
+        head = make().train()
+        x, R = feats(3), haar(3, seed=1)
+        torch.manual_seed(0)
+        head.loss(head(x), R).backward()
+        fused = {k: p.grad.clone() for k, p in head.named_parameters()}
+        head.zero_grad()
+        # The same loss with the tail evaluated by torch's own autograd (no fused function).
+        embedding = head.feature_layer(x)
+        torch.manual_seed(0)
+        q = torch.randn(4, dtype=torch.float64)
+        turn = quat_to_rotmat(q / q.norm())
+        code = ipdf.positional_encoding(head.train_rotmat @ turn, head.frequencies)
+        grid = head.tail(torch.relu(embedding[:, None] + head.rotation_layer(code)[None]))[..., 0]
+        logits = torch.cat([head.score(embedding, R)[:, None], grid], dim=-1)
+        (-torch.log_softmax(logits, -1)[:, 0].mean()).backward()
+        for k, p in head.named_parameters():
+            torch.testing.assert_close(fused[k], p.grad, msg=k)
+
+
 class TestLogProb:
     @pytest.mark.parametrize("batch", [1, 3, 8])
     def test_against_definition(self, batch):
