@@ -26,10 +26,11 @@ cross-entropy of the label against it, ``-log softmax([f(R_gt), f(R_1..N)])_0``,
 batch. Minimising it raises the label's score against the grid, i.e. the label's likelihood. In
 training mode the grid is turned by one Haar-random rotation per call (``R_k Q``, Q from a
 normalised Gaussian quaternion drawn from torch's global generator, so a seeded run is
-reproducible), as IPDF does; in eval mode it is the fixed grid (a deterministic loss value). A fixed
-training grid only pins the score down at the same 4096 rotations, 12 deg apart: measured on 8
-dataset-like labels (Adam lr 1e-3, 300 steps) the decoded rotations missed by up to 6.1 deg with a
-fixed grid, 1.9 deg with the turned one (0.47 deg with ``refine_steps=100``).
+reproducible); IPDF's training queries likewise change from step to step. In eval mode it is the
+fixed grid (a deterministic loss value). A fixed training grid only pins the score down at the same
+4096 rotations, 12 deg apart: measured on 8 dataset-like labels (Adam lr 1e-3, 300 steps) the
+decoded rotations missed by up to 6.1 deg with a fixed grid, 1.9 deg with the turned one (0.47 deg
+with ``refine_steps=100``).
 
 ``log_prob(raw, R) = f(x, R) - logsumexp_k f(x, R_k) + log N`` on the evaluation grid: the density
 w.r.t. the normalised Haar measure (each grid rotation stands for a cell of volume 1/N), so a

@@ -19,7 +19,7 @@ values are ``svdvals(F)`` with the last multiplied by ``sign(det F)``; ``svdvals
 without the ``1 / (s_i^2 - s_j^2)`` terms of the full SVD, so gradients stay finite at repeated
 singular values (e.g. ``F = k I``).
 
-Normaliser (Mohlin et al., Eq. 5, w.r.t. the normalised Haar measure, ``c(0) = 1``)::
+Normaliser (Mohlin et al.'s 1-D integral, w.r.t. the normalised Haar measure, ``c(0) = 1``)::
 
     c(F) = c(S) = int_{-1}^{1} 1/2 I0((s1 - s2)(1 - u) / 2) I0((s1 + s2)(1 + u) / 2) exp(s3 u) du
 
