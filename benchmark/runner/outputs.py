@@ -19,7 +19,8 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from benchmark.runner.claims import evaluate_claims, render_claims
+from benchmark.runner.claims import Claim, evaluate_claims, render_claims
+from benchmark.runner.claims_ranking import ranking_markdown
 from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
 from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.findings import findings_markdown
@@ -229,7 +230,12 @@ def write_reports(
         written += paths
         if logbook is not None:
             logbook.log_table_outputs(spec.name, paths)
-    findings_md, claims_md = _claims_section(summaries, units, data_root, workdir)
+    findings_md, claims_md, claims = _claims_section(summaries, units, data_root, workdir)
+    for spec in specs:  # which representation wins, in the ranked table's own section
+        section = ranking_markdown(claims, spec.name)
+        if section:
+            md = out / f"{spec.name}.md"
+            md.write_text(md.read_text() + section)
     audit_md, audit_rows = heading_cue_report(data_root)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
@@ -245,7 +251,7 @@ def write_reports(
 
 def _claims_section(
     summaries: dict[str, pd.DataFrame], units: list[Unit], data_root: Path, workdir: Path | None
-) -> tuple[str, str]:
+) -> tuple[str, str, list[Claim]]:
     """The findings (generated from the verdicts, so prose cannot drift from the numbers) and the
     claims table, decided on per-frame errors (``FrameStore`` over ``workdir``). Without a
     workdir there are no per-frame errors and both say so."""
@@ -254,9 +260,9 @@ def _claims_section(
             "Claims not evaluated: verdicts are decided on per-frame errors, and no work "
             "directory with the units' predictions was given."
         )
-        return missing, missing
+        return missing, missing, []
     claims = evaluate_claims(summaries, FrameStore(workdir, data_root, units))
-    return findings_markdown(claims), render_claims(claims)
+    return findings_markdown(claims), render_claims(claims), claims
 
 
 def _input_size(data_root: Path) -> int:

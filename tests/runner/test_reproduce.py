@@ -51,7 +51,9 @@ class TestReproduceSmoke:
             if spec.kind == "sweep":
                 assert (reports / f"{spec.name}.png").stat().st_size > 0
         readme = (reports / "README.md").read_text()
-        assert readme.count("| **") == 15  # fifteen claims, each with a verdict
+        # fifteen claims of the paper and its controls, and one ranking claim per test split of
+        # table extended, each with a verdict
+        assert readme.count("| **") == 17
         table1 = (reports / "table1.md").read_text()
         assert "| UAV-only control |" in table1 and "swapped sat." in table1
         assert "Satellite-swap probe" in table1
@@ -64,6 +66,8 @@ class TestReproduceSmoke:
                              .replace("]", " ").split())  # fmt: skip
             assert 0.0 < ratio < 10.0 and lo <= ratio <= hi, row
         assert "Heading-cue audit" in readme and "heading_cue.md" in readme
+        # the verdict reads the standard splits pooled over the dataset and 4 more seeds
+        assert audit.count("| pooled |") == 2 and "pooled over 5 datasets" in readme
 
     def test_results_cover_every_job_and_split(self, full_run):
         tmp, _ = full_run
