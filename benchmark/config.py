@@ -101,7 +101,7 @@ def convert(value: Any, tp: Any, key: str) -> Any:
         # An options mapping (e.g. model.attitude_options): a YAML mapping, or on the command
         # line a flow mapping "{kappa: 5, hidden: 512}". Values stay as given (YAML-typed); the
         # owning dataclass checks and types them.
-        mapping = _yaml_value(value) if isinstance(value, str) else value
+        mapping = parse_yaml_value(value) if isinstance(value, str) else value
         if not isinstance(mapping, Mapping):
             raise fail(" (a mapping, e.g. {name: value})")
         return {str(k): v for k, v in mapping.items()}
@@ -180,7 +180,7 @@ def convert(value: Any, tp: Any, key: str) -> Any:
     raise ConfigError(f"{key}: unsupported annotation {_type_name(tp)} in the config class")
 
 
-def _yaml_value(text: str) -> Any:
+def parse_yaml_value(text: str) -> Any:
     """``text`` read as YAML (``"512"`` -> 512, ``"{a: 1}"`` -> dict); a number YAML 1.1 keeps
     as a string (``"1e-3"``) becomes a float; unparsable text stays the string."""
     import yaml
@@ -234,7 +234,7 @@ def _set_path(cfg: Any, path: list[str], raw: Any, full_key: str) -> Any:
     elif isinstance(current, Mapping) and len(path) == 2:
         # One entry of an options mapping, e.g. model.attitude_options.hidden=512: the value is
         # read as a YAML scalar here and typed by the owning dataclass.
-        value = _yaml_value(raw) if isinstance(raw, str) else raw
+        value = parse_yaml_value(raw) if isinstance(raw, str) else raw
         new = {**current, path[1]: value}
     else:
         optional, inner = _is_optional(tp)

@@ -22,7 +22,8 @@ ALLOWED: dict[str, set[str]] = {
     "config": set(),
     "sim": {"geometry", "progress"},
     "data": {"geometry", "sim", "progress", "errors"},
-    "models": {"geometry", "errors", "baselines"},  # baselines: the registry's plugin discovery
+    # baselines: the registry's plugin discovery; config: YAML scalars of head options
+    "models": {"geometry", "errors", "baselines", "config"},
     "baselines": {"geometry", "models"},
     "analysis": {"geometry", "data", "errors"},  # heading_cue reads datasets (PairDataset)
     "evaluation": {"geometry", "data", "models", "progress", "errors"},

@@ -32,6 +32,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from benchmark.config import parse_yaml_value
+
 PAPER_INPUT_SIZE = 224  # what create_model builds when neither config nor caller give a size
 SATELLITE_INPUTS = ("image", "blank")
 # Field names of the format-1 checkpoints (before issue 13) and where they live now.
@@ -58,17 +60,7 @@ def check_satellite_input(value: object, where: str = "ModelConfig") -> str:
 def parse_scalar(text: str) -> Any:
     """A string as a YAML scalar: ``"512"`` -> 512, ``"1e-3"`` -> 0.001 (YAML 1.1 would keep
     it a string), ``"true"`` -> True, ``"null"`` -> None, anything else the string itself."""
-    import yaml
-
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError:
-        return text
-    if isinstance(value, str):
-        try:
-            return float(value)
-        except ValueError:
-            return value
+    value = parse_yaml_value(text)
     return value if isinstance(value, (bool, int, float, type(None))) else text
 
 
