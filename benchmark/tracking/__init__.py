@@ -9,7 +9,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from benchmark.tracking.base import RUN_KEY_TAG, MetricPoint, Run, RunInfo, RunStatus, Tracker
+from benchmark.tracking.base import (
+    DESCRIPTION_TAG,
+    EXPERIMENT_KIND,
+    EXPERIMENT_KIND_TAG,
+    RUN_KEY_TAG,
+    DatasetRef,
+    MetricPoint,
+    Run,
+    RunInfo,
+    RunStatus,
+    Tracker,
+    TrackerSpec,
+)
 from benchmark.tracking.local import LocalTracker, NullTracker
 from benchmark.tracking.mlflow_tracker import (
     MlflowTracker,
@@ -20,7 +32,11 @@ from benchmark.tracking.mlflow_tracker import (
 from benchmark.tracking.provenance import file_sha256, git_commit, manifest_sha256
 
 __all__ = [
+    "DESCRIPTION_TAG",
+    "EXPERIMENT_KIND",
+    "EXPERIMENT_KIND_TAG",
     "RUN_KEY_TAG",
+    "DatasetRef",
     "LocalTracker",
     "MetricPoint",
     "MlflowTracker",
@@ -29,6 +45,7 @@ __all__ = [
     "RunInfo",
     "RunStatus",
     "Tracker",
+    "TrackerSpec",
     "TrackingFallbackWarning",
     "create_tracker",
     "default_tracking_uri",
@@ -36,6 +53,7 @@ __all__ = [
     "git_commit",
     "manifest_sha256",
     "server_is_healthy",
+    "tracker_from_spec",
 ]
 
 
@@ -59,3 +77,23 @@ def create_tracker(
             fallback_dir=base / "tracking-fallback",
         )
     raise ValueError(f"unknown tracker kind {kind!r}; expected one of 'mlflow', 'local', 'null'")
+
+
+_BY_SPEC: dict[TrackerSpec, Tracker] = {}
+
+
+def tracker_from_spec(spec: TrackerSpec) -> Tracker:
+    """The tracker ``spec`` (``Tracker.spec()``) describes, built once per process: how a worker
+    process logs to the store of the process that started it."""
+    if spec not in _BY_SPEC:
+        if spec.kind == "null":
+            _BY_SPEC[spec] = NullTracker()
+        elif spec.kind == "local":
+            _BY_SPEC[spec] = LocalTracker(spec.uri)
+        elif spec.kind == "mlflow":
+            _BY_SPEC[spec] = MlflowTracker(
+                spec.uri, artifact_root=spec.artifact_root, fallback_dir=spec.fallback_dir
+            )
+        else:
+            raise ValueError(f"unknown tracker kind {spec.kind!r} in {spec}")
+    return _BY_SPEC[spec]

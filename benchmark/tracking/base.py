@@ -1,7 +1,8 @@
 """The tracker interface: experiments, (nested) runs, params, batched metrics, artifacts, tags.
 
-A :class:`Tracker` is a small backend with five primitives (create a run, log a batch, log an
-artifact, end a run, find a finished run). Everything a caller touches is a :class:`Run` handle,
+A :class:`Tracker` is a small backend with a few primitives (create a run, log a batch, log an
+artifact, end a run, search runs; plus experiment tags, dataset inputs, a logged model and system
+metrics, which a backend may ignore). Everything a caller touches is a :class:`Run` handle,
 written once here for every backend: it buffers metrics and sends them in batches, keeps a record of
 everything logged (so a backend that fails mid-run can hand the whole run over to a local fallback
 without losing anything), and, used as a context manager, ends the run FINISHED on success, FAILED
@@ -14,8 +15,10 @@ and talks to this interface only.
 from __future__ import annotations
 
 import abc
+import contextlib
 import time
 from collections.abc import Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -24,6 +27,11 @@ from types import TracebackType
 # Tag under which the stable hash of a (variant, seed, config) is stored; find_finished_run
 # looks it up so a reproduction never redoes a finished run.
 RUN_KEY_TAG = "run_key"
+# MLflow's own tags: the experiment kind that opens the classic (not GenAI) view, and the
+# description shown on top of an experiment or a run page (Markdown).
+EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
+EXPERIMENT_KIND = "custom_model_development"
+DESCRIPTION_TAG = "mlflow.note.content"
 
 
 class RunStatus(str, Enum):
@@ -51,6 +59,34 @@ class RunInfo:
     metrics: Mapping[str, float] = field(default_factory=dict)
     artifact_uri: str = ""
     backend: str = ""
+    start_time_ms: int | None = None
+    end_time_ms: int | None = None
+
+
+@dataclass(frozen=True)
+class DatasetRef:
+    """A dataset a run read, for :meth:`Run.log_input` (MLflow's Datasets column).
+
+    ``digest`` identifies the content (the manifest's sha256), ``name`` the dataset (its directory
+    name), ``source`` where it lives (its path), ``context`` the split read (``"standard/train"``).
+    """
+
+    name: str
+    digest: str
+    source: str
+    context: str
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """What another process needs to build the same tracker (picklable):
+    ``benchmark.tracking.tracker_from_spec``. ``kind`` is ``"mlflow"``, ``"local"`` or ``"null"``;
+    ``uri`` the MLflow tracking URI or the local root; the two paths are an MLflow tracker's."""
+
+    kind: str
+    uri: str = ""
+    artifact_root: str | None = None
+    fallback_dir: str | None = None
 
 
 @dataclass(frozen=True)
@@ -64,6 +100,10 @@ class MetricPoint:
 def _as_str(value: object) -> str:
     """Params and tags are strings in every backend; ``None`` becomes ``"None"`` like MLflow."""
     return value if isinstance(value, str) else str(value)
+
+
+def _now_ms() -> int:
+    return int(time.time() * 1000)
 
 
 class Run:
@@ -82,6 +122,7 @@ class Run:
         parent: Run | None,
         tags: Mapping[str, str],
         batch_size: int = 200,
+        start_time_ms: int | None = None,
     ) -> None:
         self.tracker = tracker
         self.run_id = run_id
@@ -89,12 +130,15 @@ class Run:
         self.run_name = run_name
         self.parent = parent
         self.status = RunStatus.RUNNING
+        self.end_time_ms: int | None = None
         self.batch_size = int(batch_size)
         # The full record, kept for a hand-over to the local fallback (see MlflowTracker).
         self.tags: dict[str, str] = dict(tags)
         self.params: dict[str, str] = {}
         self.metrics: list[MetricPoint] = []
         self.artifacts: list[tuple[Path, str | None]] = []
+        self.inputs: list[DatasetRef] = []
+        self.start_time_ms = start_time_ms if start_time_ms is not None else _now_ms()
         self._unsent = 0  # metrics[-_unsent:] are buffered, not yet sent
 
     # ------------------------------------------------------------------ logging
@@ -117,7 +161,9 @@ class Run:
             self.tracker._log_batch(self, [], new, {})
 
     def set_tags(self, tags: Mapping[str, object]) -> None:
+        """Set tags; an empty value is refused (MLflow shows it as a bare, meaningless tag)."""
         new = {str(k): _as_str(v) for k, v in tags.items()}
+        _check_tags(new, self.run_name)
         self.tags.update(new)
         self.tracker._log_batch(self, [], {}, new)
 
@@ -126,7 +172,7 @@ class Run:
 
         NaN and inf are kept (MLflow stores them); a caller that wants to stop on them checks first.
         """
-        now = int(time.time() * 1000)
+        now = _now_ms()
         for key, value in metrics.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 try:
@@ -154,9 +200,29 @@ class Run:
         self.artifacts.append((path, artifact_path))
         self.tracker._log_artifact(self, path, artifact_path)
 
+    def log_input(self, dataset: DatasetRef) -> None:
+        """Record that this run read ``dataset`` (MLflow: ``log_inputs``; shown as Datasets)."""
+        self.inputs.append(dataset)
+        self.tracker._log_inputs(self, [dataset])
+
+    def log_model(self, model: object, input_example: object, name: str = "model") -> str:
+        """Log a ``torch.nn.Module`` taking ONE float tensor and giving one tensor (what MLflow's
+        pytorch flavor serves), with its signature inferred from ``input_example`` (a numpy
+        array). Returns the model's URI (``models:/...``, loadable by ``mlflow.pytorch.load_model``)
+        or ``""`` if the backend keeps no models."""
+        return self.tracker._log_model(self, model, input_example, name)
+
+    def system_metrics(self, interval_s: float = 5.0) -> AbstractContextManager[None]:
+        """``with run.system_metrics(): train()``: CPU, memory (GPU where present) sampled every
+        ``interval_s`` seconds while the block runs (MLflow only; other backends sample nothing)."""
+        return self.tracker._system_metrics(self, interval_s)
+
     # ------------------------------------------------------------------ ending
-    def end(self, status: RunStatus | str = RunStatus.FINISHED) -> None:
-        """Flush and close the run with ``status``; a second call is a no-op."""
+    def end(
+        self, status: RunStatus | str = RunStatus.FINISHED, end_time_ms: int | None = None
+    ) -> None:
+        """Flush and close the run with ``status`` at ``end_time_ms`` (default now); a second
+        call is a no-op."""
         if self.status is not RunStatus.RUNNING:
             return
         status = RunStatus(status)
@@ -166,6 +232,7 @@ class Run:
             self.flush()
         finally:
             self.status = status
+            self.end_time_ms = end_time_ms if end_time_ms is not None else _now_ms()
             self.tracker._end_run(self, status)
 
     def __enter__(self) -> Run:
@@ -194,9 +261,15 @@ class Run:
         return f"Run({self.run_name!r}, id={self.run_id!r}, {self.status.value})"
 
 
+def _check_tags(tags: Mapping[str, str], where: str) -> None:
+    empty = sorted(k for k, v in tags.items() if v == "")
+    if empty:
+        raise ValueError(f"empty tag value(s) {empty} for {where!r}: leave such tags out")
+
+
 class Tracker(abc.ABC):
     """A tracking backend. Subclasses implement the underscore primitives and
-    :meth:`find_finished_run`; :meth:`start_run` and :class:`Run` are shared."""
+    :meth:`find_runs`; :meth:`start_run`, :meth:`attach` and :class:`Run` are shared."""
 
     #: Human-readable target, e.g. ``sqlite:///.../mlflow.db`` or a directory.
     uri: str = ""
@@ -208,10 +281,15 @@ class Tracker(abc.ABC):
         *,
         parent: Run | None = None,
         tags: Mapping[str, object] | None = None,
+        description: str = "",
+        start_time_ms: int | None = None,
     ) -> Run:
         """Start a run in ``experiment`` (created if missing), nested under ``parent`` if given.
 
-        Use the result as a context manager so it always ends with the right status.
+        ``description`` (Markdown) is shown on the run's page; ``start_time_ms`` (epoch ms,
+        default now) records when the work began, so a run logged after the fact still shows
+        its real duration (end it with ``run.end(end_time_ms=...)``). Use the result as a
+        context manager so it always ends with the right status.
         """
         if not experiment:
             raise ValueError("experiment name must be a non-empty string")
@@ -221,13 +299,58 @@ class Tracker(abc.ABC):
                 f"{parent.experiment!r}, not {experiment!r}"
             )
         str_tags = {str(k): _as_str(v) for k, v in (tags or {}).items()}
-        run = Run(self, "", experiment, run_name, parent, str_tags)
+        if description:
+            str_tags[DESCRIPTION_TAG] = description
+        _check_tags(str_tags, run_name)
+        run = Run(self, "", experiment, run_name, parent, str_tags, start_time_ms=start_time_ms)
         run.run_id = self._create_run(run)
         return run
 
+    def attach(self, info: RunInfo, *, reopen: bool = True) -> Run:
+        """A :class:`Run` handle on a stored run (from :meth:`find_runs`), to log more to it and
+        end it again. ``reopen``: mark it RUNNING in the store (a resumed unit continues its run;
+        the start time stays, so its duration spans the interruption)."""
+        run = Run(
+            self,
+            info.run_id,
+            info.experiment,
+            info.run_name,
+            None,
+            info.tags,
+            start_time_ms=info.start_time_ms,
+        )
+        run.params.update(info.params)
+        if reopen:
+            self._reopen_run(run)
+        return run
+
+    def describe_experiment(
+        self, experiment: str, description: str, tags: Mapping[str, str] | None = None
+    ) -> None:
+        """Create ``experiment`` if missing and set its description (Markdown, shown on top of
+        its runs), its kind (``custom_model_development``: MLflow's classic model-training view,
+        not the GenAI one) and ``tags``."""
+        all_tags = {EXPERIMENT_KIND_TAG: EXPERIMENT_KIND, **(tags or {})}
+        if description:
+            all_tags[DESCRIPTION_TAG] = description
+        _check_tags(all_tags, experiment)
+        self._set_experiment_tags(experiment, all_tags)
+
     @abc.abstractmethod
+    def find_runs(
+        self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
+    ) -> list[RunInfo]:
+        """Runs of ``experiment`` (tagged ``run_key`` if given, in one of ``statuses`` if any),
+        most recent first."""
+
     def find_finished_run(self, experiment: str, run_key: str) -> RunInfo | None:
         """The most recent FINISHED run of ``experiment`` tagged ``run_key``, or ``None``."""
+        found = self.find_runs(experiment, run_key, (RunStatus.FINISHED.value,))
+        return found[0] if found else None
+
+    def spec(self) -> TrackerSpec:
+        """How a worker process builds the same tracker (``tracker_from_spec``)."""
+        return TrackerSpec("null")
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release resources; runs must have been ended."""
@@ -250,3 +373,19 @@ class Tracker(abc.ABC):
 
     @abc.abstractmethod
     def _end_run(self, run: Run, status: RunStatus) -> None: ...
+
+    # Optional primitives: a backend without the feature records nothing.
+    def _reopen_run(self, run: Run) -> None:  # noqa: B027
+        pass
+
+    def _set_experiment_tags(self, experiment: str, tags: Mapping[str, str]) -> None:  # noqa: B027
+        pass
+
+    def _log_inputs(self, run: Run, datasets: list[DatasetRef]) -> None:  # noqa: B027
+        pass
+
+    def _log_model(self, run: Run, model: object, input_example: object, name: str) -> str:
+        return ""
+
+    def _system_metrics(self, run: Run, interval_s: float) -> AbstractContextManager[None]:
+        return contextlib.nullcontext()

@@ -3,7 +3,8 @@
 :class:`LocalTracker` is the fallback when MLflow is unreachable, so its format is plain and
 complete: one directory per run::
 
-    <root>/<experiment>/<run_id>/run.json      name, parent, status, times, params, tags
+    <root>/<experiment>/experiment.json        the experiment's tags (kind, description)
+    <root>/<experiment>/<run_id>/run.json      name, parent, status, times, params, tags, inputs
     <root>/<experiment>/<run_id>/metrics.csv   key,value,step,timestamp_ms (appended per batch)
     <root>/<experiment>/<run_id>/artifacts/    copies of logged files and directories
 
@@ -19,12 +20,20 @@ import os
 import re
 import shutil
 import tempfile
-import time
 import uuid
 from collections.abc import Mapping
 from pathlib import Path
 
-from benchmark.tracking.base import RUN_KEY_TAG, MetricPoint, Run, RunInfo, RunStatus, Tracker
+from benchmark.tracking.base import (
+    RUN_KEY_TAG,
+    DatasetRef,
+    MetricPoint,
+    Run,
+    RunInfo,
+    RunStatus,
+    Tracker,
+    TrackerSpec,
+)
 
 
 class NullTracker(Tracker):
@@ -35,8 +44,10 @@ class NullTracker(Tracker):
 
     uri = "null"
 
-    def find_finished_run(self, experiment: str, run_key: str) -> RunInfo | None:
-        return None
+    def find_runs(
+        self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
+    ) -> list[RunInfo]:
+        return []
 
     def _create_run(self, run: Run) -> str:
         return uuid.uuid4().hex
@@ -76,6 +87,9 @@ class LocalTracker(Tracker):
         self.root = Path(root).resolve()
         self.uri = str(self.root)
 
+    def spec(self) -> TrackerSpec:
+        return TrackerSpec("local", str(self.root))
+
     def _run_dir(self, run: Run) -> Path:
         return self.root / _safe_dirname(run.experiment) / run.run_id
 
@@ -84,12 +98,15 @@ class LocalTracker(Tracker):
             "run_id": run.run_id,
             "experiment": run.experiment,
             "run_name": run.run_name,
-            "parent_run_id": run.parent.run_id if run.parent is not None else None,
+            "parent_run_id": (
+                run.parent.run_id if run.parent is not None else getattr(run, "_local_parent", None)
+            ),
             "status": run.status.value,
-            "start_time_ms": getattr(run, "_local_start_ms", None),
-            "end_time_ms": getattr(run, "_local_end_ms", None),
+            "start_time_ms": run.start_time_ms,
+            "end_time_ms": run.end_time_ms,
             "params": dict(run.params),
             "tags": dict(run.tags),
+            "inputs": [vars(d) for d in run.inputs],
         }
 
     def _save(self, run: Run) -> None:
@@ -97,7 +114,6 @@ class LocalTracker(Tracker):
 
     def _create_run(self, run: Run) -> str:
         run.run_id = uuid.uuid4().hex
-        run._local_start_ms = int(time.time() * 1000)
         run_dir = self._run_dir(run)
         run_dir.mkdir(parents=True, exist_ok=False)
         with open(run_dir / "metrics.csv", "w", newline="", encoding="utf-8") as fh:
@@ -131,8 +147,46 @@ class LocalTracker(Tracker):
             shutil.copy2(path, dest / path.name)
 
     def _end_run(self, run: Run, status: RunStatus) -> None:
-        run._local_end_ms = int(time.time() * 1000)
         self._save(run)
+
+    def attach(self, info: RunInfo, *, reopen: bool = True) -> Run:
+        run_dir = self.root / _safe_dirname(info.experiment) / info.run_id
+        with open(run_dir / "run.json", encoding="utf-8") as fh:
+            rec = json.load(fh)
+        run = super().attach(info, reopen=False)
+        run._local_parent = rec.get("parent_run_id")
+        run.inputs.extend(DatasetRef(**d) for d in rec.get("inputs", []))
+        run.end_time_ms = rec.get("end_time_ms")
+        if reopen:
+            self._reopen_run(run)
+        return run
+
+    def _reopen_run(self, run: Run) -> None:
+        run.status = RunStatus.RUNNING
+        self._save(run)
+
+    def _set_experiment_tags(self, experiment: str, tags: Mapping[str, str]) -> None:
+        exp_dir = self.root / _safe_dirname(experiment)
+        exp_dir.mkdir(parents=True, exist_ok=True)
+        path = exp_dir / "experiment.json"
+        old = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+        _write_json_atomic(path, {"name": experiment, "tags": {**old.get("tags", {}), **tags}})
+
+    def experiment_tags(self, experiment: str) -> dict[str, str]:
+        path = self.root / _safe_dirname(experiment) / "experiment.json"
+        return json.loads(path.read_text(encoding="utf-8"))["tags"] if path.is_file() else {}
+
+    def _log_inputs(self, run: Run, datasets: list[DatasetRef]) -> None:
+        self._save(run)  # run.inputs already holds them
+
+    def _log_model(self, run: Run, model: object, input_example: object, name: str) -> str:
+        """The MLflow pytorch flavor's directory under ``artifacts/<name>`` (no server needed):
+        ``mlflow.pytorch.load_model(<that directory>)`` loads it."""
+        from benchmark.tracking.models import save_pytorch_model
+
+        dest = self._run_dir(run) / "artifacts" / name
+        save_pytorch_model(model, input_example, dest)
+        return dest.as_uri()
 
     # ------------------------------------------------------------------ reading
     def list_runs(self, experiment: str) -> list[RunInfo]:
@@ -162,12 +216,17 @@ class LocalTracker(Tracker):
             metrics=latest,
             artifact_uri=(run_dir / "artifacts").as_uri(),
             backend="local",
+            start_time_ms=rec.get("start_time_ms"),
+            end_time_ms=rec.get("end_time_ms"),
         )
 
-    def find_finished_run(self, experiment: str, run_key: str) -> RunInfo | None:
-        finished = [
+    def find_runs(
+        self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
+    ) -> list[RunInfo]:
+        found = [
             info
             for info in self.list_runs(experiment)
-            if info.status == RunStatus.FINISHED.value and info.tags.get(RUN_KEY_TAG) == run_key
+            if (run_key is None or info.tags.get(RUN_KEY_TAG) == run_key)
+            and (not statuses or info.status in statuses)
         ]
-        return finished[-1] if finished else None
+        return found[::-1]

@@ -16,20 +16,36 @@ mlflow is imported lazily (in the constructor), so importing this module costs n
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import time
 import urllib.error
 import urllib.request
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
-from benchmark.tracking.base import RUN_KEY_TAG, MetricPoint, Run, RunInfo, RunStatus, Tracker
+from benchmark.tracking.base import (
+    RUN_KEY_TAG,
+    DatasetRef,
+    MetricPoint,
+    Run,
+    RunInfo,
+    RunStatus,
+    Tracker,
+    TrackerSpec,
+)
 from benchmark.tracking.local import LocalTracker, _safe_dirname
 
+# Retries of a failed MLflow call before falling back (see MlflowTracker._guard).
+_RETRIES, _RETRY_PAUSE_S = 3, 0.3
 # MLflow's REST limits per log_batch request (mlflow.utils.validation).
 _MAX_METRICS, _MAX_PARAMS_TAGS, _MAX_ENTITIES = 1000, 100, 1000
+# A dataset input's digest is at most 36 characters (mlflow.utils.validation): the first 32 hex
+# digits of the manifest sha256 (128 bits); the full hash is the run tag dataset_manifest_sha256.
+_MAX_DIGEST = 32
 # A run_key goes into a search filter string: keep it to characters that need no quoting.
 _RUN_KEY_RE = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 # Shorter retries than MLflow's defaults (7 retries, 120 s timeout: minutes before giving up) so a
@@ -39,6 +55,12 @@ _HTTP_ENV_DEFAULTS = {
     "MLFLOW_HTTP_REQUEST_BACKOFF_FACTOR": "1",
     "MLFLOW_HTTP_REQUEST_TIMEOUT": "30",
 }
+
+
+def _is_connection_error(err: Exception) -> bool:
+    """A dead server (its client already retried): no point in retrying again."""
+    text = repr(err)
+    return any(s in text for s in ("Connection refused", "Max retries", "timed out", "Timeout"))
 
 
 class TrackingFallbackWarning(UserWarning):
@@ -108,6 +130,12 @@ class MlflowTracker(Tracker):
         except Exception as err:  # any store error: fall back, never abort the work
             self._switch_to_fallback(f"MLflow store {self.uri} cannot be opened ({err!r})")
 
+    def spec(self) -> TrackerSpec:
+        if self._fallback is not None:
+            return TrackerSpec("local", str(self.fallback_dir))
+        root = str(self.artifact_root) if self.artifact_root is not None else None
+        return TrackerSpec("mlflow", self.uri, root, str(self.fallback_dir))
+
     # ------------------------------------------------------------------ state
     @property
     def using_fallback(self) -> bool:
@@ -133,6 +161,13 @@ class MlflowTracker(Tracker):
         assert self._fallback is not None
         if run.run_id:
             run.tags["mlflow_run_id"] = run.run_id
+            if self._client is not None and not self._is_http:
+                # A local store still answers: do not leave a RUNNING husk there (a dead
+                # server cannot be told, and waiting for it would delay the work).
+                try:
+                    self._client.set_terminated(run.run_id, RunStatus.FAILED.value)
+                except Exception:  # best effort; the fallback has the record
+                    pass
         run.tags["tracking_fallback"] = reason[:500]
         run.run_id = self._fallback._create_run(run)
         sent = run.metrics[: len(run.metrics) - run._unsent]  # the unsent buffer comes later
@@ -141,18 +176,28 @@ class MlflowTracker(Tracker):
         for path, artifact_path in run.artifacts:
             if path.exists():
                 self._fallback._log_artifact(run, path, artifact_path)
+        if run.inputs:
+            self._fallback._log_inputs(run, run.inputs)
         if run.status is not RunStatus.RUNNING:
             self._fallback._end_run(run, run.status)
 
     def _guard(self, what: str, call, *args) -> bool:
         """Run an MLflow call; on failure switch to the fallback. The hand-over replays the full
-        record of every open run, so the failed call is not retried. True if MLflow took it."""
-        try:
-            call(*args)
-            return True
-        except Exception as err:
-            self._switch_to_fallback(f"MLflow call {what} failed ({err!r})")
-            return False
+        record of every open run, so the failed call is not retried then. True if MLflow took it.
+
+        A failure is first retried (``_RETRIES`` times, short pauses): processes writing to one
+        sqlite store at once can hit "database is locked" or a check-then-insert race (two
+        workers logging the same dataset: UNIQUE constraint failed); the retry then succeeds."""
+        for attempt in range(_RETRIES + 1):
+            try:
+                call(*args)
+                return True
+            except Exception as err:
+                if attempt == _RETRIES or (self._is_http and _is_connection_error(err)):
+                    self._switch_to_fallback(f"MLflow call {what} failed ({err!r})")
+                    return False
+                time.sleep(_RETRY_PAUSE_S * (attempt + 1))
+        return False
 
     # ------------------------------------------------------------------ experiments
     def _experiment_id(self, name: str) -> str:
@@ -188,7 +233,9 @@ class MlflowTracker(Tracker):
 
             def create() -> None:
                 exp_id = self._experiment_id(run.experiment)
-                created = self._client.create_run(exp_id, tags=tags, run_name=run.run_name)
+                created = self._client.create_run(
+                    exp_id, start_time=run.start_time_ms, tags=tags, run_name=run.run_name
+                )
                 run.run_id = created.info.run_id
 
             self._guard("create_run", create)  # on failure the hand-over sets run.run_id
@@ -207,12 +254,14 @@ class MlflowTracker(Tracker):
             return
         from mlflow.entities import Metric, Param, RunTag
 
-        m = [Metric(p.key, p.value, p.timestamp_ms, p.step) for p in metrics]
-        p = [Param(k, v) for k, v in params.items()]
-        t = [RunTag(k, v) for k, v in tags.items()]
+        metrics_all = [Metric(p.key, p.value, p.timestamp_ms, p.step) for p in metrics]
+        params_all = [Param(k, v) for k, v in params.items()]
+        tags_all = [RunTag(k, v) for k, v in tags.items()]
 
         def send() -> None:
-            # Chunk to MLflow's per-request limits; typically a single request.
+            # Chunk to MLflow's per-request limits; typically a single request. A retry (see
+            # _guard) resends everything: the chunks are cut from copies.
+            m, p, t = list(metrics_all), list(params_all), list(tags_all)
             while m or p or t:
                 cp, p[:] = p[:_MAX_PARAMS_TAGS], p[_MAX_PARAMS_TAGS:]
                 ct, t[:] = t[:_MAX_PARAMS_TAGS], t[_MAX_PARAMS_TAGS:]
@@ -239,18 +288,103 @@ class MlflowTracker(Tracker):
             if self._fallback is not None:
                 self._fallback._end_run(run, status)
             else:
-                self._guard("set_terminated", self._client.set_terminated, run.run_id, status.value)
+                self._guard(
+                    "set_terminated",
+                    self._client.set_terminated,
+                    run.run_id,
+                    status.value,
+                    run.end_time_ms,
+                )
         finally:
             if run in self._open:
                 self._open.remove(run)
 
-    # ------------------------------------------------------------------ lookup
-    def find_finished_run(self, experiment: str, run_key: str) -> RunInfo | None:
-        """Search MLflow first, then runs that an earlier invocation wrote to the fallback."""
-        if not _RUN_KEY_RE.match(run_key):
-            raise ValueError(f"run_key {run_key!r} must match {_RUN_KEY_RE.pattern}")
+    def _reopen_run(self, run: Run) -> None:
+        if self._fallback is not None:
+            self._fallback._reopen_run(run)
+            return
+        self._open.append(run)
+        self._guard("update_run", self._client.update_run, run.run_id, RunStatus.RUNNING.value)
+
+    def attach(self, info: RunInfo, *, reopen: bool = True) -> Run:
+        if info.backend == "local":  # found in the fallback directory by an earlier invocation
+            return LocalTracker(self.fallback_dir).attach(info, reopen=reopen)
+        return super().attach(info, reopen=reopen)
+
+    def _set_experiment_tags(self, experiment: str, tags: Mapping[str, str]) -> None:
+        if self._fallback is not None:
+            self._fallback._set_experiment_tags(experiment, tags)
+            return
+
+        def send() -> None:
+            exp_id = self._experiment_id(experiment)
+            for key, value in tags.items():
+                self._client.set_experiment_tag(exp_id, key, value)
+
+        if not self._guard("set_experiment_tag", send):
+            self._fallback._set_experiment_tags(experiment, tags)
+
+    def _log_inputs(self, run: Run, datasets: list[DatasetRef]) -> None:
+        if self._fallback is not None:
+            self._fallback._log_inputs(run, datasets)
+            return
+        from mlflow.data.meta_dataset import MetaDataset
+        from mlflow.data.sources import LocalArtifactDatasetSource
+        from mlflow.entities import DatasetInput, InputTag
+        from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
+
+        inputs = [
+            DatasetInput(
+                MetaDataset(
+                    LocalArtifactDatasetSource(d.source), name=d.name, digest=d.digest[:_MAX_DIGEST]
+                )._to_mlflow_entity(),
+                tags=[InputTag(MLFLOW_DATASET_CONTEXT, d.context)],
+            )
+            for d in datasets
+        ]
+        self._guard("log_inputs", self._client.log_inputs, run.run_id, inputs)
+
+    def _log_model(self, run: Run, model: object, input_example: object, name: str) -> str:
+        if self._fallback is not None:
+            return self._fallback._log_model(run, model, input_example, name)
+        from benchmark.tracking.models import log_pytorch_model
+
+        try:
+            return log_pytorch_model(model, input_example, run.run_id, self.uri, name)
+        except Exception as err:  # a model that cannot be logged must not stop the work
+            warnings.warn(f"could not log the model of run {run.run_name!r}: {err!r}", stacklevel=3)
+            return ""
+
+    @contextlib.contextmanager
+    def _system_metrics(self, run: Run, interval_s: float) -> Iterator[None]:
+        monitor = None
         if self._fallback is None:
-            found: list[RunInfo] = []
+            try:
+                from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
+
+                monitor = SystemMetricsMonitor(
+                    run.run_id, sampling_interval=interval_s, tracking_uri=self.uri
+                )
+                monitor.start()
+            except Exception as err:  # psutil missing, ...: train anyway
+                warnings.warn(f"no system metrics for run {run.run_name!r}: {err!r}", stacklevel=3)
+                monitor = None
+        try:
+            yield
+        finally:
+            if monitor is not None:
+                monitor.finish()
+
+    # ------------------------------------------------------------------ lookup
+    def find_runs(
+        self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
+    ) -> list[RunInfo]:
+        """MLflow's runs first (most recent first), then those an earlier invocation wrote to
+        the fallback directory."""
+        if run_key is not None and not _RUN_KEY_RE.match(run_key):
+            raise ValueError(f"run_key {run_key!r} must match {_RUN_KEY_RE.pattern}")
+        found: list[RunInfo] = []
+        if self._fallback is None:
 
             def search() -> None:
                 exp = self._client.get_experiment_by_name(experiment)
@@ -258,16 +392,19 @@ class MlflowTracker(Tracker):
                     return
                 runs = self._client.search_runs(
                     [exp.experiment_id],
-                    filter_string=f"tags.{RUN_KEY_TAG} = '{run_key}' "
-                    "and attributes.status = 'FINISHED'",
+                    filter_string=f"tags.{RUN_KEY_TAG} = '{run_key}'" if run_key else "",
                     order_by=["attributes.start_time DESC"],
-                    max_results=1,
+                    max_results=1000,
                 )
-                found.extend(self._info(r, experiment) for r in runs)
+                found.extend(
+                    self._info(r, experiment)
+                    for r in runs
+                    if not statuses or r.info.status in statuses
+                )
 
-            if self._guard("search_runs", search) and found:
-                return found[0]
-        return LocalTracker(self.fallback_dir).find_finished_run(experiment, run_key)
+            self._guard("search_runs", search)
+        local = LocalTracker(self.fallback_dir).find_runs(experiment, run_key, statuses)
+        return found + local
 
     @staticmethod
     def _info(run: Any, experiment: str) -> RunInfo:
@@ -281,4 +418,6 @@ class MlflowTracker(Tracker):
             metrics=dict(run.data.metrics),
             artifact_uri=run.info.artifact_uri or "",
             backend="mlflow",
+            start_time_ms=run.info.start_time,
+            end_time_ms=run.info.end_time,
         )
