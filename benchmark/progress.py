@@ -73,6 +73,12 @@ class Progress:
             self.postfix = postfix
         self._draw()
 
+    def status(self, text: str) -> None:
+        """Say what is being done now (the postfix) and draw at once, whatever ``log_every``:
+        for steps long enough that a silent bar would look stuck (a Table 6 measurement)."""
+        self.postfix = text
+        self._draw(force=True)
+
     def line(self) -> str:
         elapsed = time.monotonic() - self._start
         rate = self.rate

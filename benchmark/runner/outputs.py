@@ -10,7 +10,6 @@ column ``satellite`` says whether the row was measured with each pair's true sat
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import platform
 import time
@@ -19,13 +18,16 @@ from pathlib import Path
 import pandas as pd
 import torch
 
+from benchmark.progress import Progress
 from benchmark.runner.claims import Claim, evaluate_claims, render_claims
 from benchmark.runner.claims_ranking import ranking_markdown
+from benchmark.runner.costs import cost_table
 from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
 from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.findings import findings_markdown
 from benchmark.runner.frames import FrameStore
 from benchmark.runner.logbook import Logbook
+from benchmark.runner.partial import earlier_results, in_spec_order, merge_note
 from benchmark.runner.plan import Unit
 from benchmark.runner.profiles import ReproProfile
 from benchmark.runner.provenance_report import (
@@ -128,50 +130,6 @@ def constant_rows(
     return rows, frames
 
 
-def cost_table(
-    spec: TableSpec, profile: ReproProfile, input_size: int, logbook: Logbook | None
-) -> str:
-    """Table 6: size, MFLOPs and latency at the paper's configuration and at the profile's."""
-    from benchmark.models.info import model_info
-    from benchmark.runner.report import paper_value
-
-    paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
-    configs = [("paper config", 224, 1.0), (f"{profile.name} profile", input_size, profile.width)]
-    lines = [
-        f"## {spec.title}", "",
-        "Size = float32 parameters (4 bytes each, 1 MB = 1e6 bytes); FLOPs counted with "
-        "`torch.utils.flop_counter` (2 per multiply-add) for one pair at batch 1 in inference "
-        "(no auxiliary heads); latency = median of 10 CPU forward passes at batch 1 "
-        f"({torch.get_num_threads()} threads) on this machine.", "",
-        "| model | config | params | size MB paper | size MB ours | MFLOPs paper | MFLOPs ours | "
-        "of which dense layers | latency ms |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]  # fmt: skip
-    for v in spec.variants:
-        for name, size, width in configs:
-            info = model_info(head=v.attitude, variant=v.encoder_variant, width=width,
-                              input_size=size, translation=v.translation, repeats=10)  # fmt: skip
-            record = dataclasses.asdict(info)
-            if logbook is not None:
-                logbook.log_cost(spec.name, v.label, record)
-            ps = paper_value(paper, spec.paper_table, None, v.paper_model, "size_MB")
-            pf = paper_value(paper, spec.paper_table, None, v.paper_model, "MFLOPs")
-            lines.append(
-                f"| {v.label} | {name} ({size} px, width {width:g}) | {info.parameters:,} | "
-                f"{ps:.2f} | {info.size_mb:.2f} | {pf:.2f} | {info.mflops_inference:.1f} | "
-                f"{info.mflops_dense_inference:.1f} | {info.latency_ms:.1f} |"
-            )
-    note = (
-        "The paper does not say how it counts MFLOPs. Two 224 px GoogLeNet passes cost about "
-        "3.2 G multiply-adds (6.3 GFLOPs) by any count, so its 24.43 and 90.96 MFLOPs cannot be "
-        "full forward passes; our fully connected layers alone come close to them (Re-Net 25.2 vs "
-        "24.43 at the paper config), so Table 6 most likely counts the dense layers only. The "
-        "sizes match ours within 1% (the lattice decoder width, unpublished, was chosen for that)."
-    )
-    lines += ["", note]
-    return "\n".join(lines) + "\n"
-
-
 def write_reports(
     specs: list[TableSpec],
     units: list[Unit],
@@ -182,13 +140,23 @@ def write_reports(
     logbook: Logbook | None,
     invocations: list[dict] | None = None,
     workdir: Path | None = None,
+    quiet: bool = False,
+    remeasure_costs: bool = False,
 ) -> list[Path]:
     """Write every report file under ``out``; return their paths.
 
     ``workdir`` (the reproduction's, holding ``units/<key>/``) gives the per-frame predictions
-    for the flight x seed bootstrap intervals and the per-unit digests of ``provenance.md``.
-    Without it the cells keep the Student-t interval over seeds and the provenance records the
-    dataset and software only (it says so)."""
+    for the flight x seed bootstrap intervals and the per-unit digests of ``provenance.md``, and
+    holds the Table 6 cache (``costs/``; ``remeasure_costs`` measures again). Without it the cells
+    keep the Student-t interval over seeds and the provenance records the dataset and software
+    only (it says so).
+
+    A reproduction of some tables only (``--only``) merges with what an earlier one wrote to
+    ``out``: :func:`earlier_results` keeps the other tables' ``results.csv`` rows (when their
+    units are those this dataset and profile plan and, given ``workdir``, their predictions are
+    still there), the claims are decided again on all of them, and ``README.md`` is regenerated
+    from the merged results. The other tables' Markdown files are left as they were.
+    A progress line (stderr, unless ``quiet``) names the table being written."""
     out.mkdir(parents=True, exist_ok=True)
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
     frame = results_frame(units, results)
@@ -196,7 +164,11 @@ def write_reports(
     val = frame[frame["role"] == "val"] if len(frame) else frame
     val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
     baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
-    everything = pd.concat([frame, pd.DataFrame(baseline_rows)], ignore_index=True)
+    kept, kept_specs, kept_units = earlier_results(out, specs, profile, data_root, workdir)
+    everything = pd.concat(
+        [x for x in (frame, pd.DataFrame(baseline_rows), kept) if len(x)] or [frame],
+        ignore_index=True,
+    )
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
@@ -204,33 +176,49 @@ def write_reports(
     show_val = bool(len(frame) and (frame["role"] == "val").any())
     summaries: dict[str, pd.DataFrame] = {}
     input_size = _input_size(data_root)
+    cost_cache = Path(workdir) / "costs" if workdir is not None else None
 
     def resolve(part: pd.DataFrame) -> dict | None:
         return cell_interval(part, metrics, workdir, constant_frames)
 
-    for spec in specs:
-        part = everything[everything["table"] == spec.name] if len(everything) else everything
-        summary = summarize(part, metrics, resolve) if len(part) else pd.DataFrame()
-        summaries[spec.name] = summary
-        md_path = out / f"{spec.name}.md"
-        paths = [md_path]
-        if spec.kind == "table":
-            text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val)
-            text += extra_metrics_table(spec, summary, EXTRA_METRICS)
-        elif spec.kind == "sweep":
-            text = sweep_table(spec, summary, show_val)
-            if len(summary):
-                png = out / f"{spec.name}.png"
-                sweep_figure(spec, summary, png, per_seed=part)
-                paths.append(png)
-                text += f"\n![{spec.name}]({png.name})\n"
-        else:
-            text = cost_table(spec, profile, input_size, logbook)
-        md_path.write_text(text)
-        written += paths
-        if logbook is not None:
-            logbook.log_table_outputs(spec.name, paths)
-    findings_md, claims_md, claims = _claims_section(summaries, units, data_root, workdir)
+    def summary_of(name: str) -> pd.DataFrame:
+        part = everything[everything["table"] == name] if len(everything) else everything
+        return summarize(part, metrics, resolve) if len(part) else pd.DataFrame()
+
+    bar = Progress(len(specs) + 1, "report", unit="item", enabled=not quiet)
+    with bar:
+        for spec in specs:
+            bar.update(0, postfix=f"writing {spec.name}")
+            part = everything[everything["table"] == spec.name] if len(everything) else everything
+            summary = summaries[spec.name] = summary_of(spec.name)
+            md_path = out / f"{spec.name}.md"
+            paths = [md_path]
+            if spec.kind == "table":
+                text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val)
+                text += extra_metrics_table(spec, summary, EXTRA_METRICS)
+            elif spec.kind == "sweep":
+                text = sweep_table(spec, summary, show_val)
+                if len(summary):
+                    png = out / f"{spec.name}.png"
+                    sweep_figure(spec, summary, png, per_seed=part)
+                    paths.append(png)
+                    text += f"\n![{spec.name}]({png.name})\n"
+            else:
+                text = cost_table(
+                    spec, profile, input_size, logbook, cost_cache, remeasure_costs, bar
+                )
+            md_path.write_text(text)
+            written += paths
+            if logbook is not None:
+                logbook.log_table_outputs(spec.name, paths)
+            bar.update(1, postfix=f"wrote {spec.name}")
+        for spec in kept_specs:  # the earlier tables: their verdicts count too
+            summaries[spec.name] = summary_of(spec.name)
+        bar.status("deciding the claims (paired flight x seed bootstrap)")
+        findings_md, claims_md, claims = _claims_section(
+            summaries, [*units, *kept_units], data_root, workdir
+        )
+        bar.update(1, postfix="claims decided")
     for spec in specs:  # which representation wins, in the ranked table's own section
         section = ranking_markdown(claims, spec.name)
         if section:
@@ -239,11 +227,16 @@ def write_reports(
     audit_md, audit_rows = heading_cue_report(data_root)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
-    record = collect_provenance(units, results, data_root, workdir)
+    kept_results = {u.key: UnitResult(u.key, True) for u in kept_units if u.key not in results}
+    record = collect_provenance(
+        [*units, *kept_units], {**kept_results, **results}, data_root, workdir
+    )
     written += write_provenance(record, out)
     readme = out / "README.md"
     audit = heading_cue_summary(audit_rows)
-    text = _readme(profile, specs, findings_md, claims_md, invocations or [], audit)
+    listed = in_spec_order([*specs, *kept_specs])
+    text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit)
+    text += merge_note(specs, kept_specs)
     readme.write_text(text + provenance_summary(record))
     written.append(readme)
     return written

@@ -8,6 +8,7 @@ and, in the plot, each seed's own value beside the band of the interval.
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +27,54 @@ from benchmark.runner.report import (
 )
 from benchmark.runner.specs import TableSpec
 
+# Axis labels of the sweep variables (``sweep:`` in a spec); others by :func:`sweep_label`'s rule.
+SWEEP_LABELS: dict[str, str] = {
+    "sat_height_m": "satellite image height above ground (m)",
+    "pitch_bin_deg": "UAV pitch bin (°; satellite camera at -90°)",
+    "kappa": "vMF concentration κ",
+    "encoder_variant": "encoder variant",
+}
+# Fig. 9's encoder variants, spelled out on the ticks.
+VARIANT_NAMES: dict[str, str] = {"/": "plain", "a": "attention", "f": "fusion", "a-f": "AGTFM"}
+UNITS: dict[str, str] = {"m": "m", "deg": "°", "s": "s", "px": "px"}
+_RANGE = re.compile(r"(-?\d+(?:\.\d+)?)to(-?\d+(?:\.\d+)?)")
+
+
+def sweep_label(sweep: str | None) -> str:
+    """A readable axis label for the sweep variable: :data:`SWEEP_LABELS`, else the column name
+    with underscores as spaces and a unit suffix (``_m``, ``_deg``, ...) in brackets
+    (``tilt_deg -> 'tilt (°)'``)."""
+    if not sweep:
+        return "sweep value"
+    if sweep in SWEEP_LABELS:
+        return SWEEP_LABELS[sweep]
+    stem, _, suffix = sweep.rpartition("_")
+    if stem and suffix in UNITS:
+        return f"{stem.replace('_', ' ')} ({UNITS[suffix]})"
+    return sweep.replace("_", " ")
+
+
+def sweep_tick(sweep: str | None, value: object) -> str:
+    """A readable sweep value: a bin ``0to-10`` of a ``*_deg`` sweep reads ``0 to -10°``, an
+    encoder variant ``a-f`` reads ``a-f (AGTFM)``; anything else as written in the spec."""
+    text = str(value)
+    if sweep == "encoder_variant" and text in VARIANT_NAMES:
+        return f"{text} ({VARIANT_NAMES[text]})"
+    match = _RANGE.fullmatch(text.replace(" ", ""))
+    if match:
+        suffix = (sweep or "").rpartition("_")[2]
+        unit = UNITS.get(suffix, "")
+        unit = unit if unit == "°" or not unit else f" {unit}"
+        return f"{match[1]} to {match[2]}{unit}"
+    return text
+
+
+def series_label(label: str, split: str, split_follows_x: bool) -> str:
+    """The legend entry of one line: the model, and the test split when it does not change
+    along the sweep (``Pd/Re-Net on standard/test``); a split that follows the sweep value
+    (Fig. 5's ``height{x}/test``) is the x axis itself, so the legend names the model only."""
+    return label if split_follows_x else f"{label} on {split}"
+
 
 def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = None) -> str:
     """Markdown for a figure: one row per (split, variant, x), with validation columns as in
@@ -40,7 +89,7 @@ def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = 
     val_splits = val_splits_of(summary)
     if vals:
         lines += [val_note(val_splits), ""]
-    header = ["split", "model", spec.sweep or "x"]
+    header = ["split", "model", sweep_label(spec.sweep)]
     for m in spec.metrics:
         header += [METRIC_LABELS.get(m, m)] + ([f"{METRIC_LABELS.get(m, m)} val"] * (m in vals))
     header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
@@ -49,7 +98,7 @@ def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = 
     if "role" in true:
         true = true[true["role"].fillna("test") == "test"]
     for _, r in true.iterrows():
-        cells = [f"`{r['split']}`", str(r["label"]), str(r["x"])]
+        cells = [f"`{r['split']}`", str(r["label"]), sweep_tick(spec.sweep, r["x"])]
         train = str(r.get("train_split"))
         val = pick_val(summary, str(r["label"]), train, r["x"]) if vals else None
         for m in spec.metrics:
@@ -100,7 +149,8 @@ def sweep_figure(
             xs = part["_pos"].to_numpy()
             ys = part[m].to_numpy(dtype=float)
             lo, hi = part[f"{m}_lo"].to_numpy(dtype=float), part[f"{m}_hi"].to_numpy(dtype=float)
-            line = ax.plot(xs, ys, marker="o", label=f"{label} [{split}]")[0]
+            name = series_label(str(label), str(split), split_follows_x)
+            line = ax.plot(xs, ys, marker="o", label=name)[0]
             if np.isfinite(lo).any():
                 ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.2)
             if seed_series is not None and m in seed_series:
@@ -108,10 +158,12 @@ def sweep_figure(
                     (seed_series["label"] == label) & (seed_series["series"] == split)
                 ]
                 ax.scatter(own["_pos"], own[m], s=9, color=line.get_color(), alpha=0.6, zorder=3)
+        ticks = [sweep_tick(spec.sweep, x) for x in spec.sweep_values]
+        turn = max(map(len, ticks)) > 5  # long labels would overlap: turn them, anchored right
         ax.set_xticks(
-            range(len(spec.sweep_values)), [str(x) for x in spec.sweep_values], rotation=30
+            range(len(ticks)), ticks, rotation=25 if turn else 0, ha="right" if turn else "center"
         )
-        ax.set_xlabel(spec.sweep or "x")
+        ax.set_xlabel(sweep_label(spec.sweep), fontsize=8)
         ax.set_title(METRIC_LABELS.get(m, m))
         ax.grid(alpha=0.3)
     for ax in list(axes.flat)[len(metrics) :]:

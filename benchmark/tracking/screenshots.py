@@ -1,0 +1,183 @@
+"""Screenshots of the MLflow UI with headless Chromium (``uavbench ui --screenshots DIR``).
+
+Three pages, each in the classic Runs view (see ``benchmark.tracking.ui`` on
+``?workflowType=machine_learning``): the experiment list (``experiments.png``), one experiment's
+runs table (``runs.png``: the experiment of Table 1 when the store has one, else the first) and
+the page of one of its training runs (``run.png``: a finished nested run, i.e. a table row, when
+there is one). Chromium is found on the ``PATH`` (``chromium``, ``chromium-browser``,
+``google-chrome``) or given by ``UAVBENCH_CHROMIUM``; Debian: ``apt-get install -y chromium``.
+
+Each screenshot runs a fresh Chromium (its own empty ``--user-data-dir``, so no stored UI mode
+leaks in) with the flags a closed network needs (no background networking, component updates,
+sync or QUIC) and ``--virtual-time-budget``: virtual time stands still while requests are pending,
+so the budget lets the UI's JavaScript fetch and render before the picture is taken. A PNG with
+almost one colour (a blank page) is an error, not a screenshot.
+
+MLflow 3.17 opens its "MLflow Assistant" chat panel on the first visit of a browser profile to a
+server addressed as ``localhost``/``127.0.0.1`` (``isLocalServer``), and a fresh profile is a first
+visit every time: the panel would cover a third of each picture. When ``uavbench ui`` starts the
+server itself, Chromium therefore reaches it under the name :data:`ALIAS_HOST`, mapped to
+127.0.0.1 by ``--host-resolver-rules``, and the server is told to accept that name
+(:func:`alias_env`: MLflow's DNS-rebinding and CORS checks otherwise refuse a Host other than
+localhost). The pages are the same; a user who closes the panel once sees them so too.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from benchmark.tracking.ui import experiment_url, experiments_url, list_experiments, run_url
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",  # running as root (CI, these machines)
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--hide-scrollbars",
+)
+ALIAS_HOST = "uavbench-ui"  # the name Chromium uses for 127.0.0.1 (see the module docstring)
+WINDOW = (1600, 1000)  # px, width x height
+BUDGET_MS = 20_000  # virtual time for the UI to fetch and render
+MIN_COLOURS = 16  # a rendered MLflow page has hundreds; a blank one 1-3
+
+
+def find_chromium() -> str | None:
+    """The Chromium binary: ``UAVBENCH_CHROMIUM`` if set, else the first of
+    :data:`CHROMIUM_NAMES` on the ``PATH``; None when there is none."""
+    explicit = os.environ.get("UAVBENCH_CHROMIUM")
+    if explicit:
+        return explicit
+    return next((path for name in CHROMIUM_NAMES if (path := shutil.which(name))), None)
+
+
+def alias_env(port: int, host: str = ALIAS_HOST) -> dict[str, str]:
+    """Environment for an MLflow server on 127.0.0.1:``port`` that must also answer requests
+    addressed to ``host:port`` (its Host header and, for the UI's POST requests, its Origin)."""
+    hosts = [f"{h}:{port}" for h in ("localhost", "127.0.0.1", host)] + ["localhost", "127.0.0.1"]
+    return {
+        "MLFLOW_SERVER_ALLOWED_HOSTS": ",".join(hosts),
+        "MLFLOW_SERVER_CORS_ALLOWED_ORIGINS": f"http://{host}:{port}",
+    }
+
+
+def chromium_command(
+    binary: str,
+    url: str,
+    png: Path,
+    user_data_dir: Path,
+    window: tuple[int, int] = WINDOW,
+    budget_ms: int = BUDGET_MS,
+    alias: str | None = None,
+) -> list[str]:
+    """The command line that renders ``url`` into ``png`` (``window`` px, width x height);
+    ``alias``: a host name Chromium resolves to 127.0.0.1."""
+    rules = [f"--host-resolver-rules=MAP {alias} 127.0.0.1"] if alias else []
+    return [
+        binary,
+        *CHROMIUM_FLAGS,
+        *rules,
+        f"--user-data-dir={user_data_dir}",
+        f"--window-size={window[0]},{window[1]}",
+        f"--virtual-time-budget={int(budget_ms)}",
+        f"--screenshot={png}",
+        url,
+    ]
+
+
+def count_colours(png: Path) -> int:
+    """Distinct RGB colours in ``png`` (0 when it does not decode)."""
+    import cv2
+    import numpy as np
+
+    image = cv2.imread(str(png), cv2.IMREAD_COLOR)  # (H, W, 3) uint8 BGR, None if unreadable
+    if image is None:
+        return 0
+    packed = image.astype(np.uint32) @ np.array([1 << 16, 1 << 8, 1], dtype=np.uint32)
+    return int(np.unique(packed).size)
+
+
+def screenshot(
+    url: str,
+    png: Path,
+    binary: str,
+    window: tuple[int, int] = WINDOW,
+    budget_ms: int = BUDGET_MS,
+    timeout_s: float = 180.0,
+    alias: str | None = None,
+) -> Path:
+    """Render ``url`` into ``png`` with a fresh headless Chromium; RuntimeError when Chromium
+    fails, writes nothing, or the page is blank (fewer than :data:`MIN_COLOURS` colours)."""
+    png = Path(png).resolve()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    png.unlink(missing_ok=True)
+    with tempfile.TemporaryDirectory(prefix="uavbench-chromium-") as profile:
+        cmd = chromium_command(binary, url, png, Path(profile), window, budget_ms, alias)
+        try:
+            done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise RuntimeError(f"chromium did not finish {url} within {timeout_s:.0f} s") from None
+    if not png.is_file() or png.stat().st_size == 0:
+        tail = "\n".join(done.stderr.splitlines()[-10:])
+        raise RuntimeError(
+            f"chromium wrote no screenshot of {url} (exit {done.returncode}):\n{tail}"
+        )
+    colours = count_colours(png)
+    if colours < MIN_COLOURS:
+        raise RuntimeError(f"{png}: a blank page ({colours} colours) for {url}")
+    return png
+
+
+def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str]]:
+    """``(file name, URL)`` of the three pages: experiment list, one experiment's runs table,
+    one run. RuntimeError when the store has no experiment with runs."""
+    from mlflow.tracking import MlflowClient
+
+    experiments = [e for e in list_experiments(tracking_uri) if e[1] != "Default"]
+    if not experiments:
+        raise RuntimeError(f"no experiment in {tracking_uri}: nothing to show")
+    preferred = [e for e in experiments if e[1].endswith("/table1")]
+    eid = (preferred or experiments)[0][0]
+    client = MlflowClient(tracking_uri=tracking_uri)
+    runs = client.search_runs([eid], order_by=["attributes.start_time ASC"], max_results=200)
+    if not runs:
+        raise RuntimeError(f"experiment {eid} of {tracking_uri} has no runs: nothing to show")
+    # A table row (a nested, finished run) rather than the invocation's parent.
+    nested = [
+        r for r in runs if "mlflow.parentRunId" in r.data.tags and r.info.status == "FINISHED"
+    ]
+    run = (nested or runs)[0]
+    return [
+        ("experiments.png", experiments_url(base_url)),
+        ("runs.png", experiment_url(base_url, eid)),
+        ("run.png", run_url(base_url, eid, run.info.run_id)),
+    ]
+
+
+def take_screenshots(
+    base_url: str, tracking_uri: str, out_dir: Path, alias: str | None = None
+) -> list[Path]:
+    """Screenshots of :func:`pick_pages` into ``out_dir``; RuntimeError without Chromium.
+    ``alias``: reach the server (on 127.0.0.1) under this name (see the module docstring)."""
+    binary = find_chromium()
+    if binary is None:
+        raise RuntimeError(
+            "no Chromium found (looked for UAVBENCH_CHROMIUM, then "
+            f"{', '.join(CHROMIUM_NAMES)} on the PATH); on Debian: apt-get install -y chromium"
+        )
+    if alias:
+        parts = urlsplit(base_url)
+        base_url = f"{parts.scheme}://{alias}:{parts.port}"
+    return [
+        screenshot(url, Path(out_dir) / name, binary, alias=alias)
+        for name, url in pick_pages(base_url, tracking_uri)
+    ]
