@@ -24,7 +24,9 @@ localhost). The pages are the same; a user who closes the panel once sees them s
 
 from __future__ import annotations
 
+import html
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -73,15 +75,17 @@ def alias_env(port: int, host: str = ALIAS_HOST) -> dict[str, str]:
 def chromium_command(
     binary: str,
     url: str,
-    png: Path,
     user_data_dir: Path,
+    png: Path | None = None,
     window: tuple[int, int] = WINDOW,
     budget_ms: int = BUDGET_MS,
     alias: str | None = None,
 ) -> list[str]:
-    """The command line that renders ``url`` into ``png`` (``window`` px, width x height);
-    ``alias``: a host name Chromium resolves to 127.0.0.1."""
+    """The command line that renders ``url`` (``window`` px, width x height) into ``png``, or
+    with ``png`` None prints its DOM (``--dump-dom``); ``alias``: a host name Chromium resolves
+    to 127.0.0.1."""
     rules = [f"--host-resolver-rules=MAP {alias} 127.0.0.1"] if alias else []
+    output = f"--screenshot={png}" if png is not None else "--dump-dom"
     return [
         binary,
         *CHROMIUM_FLAGS,
@@ -89,7 +93,7 @@ def chromium_command(
         f"--user-data-dir={user_data_dir}",
         f"--window-size={window[0]},{window[1]}",
         f"--virtual-time-budget={int(budget_ms)}",
-        f"--screenshot={png}",
+        output,
         url,
     ]
 
@@ -121,7 +125,7 @@ def screenshot(
     png.parent.mkdir(parents=True, exist_ok=True)
     png.unlink(missing_ok=True)
     with tempfile.TemporaryDirectory(prefix="uavbench-chromium-") as profile:
-        cmd = chromium_command(binary, url, png, Path(profile), window, budget_ms, alias)
+        cmd = chromium_command(binary, url, Path(profile), png, window, budget_ms, alias)
         try:
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -137,9 +141,19 @@ def screenshot(
     return png
 
 
-def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str]]:
-    """``(file name, URL)`` of the three pages: experiment list, one experiment's runs table,
-    one run. RuntimeError when the store has no experiment with runs."""
+def page_title(url: str, binary: str, alias: str | None = None, budget_ms: int = BUDGET_MS) -> str:
+    """The ``<title>`` of ``url`` once its JavaScript has rendered (``--dump-dom``): MLflow names
+    the view there (``Runs - Experiment 3 - MLflow``; the GenAI view ``Overview - ...``)."""
+    with tempfile.TemporaryDirectory(prefix="uavbench-chromium-") as profile:
+        cmd = chromium_command(binary, url, Path(profile), None, WINDOW, budget_ms, alias)
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    match = re.search(r"<title>([^<]*)</title>", done.stdout)
+    return html.unescape(match[1]) if match else ""
+
+
+def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str, str]]:
+    """``(file name, URL, expected title prefix)`` of the three pages: experiment list, one
+    experiment's runs table, one run. RuntimeError when the store has no experiment with runs."""
     from mlflow.tracking import MlflowClient
 
     experiments = [e for e in list_experiments(tracking_uri) if e[1] != "Default"]
@@ -157,16 +171,17 @@ def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str]]:
     ]
     run = (nested or runs)[0]
     return [
-        ("experiments.png", experiments_url(base_url)),
-        ("runs.png", experiment_url(base_url, eid)),
-        ("run.png", run_url(base_url, eid, run.info.run_id)),
+        ("experiments.png", experiments_url(base_url), "Experiments - MLflow"),
+        ("runs.png", experiment_url(base_url, eid), f"Runs - Experiment {eid} "),
+        ("run.png", run_url(base_url, eid, run.info.run_id), f"Run {run.info.run_id} "),
     ]
 
 
 def take_screenshots(
     base_url: str, tracking_uri: str, out_dir: Path, alias: str | None = None
 ) -> list[Path]:
-    """Screenshots of :func:`pick_pages` into ``out_dir``; RuntimeError without Chromium.
+    """Screenshots of :func:`pick_pages` into ``out_dir``, each after checking (by the page's
+    title) that the UI opened the view it should; RuntimeError without Chromium or when not.
     ``alias``: reach the server (on 127.0.0.1) under this name (see the module docstring)."""
     binary = find_chromium()
     if binary is None:
@@ -177,7 +192,11 @@ def take_screenshots(
     if alias:
         parts = urlsplit(base_url)
         base_url = f"{parts.scheme}://{alias}:{parts.port}"
-    return [
-        screenshot(url, Path(out_dir) / name, binary, alias=alias)
-        for name, url in pick_pages(base_url, tracking_uri)
-    ]
+    paths = []
+    for name, url, expected in pick_pages(base_url, tracking_uri):
+        # The view first: a GenAI overview would be a screenshot of the wrong page.
+        title = page_title(url, binary, alias)
+        if not title.startswith(expected):
+            raise RuntimeError(f"{url} opened {title!r}, expected a page titled {expected!r}...")
+        paths.append(screenshot(url, Path(out_dir) / name, binary, alias=alias))
+    return paths
