@@ -284,10 +284,11 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return plain(cfg)
 
 
-def flatten(cfg: Any, sep: str = ".") -> dict[str, Any]:
+def flatten(cfg: Any, sep: str = ".", *, drop_none: bool = False) -> dict[str, Any]:
     """``{"optim.lr": 0.001, "data.size": [96, 96] -> "(96, 96)"}``: scalar values only.
 
-    Sequences become their string form so MLflow shows them in one param.
+    Sequences become their string form so MLflow shows them in one param. ``drop_none``: leave
+    out the fields that are ``None`` (unset), so a tracker shows no ``None`` param.
     """
     out: dict[str, Any] = {}
 
@@ -297,7 +298,7 @@ def flatten(cfg: Any, sep: str = ".") -> dict[str, Any]:
                 walk(f"{prefix}{sep}{k}" if prefix else k, x)
         elif isinstance(v, list):
             out[prefix] = "(" + ", ".join(str(x) for x in v) + ")"
-        else:
+        elif v is not None or not drop_none:
             out[prefix] = v
 
     walk("", to_dict(cfg))

@@ -7,17 +7,26 @@ evaluated split and satellite mode (``eval/standard__test.csv``, ``eval/standard
 keys :func:`eval_key`: ``standard/test`` and ``standard/test/swap``), ``history.json`` and
 ``config.yaml``. A unit whose files are complete costs nothing to "run" again, so an interrupted
 reproduction resumes where it stopped.
+
+Live tracking (:class:`UnitTracking`): the worker opens the unit's training run when training
+starts (``benchmark.runner.live.open_unit_run``: a FINISHED run of the unit is reused, an
+interrupted one continues), logs each epoch's metrics as it ends, system metrics while it trains,
+then the evaluations, the dataset inputs and the model, and closes the run when evaluation ends,
+so its duration is the real one. Pool workers ignore SIGINT: on Ctrl-C the parent stops them and
+marks their runs KILLED, so the terminal shows one message, not a traceback per worker.
 """
 
 from __future__ import annotations
 
 import os
+import signal
 import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.data.swap import SATELLITE_MODES
+from benchmark.runner.live import UnitTracking, open_unit_run, track_unit
 from benchmark.training.config import TrainConfig
 from benchmark.training.pipeline import (
     EVAL_BATCH,
@@ -33,6 +42,7 @@ __all__ = [
     "SWAP_SUFFIX",
     "UnitResult",
     "UnitTask",
+    "UnitTracking",
     "eval_key",
     "eval_keys",
     "run_unit",
@@ -48,6 +58,7 @@ class UnitTask:
     eval_splits: list[str]
     unit_dir: Path
     eval_batch: int = EVAL_BATCH
+    tracking: UnitTracking | None = None  # None: nothing is logged from the worker
 
 
 @dataclass
@@ -59,6 +70,10 @@ class UnitResult:
     predictions: dict[str, str] = field(default_factory=dict)  # eval_key -> CSV path
     seconds: float = 0.0
     error: str = ""
+    run_id: str = ""  # the unit's training run ("" without tracking)
+    started_ms: int | None = None  # when its training started / evaluation ended (epoch ms);
+    ended_ms: int | None = None  # a reused run gives its own times
+    model_uri: str = ""
 
 
 def _die_with_parent() -> None:
@@ -78,6 +93,9 @@ def worker_init() -> None:
     """One thread per worker process: two processes computing at once on two cores with two
     threads each ran up to 90x slower here."""
     _die_with_parent()
+    # Ctrl-C reaches the whole process group; the parent alone handles it (stops the workers,
+    # marks their runs KILLED), so workers print no KeyboardInterrupt traceback.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
         os.environ[var] = "1"
     import torch
@@ -96,7 +114,30 @@ def run_unit(task: UnitTask) -> UnitResult:
 
 
 def _run_unit(task: UnitTask, start: float) -> UnitResult:
-    done = train_and_evaluate(task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch)
+    if task.tracking is None:
+        done = train_and_evaluate(
+            task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch
+        )
+        return _result(task, done, start)
+    run, reused = open_unit_run(task.tracking)
+    if reused is not None:  # a FINISHED run of this unit: compute (or read) the numbers only
+        done = train_and_evaluate(
+            task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch
+        )
+        result = _result(task, done, start)
+        result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
+        result.started_ms, result.ended_ms = reused.start_time_ms, reused.end_time_ms
+        return result
+    with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (jobs == 1)
+        done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
+                                     task.eval_batch)  # fmt: skip
+    result = _result(task, done, start)
+    result.run_id, result.model_uri = run.run_id, model_uri
+    result.started_ms, result.ended_ms = run.start_time_ms, run.end_time_ms
+    return result
+
+
+def _result(task: UnitTask, done, start: float) -> UnitResult:
     return UnitResult(
         task.key,
         True,

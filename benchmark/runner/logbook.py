@@ -1,30 +1,48 @@
-"""Log a reproduction to a tracker: one experiment per table or figure, a parent run per
-invocation in each, a nested run per (variant, sweep value, seed).
+"""Log a reproduction to a tracker.
 
-Each nested run carries the flattened train config as params, the per-epoch training history as
-metrics (sent in batches), the evaluation summary of each split as ``<split>/<metric>``, the
-predictions CSVs and the config as artifacts, and the tags of the trained model
-(``benchmark.training.identity.run_tags``, the tags ``uavbench train`` sets: ``model_key`` = the
-unit key, heads, head options and versions, encoder, seed, dataset) plus table, label, sweep value,
-git commit and ``run_key`` (the job's key). :meth:`Logbook.finished` finds a job's finished run so a
-second invocation neither retrains nor logs it again.
+Two kinds of runs, so the heavy data is stored once:
+
+- **training runs** (experiment ``uavbench-<profile>/training``): one per unit (trained model),
+  opened by the worker when its training starts and closed when its evaluation ends
+  (``benchmark.runner.live``): per-epoch curves, system metrics, the dataset input, every split's
+  numbers, the predictions and the logged model;
+- **table rows** (experiment ``uavbench-<profile>/<table>``, one per table or figure): one parent
+  run per reproduction (reused by the next invocation: tagged ``run_key = reproduce-<hash of
+  profile, dataset, table>``) and under it one run per (row, sweep value, seed), with the real
+  start and end of its unit's training, the flattened train config as params, the headline
+  metrics (``test_*`` on the row's first test split, ``val_*`` on the validation split) beside
+  every split's numbers (``<split>/<metric>``), the dataset input of the test split, the model's
+  tags (``benchmark.training.identity.run_tags``, as ``uavbench train`` sets them) and
+  ``training_run_id`` / ``model_uri`` pointing at the training run.
+
+Every experiment is tagged ``mlflow.experimentKind = custom_model_development`` and described
+(``benchmark.runner.descriptions``); every run has a description. :meth:`Logbook.finished` finds
+a row's finished run, so a second invocation neither retrains nor logs it again; Table 6 rows are
+keyed by a hash of their content and logged once.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import time
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
 from benchmark.config import flatten
-from benchmark.runner.execute import eval_keys
+from benchmark.runner import descriptions
+from benchmark.runner.execute import UnitResult, eval_keys
+from benchmark.runner.live import UnitTracking
 from benchmark.runner.plan import Unit, job_key
-from benchmark.runner.specs import Job
-from benchmark.tracking import RUN_KEY_TAG, Run, RunStatus, Tracker
+from benchmark.runner.specs import Job, TableSpec
+from benchmark.tracking import RUN_KEY_TAG, DatasetRef, Run, RunStatus, Tracker
 from benchmark.training.identity import run_tags
 
 SECONDS_METRIC = "unit_seconds"  # wall time of the unit's training + evaluation in its worker
+# The headline metrics of a row, prefixed test_ / val_ (the paper's columns).
+HEADLINE = ("dphi_deg", "dpsi_deg", "dtheta_deg", "dgamma_deg", "dE_m", "dN_m", "dU_m")
 
 
 def experiment_name(profile: str, table: str) -> str:
@@ -36,23 +54,124 @@ def run_name(job: Job, seed: int) -> str:
     return f"{job.label}{x} seed {seed}"
 
 
+def headline_metrics(metrics: dict[str, dict[str, float]], test: str, val: str | None) -> dict:
+    """``test_dphi_deg``... from split ``test``'s summary, ``val_...`` from ``val``'s."""
+    out: dict[str, float] = {}
+    for prefix, split in (("test", test), ("val", val)):
+        summary = metrics.get(split or "", {})
+        out.update({f"{prefix}_{m}": summary[m] for m in HEADLINE if _finite(summary.get(m))})
+    return out
+
+
 class Logbook:
-    def __init__(self, tracker: Tracker, profile: str, provenance: dict[str, str]) -> None:
+    def __init__(
+        self,
+        tracker: Tracker,
+        profile: str,
+        provenance: dict[str, str],
+        *,
+        specs: Iterable[TableSpec] = (),
+        data_root: Path | None = None,
+    ) -> None:
         self.tracker = tracker
         self.profile = profile
-        self.provenance = provenance  # git commit, dataset manifest hash, ...
+        self.provenance = {k: v for k, v in provenance.items() if v}  # git commit, dataset hash
+        self.specs = {spec.name: spec for spec in specs}
+        self.data_root = Path(data_root).resolve() if data_root is not None else None
         self.parents: dict[str, Run] = {}
+        self._described: set[str] = set()
+        self.started_ms = int(time.time() * 1000)  # a new parent run starts with the invocation
+
+    # ------------------------------------------------------------------ experiments
+    def _describe(self, table: str) -> None:
+        if table in self._described:
+            return
+        self._described.add(table)
+        if table == descriptions.UNITS_TABLE:
+            text = descriptions.units_experiment(self.profile)
+        elif table in self.specs:
+            text = descriptions.table_experiment(self.specs[table], self.profile)
+        else:
+            text = f"Table `{table}` of the `{self.profile}` reproduction."
+        self.tracker.describe_experiment(
+            experiment_name(self.profile, table), text, {"profile": self.profile}
+        )
+
+    def _dataset(self, context: str) -> DatasetRef | None:
+        digest = self.provenance.get("dataset_manifest", "")
+        if self.data_root is None or not digest:
+            return None
+        return DatasetRef(self.data_root.name, digest, str(self.data_root), context)
 
     def parent(self, table: str) -> Run:
-        """The invocation's parent run in the table's experiment (started on first use)."""
+        """This reproduction's parent run in the table's experiment: the one an earlier
+        invocation of the same profile, dataset and table made (reopened), or a new one."""
         if table not in self.parents:
-            self.parents[table] = self.tracker.start_run(
-                experiment_name(self.profile, table),
-                f"reproduce {self.profile}",
-                tags={"table": table, "profile": self.profile, **self.provenance},
-            )
+            self._describe(table)
+            experiment = experiment_name(self.profile, table)
+            text = json.dumps([self.profile, self.provenance.get("dataset_manifest", ""), table])
+            key = "reproduce-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+            found = self.tracker.find_runs(experiment, key)
+            if found:
+                run = self.tracker.attach(found[0], reopen=True)
+                run.set_tags(self.provenance)  # the code of the latest invocation
+            else:
+                run = self.tracker.start_run(
+                    experiment,
+                    f"reproduce {self.profile}",
+                    tags={
+                        "table": table,
+                        "profile": self.profile,
+                        RUN_KEY_TAG: key,
+                        **self.provenance,
+                    },
+                    description=self._parent_text(table),
+                    start_time_ms=self.started_ms,
+                )
+            self.parents[table] = run
         return self.parents[table]
 
+    def _parent_text(self, table: str) -> str:
+        spec = self.specs.get(table)
+        what = f"**{spec.title}** ({descriptions.paper_reference(spec)})" if spec else table
+        return f"The `{self.profile}` reproduction of {what}: its rows are the nested runs."
+
+    # ------------------------------------------------------------------ training runs
+    def unit_tracking(self, unit: Unit) -> UnitTracking:
+        """How the worker training ``unit`` logs its training run (``benchmark.runner.live``)."""
+        self._describe(descriptions.UNITS_TABLE)
+        readers = [
+            f"{job.table} ({job.label}{f' [{job.x}]' if job.x is not None else ''})"
+            for job in unit.jobs
+        ]
+        tags = {
+            **run_tags(unit.cfg, self.provenance.get("dataset_manifest", "")),
+            "tables": ",".join(dict.fromkeys(job.table for job in unit.jobs)),
+            "unit": unit.key,
+            **self.provenance,
+        }
+        return UnitTracking(
+            spec=self.tracker.spec(),
+            experiment=experiment_name(self.profile, descriptions.UNITS_TABLE),
+            run_name=f"{unit.jobs[0].label} seed {unit.cfg.seed} ({unit.key[:8]})",
+            run_key=unit.key,
+            tags={k: v for k, v in tags.items() if v},
+            description=descriptions.unit_run(unit, readers),
+            dataset=self._dataset(unit.cfg.data.train_split),
+        )
+
+    def kill_unfinished_units(self, keys: Iterable[str]) -> int:
+        """Mark KILLED the training runs of ``keys`` still RUNNING (their workers were stopped
+        by Ctrl-C); returns how many."""
+        experiment = experiment_name(self.profile, descriptions.UNITS_TABLE)
+        killed = 0
+        for key in keys:
+            for info in self.tracker.find_runs(experiment, key, (RunStatus.RUNNING.value,)):
+                self.tracker.attach(info, reopen=False).end(RunStatus.KILLED)
+                killed += 1
+        return killed
+
+    # ------------------------------------------------------------------ table rows
     def finished(self, job: Job, unit: Unit) -> tuple[dict[str, dict[str, float]], float] | None:
         """``(per eval-key metrics, unit seconds)`` of this job's FINISHED run in the store, or
         None. Eval keys are the job's splits and the unit's validation split (``Unit.job_splits``)
@@ -76,62 +195,80 @@ class Logbook:
             return None
         return out, float(info.metrics.get(SECONDS_METRIC, 0.0))
 
-    def log_job(
-        self,
-        job: Job,
-        unit: Unit,
-        history: list[dict[str, float]],
-        metrics: dict[str, dict[str, float]],
-        artifacts: list[Path],
-        error: str = "",
-        seconds: float = 0.0,
-    ) -> None:
+    def log_job(self, job: Job, unit: Unit, result: UnitResult) -> None:
+        """The table row ``job`` of ``unit``, from its worker's ``result`` (see module doc)."""
         cfg = unit.cfg
         tags: dict[str, Any] = {
             # The trained model's tags, as ``uavbench train`` sets them (one identity for both).
             **run_tags(cfg, self.provenance.get("dataset_manifest", "")),
             "table": job.table,
             "label": job.label,
-            "x": job.x if job.x is not None else "",
             "unit": unit.key,
             RUN_KEY_TAG: job_key(job, unit.key),
+            "training_run_id": result.run_id,
+            "model_uri": result.model_uri,
+            "error": result.error[:5000],
             **self.provenance,
         }
-        if error:
-            tags["error"] = error[:5000]
+        if job.x is not None:
+            tags["x"] = job.x
+        text = descriptions.job_run(
+            self.specs.get(job.table), job, unit, result.run_id, self.profile
+        )
         run = self.tracker.start_run(
             experiment_name(self.profile, job.table),
             run_name(job, cfg.seed),
             parent=self.parent(job.table),
-            tags=tags,
+            tags={k: v for k, v in tags.items() if v != ""},
+            description=text,
+            start_time_ms=result.started_ms,
         )
-        with run:
-            params = {k: v for k, v in flatten(cfg).items() if k != "data.root"}
-            run.log_params({**params, "table": job.table, "label": job.label, "x": job.x})
-            for record in history:
-                epoch = int(record.get("epoch", 0))
-                values = {f"train/{k}": v for k, v in record.items() if k != "epoch" and _finite(v)}
-                run.log_metrics(values, step=epoch)
+        status = RunStatus.FINISHED if result.ok else RunStatus.FAILED
+        try:
+            params = {k: v for k, v in flatten(cfg, drop_none=True).items() if k != "data.root"}
+            extra = {"table": job.table, "label": job.label}
+            if job.x is not None:
+                extra["x"] = job.x
+            run.log_params({**params, **extra})
+            dataset = self._dataset(job.eval_splits[0])
+            if dataset is not None:
+                run.log_input(dataset)
+            run.log_metrics(headline_metrics(result.metrics, job.eval_splits[0], unit.val_split))
             for key in eval_keys(unit.job_splits(job)):
-                summary = metrics.get(key, {})
+                summary = result.metrics.get(key, {})
                 run.log_metrics({f"{key}/{k}": v for k, v in summary.items() if _finite(v)})
-            if _finite(seconds):
-                run.log_metrics({SECONDS_METRIC: seconds})
-            for path in artifacts:
-                if path.exists():
-                    run.log_artifact(path, "predictions" if path.suffix == ".csv" else None)
-            if error:
-                run.end(RunStatus.FAILED)
+            if _finite(result.seconds):
+                run.log_metrics({SECONDS_METRIC: result.seconds})
+        except BaseException:
+            run.end(RunStatus.FAILED)
+            raise
+        run.end(status, end_time_ms=result.ended_ms)
 
     def log_cost(self, table: str, label: str, info: dict[str, Any]) -> None:
+        """One Table 6 measurement; skipped if the same content is already logged FINISHED."""
+        experiment = experiment_name(self.profile, table)
+        text = json.dumps([label, info], sort_keys=True, default=str)
+        key = "cost-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+        if self.tracker.find_finished_run(experiment, key) is not None:
+            return
+        name = f"{label} {info['input_size']}px w{info['width']:g}"
         run = self.tracker.start_run(
-            experiment_name(self.profile, table),
-            f"{label} {info['input_size']}px w{info['width']:g}",
+            experiment,
+            name,
             parent=self.parent(table),
-            tags={"table": table, "label": label, "head": info["head"], **self.provenance},
+            tags={
+                "table": table,
+                "label": label,
+                "head": info["head"],
+                RUN_KEY_TAG: key,
+                **self.provenance,
+            },
+            description=f"Cost of **{label}** at {info['input_size']} px, encoder width "
+            f"{info['width']:g}: parameters, size, MFLOPs, CPU latency per pair.",
         )
         with run:
-            run.log_params({k: v for k, v in info.items() if not isinstance(v, float)})
+            params = {k: v for k, v in info.items() if not isinstance(v, float) and v is not None}
+            run.log_params(params)
             run.log_metrics({k: v for k, v in info.items() if isinstance(v, float) and _finite(v)})
 
     def log_table_outputs(self, table: str, paths: list[Path]) -> None:

@@ -15,12 +15,13 @@ import json
 import multiprocessing
 import os
 import platform
+import signal
 import time
 from pathlib import Path
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress, format_duration
-from benchmark.runner.execute import UnitResult, UnitTask, eval_keys, run_unit, worker_init
+from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
 from benchmark.runner.logbook import Logbook, write_config
 from benchmark.runner.plan import Unit, plan_units
 from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
@@ -78,7 +79,10 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
 
 def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: bool) -> None:
     """Run tasks inline (``jobs == 1``) or in a spawn pool; ``on_done(unit, result)`` in order of
-    completion, in this process (the only one that talks to the tracker)."""
+    completion, in this process.
+
+    Ctrl-C: pool workers ignore SIGINT (``execute.worker_init``); this process stops them
+    (SIGTERM) and re-raises, so the user sees one message, not a traceback per worker."""
     with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
         if jobs == 1 or len(todo) <= 1:
             for unit, task in todo:
@@ -87,17 +91,35 @@ def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: 
                 bar.update(1, postfix=f"done {unit.title}")
             return
         ctx = multiprocessing.get_context("spawn")
-        with cf.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=worker_init) as pool:
-            futures = {pool.submit(run_unit, task): unit for unit, task in todo}
+        pool = cf.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=worker_init)
+        try:
+            # Workers are spawned by submit; started with SIGINT ignored (kept across exec, and
+            # then Python installs no KeyboardInterrupt handler) they cannot print a traceback
+            # even while still importing, before worker_init runs.
+            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
             try:
-                for future in cf.as_completed(futures):
-                    unit = futures[future]
-                    on_done(unit, future.result())
-                    bar.update(1, postfix=f"done {unit.title}")
-            except BaseException:
-                for future in futures:
-                    future.cancel()
-                raise
+                futures = {pool.submit(run_unit, task): unit for unit, task in todo}
+            finally:
+                signal.signal(signal.SIGINT, previous)
+            for future in cf.as_completed(futures):
+                unit = futures[future]
+                on_done(unit, future.result())
+                bar.update(1, postfix=f"done {unit.title}")
+        except BaseException:
+            _stop_pool(pool)
+            raise
+        pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel what has not started and terminate the workers (they may be mid-training)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    for process in processes:
+        process.join(timeout=10)
 
 
 def _log_invocation(workdir: Path, record: dict, keys: set[str]) -> list[dict]:
@@ -144,7 +166,13 @@ def run(args: argparse.Namespace) -> int:
     workdir.mkdir(parents=True, exist_ok=True)
     tracker = create_tracker(args.tracker, args.tracking_uri, workdir=Path.cwd())
     provenance = {"git_commit": git_commit() or "unknown", "dataset_manifest": dataset_hash}
-    logbook = Logbook(tracker, profile.name, {k: str(v) for k, v in provenance.items()})
+    logbook = Logbook(
+        tracker,
+        profile.name,
+        {k: str(v) for k, v in provenance.items()},
+        specs=specs,
+        data_root=data_root,
+    )
     results: dict[str, UnitResult] = {}
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
@@ -157,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
             results[unit.key] = UnitResult(unit.key, True, metrics=merged, seconds=seconds)
             continue
         unit_dir = workdir / "units" / unit.key
-        todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir)))
+        live = logbook.unit_tracking(unit) if args.tracker != "null" else None
+        todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir, tracking=live)))
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
@@ -169,17 +198,10 @@ def run(args: argparse.Namespace) -> int:
     def on_done(unit: Unit, result: UnitResult) -> None:
         results[unit.key] = result
         unit_dir = workdir / "units" / unit.key
-        config_path = write_config(unit, unit_dir / "config.json") if unit_dir.is_dir() else None
+        if unit_dir.is_dir():
+            write_config(unit, unit_dir / "config.json")
         for job in unit.jobs:
-            paths = [
-                Path(result.predictions[k]) for k in eval_keys(unit.job_splits(job))
-                if k in result.predictions
-            ]  # fmt: skip
-            if config_path is not None:
-                paths.append(config_path)
-            logbook.log_job(
-                job, unit, result.history, result.metrics, paths, result.error, result.seconds
-            )
+            logbook.log_job(job, unit, result)
         if not result.ok:
             failures.append(f"{unit.title}: {result.error}")
             print(f"FAILED {unit.title}: {result.error}")
@@ -201,6 +223,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except KeyboardInterrupt:
         status = RunStatus.KILLED
+        logbook.kill_unfinished_units(unit.key for unit, _ in todo)
         print("interrupted: finished runs are kept; run the same command again to resume")
         raise
     except BaseException:
@@ -218,5 +241,18 @@ def run(args: argparse.Namespace) -> int:
     )
     if failures:
         print(f"{len(failures)} training run(s) failed:\n  " + "\n  ".join(failures))
-        return 1
-    return 0
+    print(browse_hint(args.tracker, tracker))
+    return 1 if failures else 0
+
+
+def browse_hint(kind: str, tracker) -> str:
+    """The last line of a reproduction: how to look at what it logged."""
+    if getattr(tracker, "using_fallback", False):
+        return f"MLflow was unreachable: the runs are files under {tracker.fallback_dir}"
+    if kind == "mlflow" and tracker.uri.startswith(("http://", "https://")):
+        return f"browse the runs: {tracker.uri} (or uavbench ui --tracking-uri {tracker.uri})"
+    if kind == "mlflow":
+        return f"browse the runs: uavbench ui --tracking-uri {tracker.uri}"
+    if kind == "local":
+        return f"the runs are files under {tracker.uri} (run.json, metrics.csv per run)"
+    return "nothing was tracked (--tracker null)"

@@ -26,6 +26,12 @@ import sys
 from pathlib import Path
 
 HELP = "train one variant from a config (--set a.b=value), evaluate it and track it in MLflow"
+EXPERIMENT_TEXT = (
+    "Runs of `uavbench train`: one run per trained config and seed, open while it trains and "
+    "evaluates (per-epoch curves, system metrics), with its dataset, every split's numbers "
+    "(`<split>/<metric>`, `/swap`: another place's satellite image) and the trained model. The "
+    "tag `model_key` is the key a `uavbench reproduce` unit of the same config and data has."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -71,7 +77,13 @@ def run(args: argparse.Namespace) -> int:
         )
     eval_splits = args.eval_splits or ["standard/test"]
     from benchmark.data import list_splits
-    from benchmark.tracking import RUN_KEY_TAG, create_tracker, git_commit, manifest_sha256
+    from benchmark.tracking import (
+        RUN_KEY_TAG,
+        DatasetRef,
+        create_tracker,
+        git_commit,
+        manifest_sha256,
+    )
 
     try:
         manifest = manifest_sha256(cfg.data.root)
@@ -112,9 +124,19 @@ def run(args: argparse.Namespace) -> int:
     from benchmark.data import DatasetError
     from benchmark.training.loop import CheckpointMismatchError, NonFiniteLossError
 
+    tracker.describe_experiment(args.experiment, EXPERIMENT_TEXT)
+    m = cfg.model
+    text = (
+        f"`uavbench train`: attitude head `{m.attitude}`, translation head `{m.translation}`, "
+        f"encoder {m.encoder} `{m.variant}` width {m.width:g}, seed {cfg.seed}; trained on "
+        f"`{cfg.data.train_split}`, evaluated on {', '.join(f'`{s}`' for s in eval_splits)}. "
+        f"Outputs in `{out.resolve()}`."
+    )
+    root = Path(cfg.data.root).resolve()
     try:
-        with tracker.start_run(args.experiment, name, tags=tags) as tracked:
-            tracked.log_params(flatten(cfg))
+        with tracker.start_run(args.experiment, name, tags=tags, description=text) as tracked:
+            tracked.log_params(flatten(cfg, drop_none=True))
+            tracked.log_input(DatasetRef(root.name, manifest, str(root), cfg.data.train_split))
             summaries = _train_and_evaluate(cfg, out, eval_splits, tracked, quiet=args.quiet)
     except NonFiniteLossError as err:
         print(f"uavbench train: {err}", file=sys.stderr)
@@ -134,17 +156,37 @@ def _train_and_evaluate(cfg, out: Path, eval_splits: list[str], tracked, *, quie
     """The one train-then-evaluate path (benchmark.training.pipeline), logged to ``tracked``."""
     from benchmark.training.pipeline import train_and_evaluate
 
-    done = train_and_evaluate(
-        cfg,
-        out,
-        eval_splits,
-        on_epoch_end=lambda epoch, m: tracked.log_metrics(m, step=epoch),
-        progress=not quiet,
-    )
+    def on_epoch_end(epoch: int, record: dict[str, float]) -> None:
+        tracked.log_metrics(record, step=epoch)
+        tracked.flush()  # live: the UI draws the curve as the epochs end
+
+    with tracked.system_metrics():
+        done = train_and_evaluate(
+            cfg, out, eval_splits, on_epoch_end=on_epoch_end, progress=not quiet
+        )
     tracked.log_artifact(out / "config.yaml")
     tracked.log_artifact(out / "history.json")
     for key, summary in done.metrics.items():
         tracked.log_metrics({f"{key}/{k}": v for k, v in summary.items()}, step=cfg.optim.epochs)
     if eval_splits:
         tracked.log_artifact(out / "eval")
+    _log_model(cfg, done, tracked)
     return done.metrics
+
+
+def _log_model(cfg, done, tracked) -> None:
+    """The trained model, servable (``benchmark.tracking.models.PosePredictor``), with the first
+    two training pairs as its input example."""
+    import torch
+
+    from benchmark.data import PairDataset
+    from benchmark.tracking.models import PosePredictor, pack_pair
+
+    data = PairDataset(cfg.data.root, cfg.data.train_split, verify=cfg.data.verify)
+    items = [data[i] for i in range(min(2, len(data)))]
+    example = pack_pair(
+        torch.stack([i["uav"] for i in items]), torch.stack([i["sat"] for i in items])
+    )
+    uri = tracked.log_model(PosePredictor(done.trained.model.eval()), example.numpy())
+    if uri:
+        tracked.set_tags({"model_uri": uri})

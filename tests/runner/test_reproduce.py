@@ -6,6 +6,7 @@ import dataclasses
 import json
 import os
 import re
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -221,3 +222,44 @@ class TestReproduceFailures:
     def test_unknown_table_exits_2(self, tmp_path, smoke_dataset, capsys):
         assert reproduce(tmp_path, smoke_dataset, "--only", "table42") == 2
         assert "unknown table" in capsys.readouterr().err
+
+
+class TestReproduceInterrupted:
+    def test_ctrl_c_one_message_no_worker_tracebacks_runs_killed(self, tmp_path, smoke_dataset):
+        """Ctrl-C as a terminal sends it (SIGINT to the whole process group) while a worker has
+        a training run open: one clean message, no traceback, exit 130, no run left RUNNING."""
+        import signal
+        import subprocess
+        import sys
+        import time
+
+        argv = [
+            sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke", "--only",
+            "table3", "--jobs", "2", "--tracker", "local", "--quiet", "--data", str(smoke_dataset),
+            "--workdir", str(tmp_path / "runs"), "--out", str(tmp_path / "reports"),
+        ]  # fmt: skip
+        root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "PYTHONPATH": root}
+        proc = subprocess.Popen(
+            argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, start_new_session=True,
+        )  # fmt: skip
+        training = tmp_path / "tracking-local" / "uavbench-smoke_training"
+        deadline = time.monotonic() + 120
+        try:
+            while time.monotonic() < deadline and proc.poll() is None:
+                if any(json.loads(p.read_text())["status"] == "RUNNING"
+                       for p in training.glob("*/run.json")):  # fmt: skip
+                    break
+                time.sleep(0.05)
+            assert proc.poll() is None, "the reproduction ended before a training run opened"
+            os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert proc.returncode == 130, out
+        assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
+        assert out.count("interrupted: finished runs are kept") == 1, out
+        statuses = [r["status"] for r in run_statuses(tmp_path)]
+        assert "RUNNING" not in statuses and "KILLED" in statuses, statuses

@@ -1,0 +1,139 @@
+"""A unit's training run, logged live from the worker process that trains it.
+
+The parent process describes the run (:class:`UnitTracking`, picklable: the tracker's
+``TrackerSpec``, experiment, name, tags, description, dataset); the worker rebuilds the tracker
+(``benchmark.tracking.tracker_from_spec``, once per process) and:
+
+1. :func:`open_unit_run` when training starts: reuses a FINISHED run of the unit (nothing is
+   logged again), continues the latest unfinished one (KILLED, FAILED or left RUNNING by a killed
+   process: same run, its start time kept, epochs already logged not repeated), or creates one;
+2. :func:`track_unit`: logs each epoch's metrics as the epoch ends (``train_loss_*``, ``val_*``,
+   ``lr``, ``pairs_per_s``, ``epoch_time_s``; step = epoch; sent at once, so the UI draws curves
+   during the reproduction), CPU and memory while training, then every evaluation
+   (``<split>/<metric>``), the predictions, config and history as artifacts and the trained model
+   (``benchmark.tracking.models.PosePredictor``), and the run ends when evaluation ends.
+
+Several workers write to one store at once: over HTTP the server serialises them; on the embedded
+sqlite store each write is a short transaction and sqlite's busy timeout makes a writer wait for
+the other (tests/tracking/test_live.py runs two workers on one sqlite store).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from benchmark.tracking import (
+    RUN_KEY_TAG,
+    DatasetRef,
+    Run,
+    RunInfo,
+    RunStatus,
+    TrackerSpec,
+    tracker_from_spec,
+)
+from benchmark.training.config import TrainConfig
+from benchmark.training.pipeline import TrainEvalResult, train_and_evaluate
+
+EPOCH_METRIC = "epoch"  # logged every epoch: a continued run knows which epochs it already has
+EXAMPLE_PAIRS = 2  # pairs in a logged model's input example
+
+
+@dataclass(frozen=True)
+class UnitTracking:
+    """How a worker logs one unit's training run (built by ``Logbook.unit_tracking``)."""
+
+    spec: TrackerSpec
+    experiment: str
+    run_name: str
+    run_key: str  # the unit key: a rerun finds this unit's run by it
+    tags: dict[str, str] = field(default_factory=dict)
+    description: str = ""
+    dataset: DatasetRef | None = None
+    system_metrics_s: float = 5.0  # sampling interval of CPU / memory
+
+
+def open_unit_run(t: UnitTracking) -> tuple[Run | None, RunInfo | None]:
+    """``(run, None)`` to log into (new or continued), or ``(None, info)`` of the unit's
+    FINISHED run, which is reused as it is."""
+    tracker = tracker_from_spec(t.spec)
+    found = tracker.find_runs(t.experiment, t.run_key)
+    finished = [info for info in found if info.status == RunStatus.FINISHED.value]
+    if finished:
+        return None, finished[0]
+    if found:  # interrupted earlier: continue that run
+        run = tracker.attach(found[0], reopen=True)
+        run.tags["_logged_epochs"] = str(int(found[0].metrics.get(EPOCH_METRIC, 0)))
+        return run, None
+    run = tracker.start_run(
+        t.experiment,
+        t.run_name,
+        tags={**t.tags, RUN_KEY_TAG: t.run_key},
+        description=t.description,
+    )
+    if t.dataset is not None:
+        run.log_input(t.dataset)
+    return run, None
+
+
+def track_unit(
+    run: Run,
+    t: UnitTracking,
+    cfg: TrainConfig,
+    unit_dir: Path,
+    eval_splits: list[str],
+    eval_batch: int,
+) -> tuple[TrainEvalResult, str]:
+    """Train and evaluate the unit into ``unit_dir``, logging to ``run`` as it goes; returns the
+    results and the logged model's URI (``""`` if the backend keeps none). ``run`` is ended by
+    the caller."""
+    logged = int(run.tags.pop("_logged_epochs", "0"))
+
+    def on_epoch_end(epoch: int, record: dict[str, float]) -> None:
+        if epoch <= logged:  # a continued run already has it (the loop replays its history)
+            return
+        values = {k: v for k, v in record.items() if k != "epoch" and _finite(v)}
+        run.log_metrics({**values, EPOCH_METRIC: epoch}, step=epoch)
+        run.flush()  # now, not at the end of a batch: the UI draws the curve as it grows
+
+    with run.system_metrics(t.system_metrics_s):
+        done = train_and_evaluate(
+            cfg, unit_dir, eval_splits, on_epoch_end=on_epoch_end, eval_batch=eval_batch
+        )
+    for key, summary in done.metrics.items():
+        finite = {f"{key}/{k}": v for k, v in summary.items() if _finite(v)}
+        run.log_metrics(finite, step=cfg.optim.epochs)
+    for name in ("config.yaml", "history.json"):
+        if (unit_dir / name).is_file():
+            run.log_artifact(unit_dir / name)
+    if (unit_dir / "eval").is_dir():
+        run.log_artifact(unit_dir / "eval")  # predictions: once per unit, not per table row
+    model_uri = run.log_model(_predictor(done), _input_example(cfg))
+    if model_uri:
+        run.set_tags({"model_uri": model_uri})
+    return done, model_uri
+
+
+def _predictor(done: TrainEvalResult):
+    from benchmark.tracking.models import PosePredictor
+
+    return PosePredictor(done.trained.model.eval())
+
+
+def _input_example(cfg: TrainConfig):
+    """The first :data:`EXAMPLE_PAIRS` training pairs as the model's ``(b, 6, H, W)`` input."""
+    import torch
+
+    from benchmark.data import PairDataset
+    from benchmark.tracking.models import pack_pair
+
+    data = PairDataset(cfg.data.root, cfg.data.train_split, verify=cfg.data.verify)
+    items = [data[i] for i in range(min(EXAMPLE_PAIRS, len(data)))]
+    uav = torch.stack([item["uav"] for item in items])
+    sat = torch.stack([item["sat"] for item in items])
+    return pack_pair(uav, sat).numpy()
+
+
+def _finite(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
