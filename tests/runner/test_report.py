@@ -27,7 +27,13 @@ from benchmark.runner.spread import (
     read_frames,
     seed_flight_bootstrap,
 )
-from benchmark.runner.sweeps import sweep_figure, sweep_table
+from benchmark.runner.sweeps import (
+    series_label,
+    sweep_figure,
+    sweep_label,
+    sweep_table,
+    sweep_tick,
+)
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
 SPLITS += [f"height{h}/{p}" for h in (600, 800, 1000, 1200, 1400) for p in ("train", "test")]
@@ -279,3 +285,70 @@ class TestSweepFigure:
         assert np.sort(np.concatenate(dots)).tolist() == pytest.approx(
             np.sort(np.concatenate([true[m].to_numpy() for m in metrics])).tolist()
         )
+
+
+class TestSweepLabels:
+    @pytest.mark.parametrize(
+        ("sweep", "expected"),
+        [
+            ("sat_height_m", "satellite image height above ground (m)"),
+            ("pitch_bin_deg", "UAV pitch bin (°; satellite camera at -90°)"),
+            ("kappa", "vMF concentration κ"),
+            ("tilt_angle_deg", "tilt angle (°)"),  # the rule for a sweep without a label
+            ("range_m", "range (m)"),
+            ("batch_size", "batch size"),
+            (None, "sweep value"),
+        ],
+    )
+    def test_axis_label(self, sweep, expected):
+        assert sweep_label(sweep) == expected
+
+    @pytest.mark.parametrize(
+        ("sweep", "value", "expected"),
+        [
+            ("pitch_bin_deg", "0to-10", "0 to -10°"),
+            ("pitch_bin_deg", "-40to-50", "-40 to -50°"),
+            ("range_m", "1.5to2", "1.5 to 2 m"),
+            ("sat_height_m", "600", "600"),
+            ("sat_height_m", 600, "600"),
+            ("kappa", "10", "10"),
+            ("encoder_variant", "/", "/ (plain)"),
+            ("encoder_variant", "a-f", "a-f (AGTFM)"),
+        ],
+    )
+    def test_tick(self, sweep, value, expected):
+        assert sweep_tick(sweep, value) == expected
+
+    def test_every_spec_sweep_has_a_readable_label(self):
+        for spec in load_specs(None, None):
+            if spec.kind == "sweep":
+                assert "_" not in sweep_label(spec.sweep), spec.name
+                for x in spec.sweep_values:
+                    assert "to-" not in sweep_tick(spec.sweep, x), (spec.name, x)
+
+    def test_figure_legend_axis_and_ticks(self, synthetic, tmp_path, monkeypatch):
+        import matplotlib.figure
+
+        specs, units, results, _, _ = synthetic
+        frame = results_frame(units, results)
+        fig5 = frame[frame.table == "fig5"]
+        summary = summarize(fig5, ["dphi_deg", "dE_m"])
+        saved = []
+        original = matplotlib.figure.Figure.savefig
+
+        def savefig(self, *args, **kwargs):
+            saved.append(self)
+            return original(self, *args, **kwargs)
+
+        monkeypatch.setattr(matplotlib.figure.Figure, "savefig", savefig)
+        sweep_figure(specs[1], summary, tmp_path / "fig5.png")
+        ax = saved[0].axes[0]
+        # Fig. 5's split follows the height: one line per model, named by the model only
+        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["Pd/Re-Net", "Re-Net-R"]
+        assert ax.get_xlabel() == "satellite image height above ground (m)"
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["600", "800", "1000", "1200",
+                                                                 "1400"]  # fmt: skip
+        # a split that does not follow the sweep value is named in the legend
+        assert series_label("Pd/Re-Net", "standard/test", False) == "Pd/Re-Net on standard/test"
+        header = next(x for x in sweep_table(specs[1], summary).splitlines() if "| split |" in x)
+        assert "| satellite image height above ground (m) |" in header
