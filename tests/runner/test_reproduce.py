@@ -225,7 +225,9 @@ class TestReproduceFailures:
 
 
 class TestReproduceInterrupted:
-    def test_ctrl_c_one_message_no_worker_tracebacks_runs_killed(self, tmp_path, smoke_dataset):
+    def test_ctrl_c_one_message_no_worker_tracebacks_runs_killed(
+        self, tmp_path, smoke_dataset, monkeypatch
+    ):
         """Ctrl-C as a terminal sends it (SIGINT to the whole process group) while a worker has
         a training run open: one clean message, no traceback, exit 130, no run left RUNNING."""
         import signal
@@ -263,3 +265,17 @@ class TestReproduceInterrupted:
         assert out.count("interrupted: finished runs are kept") == 1, out
         statuses = [r["status"] for r in run_statuses(tmp_path)]
         assert "RUNNING" not in statuses and "KILLED" in statuses, statuses
+
+        # The same command again continues the killed training runs (same run, start kept):
+        # one run per unit, every one FINISHED.
+        def training_runs() -> dict[str, dict]:
+            return {p.parent.name: json.loads(p.read_text()) for p in training.glob("*/run.json")}
+
+        killed = {k: r for k, r in training_runs().items() if r["status"] == "KILLED"}
+        monkeypatch.chdir(tmp_path)
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "1") == 0
+        after = training_runs()
+        assert len(after) == 3 and {r["status"] for r in after.values()} == {"FINISHED"}
+        assert set(killed) <= set(after)
+        for key, record in killed.items():
+            assert after[key]["start_time_ms"] == record["start_time_ms"]
