@@ -1,11 +1,13 @@
 """Screenshots of the MLflow UI with headless Chromium (``uavbench ui --screenshots DIR``).
 
-Three pages, each in the classic Runs view (see ``benchmark.tracking.ui`` on
+Pages in the classic Runs view (see ``benchmark.tracking.ui`` on
 ``?workflowType=machine_learning``): the experiment list (``experiments.png``), one experiment's
-runs table (``runs.png``: the experiment of Table 1 when the store has one, else the first) and
-the page of one of its training runs (``run.png``: a finished nested run, i.e. a table row, when
-there is one). Chromium is found on the ``PATH`` (``chromium``, ``chromium-browser``,
-``google-chrome``) or given by ``UAVBENCH_CHROMIUM``; Debian: ``apt-get install -y chromium``.
+runs table (``runs.png``: the experiment of Table 1 when the store has one, else the first), the
+page of one of its runs (``run.png``: a finished nested run, i.e. a table row, when there is one)
+and, when the store has a reproduction's ``<profile>/training`` experiment, its runs table
+(``training.png``: one run per trained unit). Chromium is found on the ``PATH`` (``chromium``,
+``chromium-browser``, ``google-chrome``) or given by ``UAVBENCH_CHROMIUM``; Debian:
+``apt-get install -y chromium``.
 
 Each screenshot runs a fresh Chromium (its own empty ``--user-data-dir``, so no stored UI mode
 leaks in) with the flags a closed network needs (no background networking, component updates,
@@ -152,8 +154,9 @@ def page_title(url: str, binary: str, alias: str | None = None, budget_ms: int =
 
 
 def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str, str]]:
-    """``(file name, URL, expected title prefix)`` of the three pages: experiment list, one
-    experiment's runs table, one run. RuntimeError when the store has no experiment with runs."""
+    """``(file name, URL, expected title prefix)`` of the pages: experiment list, one
+    experiment's runs table, one run [, the training runs]. RuntimeError when the store has no
+    experiment with runs."""
     from mlflow.tracking import MlflowClient
 
     experiments = [e for e in list_experiments(tracking_uri) if e[1] != "Default"]
@@ -170,11 +173,17 @@ def pick_pages(base_url: str, tracking_uri: str) -> list[tuple[str, str, str]]:
         r for r in runs if "mlflow.parentRunId" in r.data.tags and r.info.status == "FINISHED"
     ]
     run = (nested or runs)[0]
-    return [
+    pages = [
         ("experiments.png", experiments_url(base_url), "Experiments - MLflow"),
         ("runs.png", experiment_url(base_url, eid), f"Runs - Experiment {eid} "),
         ("run.png", run_url(base_url, eid, run.info.run_id), f"Run {run.info.run_id} "),
     ]
+    # The reproduction's training runs (one per unit: durations, datasets, logged models).
+    training = [e for e in experiments if e[1].endswith("/training")]
+    if training and client.search_runs([training[0][0]], max_results=1):
+        tid = training[0][0]
+        pages.append(("training.png", experiment_url(base_url, tid), f"Runs - Experiment {tid} "))
+    return pages
 
 
 def take_screenshots(

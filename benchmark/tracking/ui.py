@@ -59,7 +59,7 @@ def experiments_url(base_url: str) -> str:
     return f"{base_url.rstrip('/')}/#/experiments?{ML_VIEW}"
 
 
-def first_line(text: str | None, limit: int = 100) -> str:
+def first_line(text: str | None, limit: int = 80) -> str:
     """The first non-empty line of ``text`` without Markdown emphasis, cut to ``limit``
     characters with an ellipsis; ``""`` for None or blank text."""
     for line in (text or "").splitlines():

@@ -223,6 +223,13 @@ class TestPickPages:
         assert client.get_run(run_id).info.run_name == "Pd/Re-Net seed 0"  # not the parent
         assert pages[1][2] == f"Runs - Experiment {eid} "  # the classic view's title
 
+    def test_training_runs_when_there(self, tmp_path):
+        names = {"uavbench-smoke/table1": "T", "uavbench-smoke/training": "runs"}
+        uri, client = make_store(tmp_path, names)
+        pages = pick_pages(BASE, uri)
+        tid = client.get_experiment_by_name("uavbench-smoke/training").experiment_id
+        assert pages[3] == ("training.png", experiment_url(BASE, tid), f"Runs - Experiment {tid} ")
+
     def test_empty_store(self, tmp_path):
         uri, _ = make_store(tmp_path, {})
         with pytest.raises(RuntimeError, match="no experiment"):
