@@ -24,6 +24,7 @@ from benchmark.errors import UsageError  # re-exported: benchmark.cli.UsageError
 COMMANDS: dict[str, str] = {
     "simulate": "benchmark.data.simulate",
     "preview": "benchmark.data.preview",
+    "verify": "benchmark.data.verify",
     "bench": "benchmark.bench",
     "continuity": "benchmark.analysis.continuity",
     "heading-cue": "benchmark.analysis.heading_cue_command",
@@ -38,6 +39,7 @@ COMMANDS: dict[str, str] = {
 COMMAND_HELP: dict[str, str] = {
     "simulate": "render the UAV/satellite pair dataset (smoke/quick/paper; resumable, parallel)",
     "preview": "write a contact sheet PNG of UAV/satellite pairs with their poses",
+    "verify": "check every file of a dataset against its manifest (sha256, shapes, counts)",
     "bench": "performance benchmarks (bench simulate: pairs/s and city build time)",
     "continuity": "reproduce paper Fig. 2: continuity of attitude representations vs heading",
     "heading-cue": "audit: how well image-wide UAV statistics alone read the yaw (issue 9)",

@@ -20,8 +20,9 @@ ALLOWED: dict[str, set[str]] = {
     "geometry": set(),
     "progress": set(),
     "config": set(),
+    "locks": set(),  # the one-writer lock file (simulate, reproduce)
     "sim": {"geometry", "progress"},
-    "data": {"geometry", "sim", "progress", "errors"},
+    "data": {"geometry", "sim", "progress", "errors", "locks"},
     # baselines: the registry's plugin discovery; config: YAML scalars of head options
     "models": {"geometry", "errors", "baselines", "config"},
     "baselines": {"geometry", "models"},

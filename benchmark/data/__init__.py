@@ -6,7 +6,16 @@
 """
 
 from benchmark.data.dataset import PairDataset, list_splits
-from benchmark.data.format import DatasetError
+from benchmark.data.format import DatasetError, atomic_write_bytes, os_error_message
 from benchmark.data.profiles import PROFILES, Profile, get_profile
 
-__all__ = ["PROFILES", "DatasetError", "PairDataset", "Profile", "get_profile", "list_splits"]
+__all__ = [
+    "PROFILES",
+    "DatasetError",
+    "PairDataset",
+    "Profile",
+    "atomic_write_bytes",
+    "get_profile",
+    "list_splits",
+    "os_error_message",
+]

@@ -155,7 +155,7 @@ def main(argv: list[str]) -> int:
                 pool.warm_up()  # worker start-up (imports, city load) is not rendering
                 startup_s = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                done = sum(m for _, _, m in pool.imap(tasks))
+                done = sum(r.n for r in pool.imap(tasks))
                 rate = done / (time.perf_counter() - t0)
             target = TARGETS_PAIRS_PER_S.get(size)
             verdict = ""

@@ -1,11 +1,13 @@
 """``PairDataset``: the UAV/satellite pairs of one split, memory-mapped from a dataset directory.
 
 Opening checks the manifest and every file the split needs: existence and size always, sha256
-with ``verify="sha256"`` (the default; about 1 s per GB, done once per file per process, cached
-by path, size and mtime). A missing, truncated or corrupted file raises ``DatasetError`` naming
-it. UAV shards are opened with ``np.load(mmap_mode="r")`` once per process (lazily, so forked
-DataLoader workers map them themselves), never per item. The satellite images, one per centre
-and height (a few dozen), are read into memory once.
+with ``verify="sha256"`` (the default): each file is hashed once (about 1 s per GB) and its
+verdict cached on disk by file identity, so later opens, in any process, cost a ``stat`` per file
+(``benchmark.data.integrity``); ``verify="size"`` skips the hashing, ``"full"`` always hashes.
+A missing, truncated or corrupted file raises ``DatasetError`` naming it. UAV shards are opened
+with ``np.load(mmap_mode="r")`` once per process (lazily, so forked DataLoader workers map them
+themselves), never per item. The satellite images, one per centre and height (a few dozen), are
+read into memory once.
 
 ``satellite="swap"`` is the satellite-swap probe: every pair gets the satellite image of another
 place (rules in ``benchmark.data.swap``) and keeps its labels.
@@ -21,35 +23,11 @@ import pandas as pd
 import torch
 from torch.utils.data import Dataset
 
-from benchmark.data.format import (
-    MANIFEST,
-    TABLES,
-    DatasetError,
-    read_manifest,
-    sha256_file,
-    shard_name,
-    verify_files,
-)
+from benchmark.data.format import MANIFEST, TABLES, DatasetError, read_manifest, shard_name
+from benchmark.data.integrity import MODES, check_files
 from benchmark.data.swap import SATELLITE_MODES, swap_targets
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major, as written by simulate
-
-_VERIFIED: set[tuple[str, int, int, str]] = set()  # (path, size, mtime_ns, sha256) hashed OK
-
-
-def _verify(root: Path, manifest: dict[str, Any], names: list[str], checksum: bool) -> None:
-    verify_files(root, manifest, names, checksum=False)  # existence and sizes, cheap
-    if not checksum:
-        return
-    for rel in names:
-        path = (root / rel).resolve()
-        st = path.stat()
-        key = (str(path), st.st_size, st.st_mtime_ns, manifest["files"][rel]["sha256"])
-        if key in _VERIFIED:
-            continue
-        if sha256_file(path) != key[3]:
-            raise DatasetError(f"corrupted file {root / rel}: sha256 differs from {MANIFEST}")
-        _VERIFIED.add(key)
 
 
 def list_splits(root: str | Path) -> list[str]:
@@ -85,8 +63,8 @@ class PairDataset(Dataset):
     def __init__(
         self, root: str | Path, split: str, *, verify: str = "sha256", satellite: str = "true"
     ) -> None:
-        if verify not in ("sha256", "size"):
-            raise ValueError(f"PairDataset: verify must be 'sha256' or 'size', got {verify!r}")
+        if verify not in MODES:
+            raise ValueError(f"PairDataset: verify must be one of {MODES}, got {verify!r}")
         if satellite not in SATELLITE_MODES:
             raise ValueError(
                 f"PairDataset: satellite must be one of {SATELLITE_MODES}, got {satellite!r}"
@@ -100,8 +78,7 @@ class PairDataset(Dataset):
                 f"PairDataset: unknown split {split!r} in {self.root}; available: {self.splits}"
             )
         self.split = split
-        checksum = verify == "sha256"
-        _verify(self.root, self.manifest, list(TABLES), checksum)
+        check_files(self.root, self.manifest, TABLES, mode=verify)
         pairs = pd.read_parquet(self.root / "pairs.parquet")
         self.poses = pairs[pairs.split == split].reset_index(drop=True)
         if len(self.poses) != self.manifest["splits"][split]:
@@ -122,12 +99,8 @@ class PairDataset(Dataset):
         uav_shards = sorted(set((self._uav_index // self.shard_size).tolist()))
         n_sat_shards = -(-len(self.sat_table) // int(self.manifest["sat_shard_size"]))
         sat_names = [shard_name("sat", k) for k in range(n_sat_shards)]
-        _verify(
-            self.root,
-            self.manifest,
-            sat_names + [shard_name("uav", k) for k in uav_shards],
-            checksum,
-        )
+        uav_names = [shard_name("uav", k) for k in uav_shards]
+        check_files(self.root, self.manifest, sat_names + uav_names, mode=verify)
 
         self.sat_images = np.concatenate(
             [np.load(self.root / n, allow_pickle=False) for n in sat_names]

@@ -17,10 +17,12 @@ complete file or none; the manifest exists only once every shard does.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import io
 import json
 import os
+import shutil
 from pathlib import Path
 from typing import Any
 
@@ -38,13 +40,55 @@ class DatasetError(RuntimeError):
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temporary file in the same directory and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        # A failed write (disk full, quota, permissions) leaves no partial file and names the
+        # file it was writing: a bare ``[Errno 28]`` from ``write`` carries no path.
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
+        if err.filename is None or err.filename == str(tmp):
+            raise OSError(err.errno, err.strerror, str(path)) from err
+        raise
+
+
+# errno -> (what happened, how to fix it). These are the environment's problems, not the
+# program's or the data's: the commands report them in one line and exit 2 (as for bad input).
+_OS_FIXES = {
+    errno.ENOSPC: ("no space left on the device", "free space there (or choose another"
+                   " directory) and rerun the same command: finished work is kept"),
+    errno.EDQUOT: ("disk quota exceeded", "free space in your quota and rerun the same command"),
+    errno.EACCES: ("permission denied", "fix the permissions or choose a directory you can write"),
+    errno.EPERM: ("operation not permitted", "fix the permissions or choose another directory"),
+    errno.EROFS: ("read-only file system", "choose a writable directory"),
+}  # fmt: skip
+
+
+def os_error_message(err: OSError) -> str | None:
+    """One line naming the path, what happened and the fix, for disk-full and permission errors;
+    None for other OS errors (a bug or an unexpected state: let them surface)."""
+    if err.errno not in _OS_FIXES:
+        return None
+    what, fix = _OS_FIXES[err.errno]
+    where = err.filename if err.filename is not None else "(path unknown)"
+    free = ""
+    if err.errno == errno.ENOSPC and err.filename is not None:
+        try:
+            probe = Path(err.filename)
+            while not probe.exists() and probe != probe.parent:
+                probe = probe.parent
+            free = f", {shutil.disk_usage(probe).free / 1e9:.2f} GB free"
+        except OSError:
+            pass
+    return f"{where}: {what}{free}; {fix}"
 
 
 def npy_bytes(array: np.ndarray) -> bytes:
@@ -86,14 +130,6 @@ def npy_complete(path: Path, shape: tuple[int, ...]) -> bool:
     return bool(ok)
 
 
-def file_entry(root: Path, rel: str, shape: tuple[int, ...] | None = None) -> dict[str, Any]:
-    path = root / rel
-    entry: dict[str, Any] = {"bytes": path.stat().st_size, "sha256": sha256_file(path)}
-    if shape is not None:
-        entry["shape"] = list(shape)
-    return entry
-
-
 def read_json(path: Path, what: str) -> dict[str, Any]:
     if not path.is_file():
         raise DatasetError(f"{what}: missing file {path}")
@@ -121,23 +157,3 @@ def read_manifest(root: Path) -> dict[str, Any]:
             f"{FORMAT_VERSION}; re-simulate the dataset"
         )
     return manifest
-
-
-def verify_files(root: Path, manifest: dict[str, Any], names: list[str], *, checksum: bool) -> None:
-    """Check that each file in ``names`` exists with the manifest's size (and sha256 if asked).
-
-    Raises DatasetError naming the first bad file and what is wrong with it.
-    """
-    files = manifest["files"]
-    for rel in names:
-        if rel not in files:
-            raise DatasetError(f"{root / MANIFEST} lists no file {rel!r}")
-        entry, path = files[rel], Path(root) / rel
-        if not path.is_file():
-            raise DatasetError(f"missing file {path} (listed in {MANIFEST})")
-        size = path.stat().st_size
-        if size != entry["bytes"]:
-            kind = "truncated" if size < entry["bytes"] else "oversized"
-            raise DatasetError(f"{kind} file {path}: {size} bytes, manifest says {entry['bytes']}")
-        if checksum and sha256_file(path) != entry["sha256"]:
-            raise DatasetError(f"corrupted file {path}: sha256 differs from {MANIFEST}")

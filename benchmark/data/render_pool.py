@@ -2,12 +2,16 @@
 
 A task ``("uav" | "sat", k)`` renders shard ``k`` of the UAV or satellite table and writes it
 atomically; every image depends only on its table row and the dataset seed, so any worker can
-render any shard and the bytes do not depend on the number of workers.
+render any shard and the bytes do not depend on the number of workers. A task reports the sha256
+of the bytes it rendered (computed in memory, before writing) and whether a file already at the
+shard's path held exactly those bytes (``"same"``), other bytes (``"replaced"``) or none
+(``"new"``): a shard found on disk is checked by rendering it again, never by trusting it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import multiprocessing as mp
 import os
 import time
@@ -20,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.data.camera_effects import apply_camera_effects
-from benchmark.data.format import atomic_save_npy, shard_name
+from benchmark.data.format import atomic_write_bytes, npy_bytes, shard_name
 from benchmark.data.profiles import Profile
 
 
@@ -123,7 +127,20 @@ def _shard_shape(kind: str, n_rows: int, k: int, p: Profile) -> tuple[int, int, 
     return (min(size, n_rows - k * size), p.image_size, p.image_size, 3)
 
 
-def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
+@dataclass(frozen=True)
+class ShardResult:
+    """One rendered shard: ``n`` images, ``sha256`` and ``bytes`` of its .npy as rendered,
+    ``status`` ``"new"`` / ``"same"`` / ``"replaced"`` (what the path held before)."""
+
+    kind: str
+    k: int
+    n: int
+    sha256: str
+    bytes: int
+    status: str
+
+
+def _run_task(task: tuple[str, int]) -> ShardResult:
     ctx = _CTX
     assert ctx is not None, "worker context not set"
     kind, k = task
@@ -131,12 +148,18 @@ def _run_task(task: tuple[str, int]) -> tuple[str, int, int]:
         tiny = dataclasses.replace(ctx, profile=dataclasses.replace(ctx.profile, image_size=8))
         render_uav_rows(tiny, ctx.uav.iloc[:1])
         time.sleep(0.05)  # let the other workers take the remaining warm-up tasks
-        return kind, os.getpid(), 0
+        return ShardResult(kind, os.getpid(), 0, "", 0, "warmup")
     table = ctx.uav if kind == "uav" else ctx.sat
     rows = _shard_rows(table, k, shard_size(kind, ctx.profile))
     images = render_uav_rows(ctx, rows) if kind == "uav" else render_sat_rows(ctx, rows)
-    atomic_save_npy(ctx.root / shard_name(kind, k), images)
-    return kind, k, len(rows)
+    data = npy_bytes(images)
+    path = ctx.root / shard_name(kind, k)
+    status = "new"
+    if path.is_file():
+        status = "same" if path.read_bytes() == data else "replaced"
+    if status != "same":
+        atomic_write_bytes(path, data)
+    return ShardResult(kind, k, len(rows), hashlib.sha256(data).hexdigest(), len(data), status)
 
 
 class RenderPool:
@@ -174,8 +197,8 @@ class RenderPool:
             self._pool.join()
             self._pool = None
 
-    def imap(self, tasks: list[tuple[str, int]]) -> Iterator[tuple[str, int, int]]:
-        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields ``(kind, k, n)`` as done."""
+    def imap(self, tasks: list[tuple[str, int]]) -> Iterator[ShardResult]:
+        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields a ShardResult as each ends."""
         global _CTX
         if self._pool is not None:
             yield from self._pool.imap_unordered(_run_task, tasks)
@@ -191,6 +214,6 @@ class RenderPool:
         """Wait until every worker has loaded the cities and the compiled renderer."""
         seen: set[int] = set()
         for _ in range(200):  # a worker still starting takes no task; ask again until all answer
-            seen |= {pid for _, pid, _ in self.imap([("warmup", k) for k in range(self.workers)])}
+            seen |= {r.k for r in self.imap([("warmup", k) for k in range(self.workers)])}
             if len(seen) >= self.workers:
                 return

@@ -3,8 +3,15 @@
     uavbench simulate --profile {smoke,quick,paper} [--size N] [--out DIR] [--workers K] [--seed S]
 
 Rerunning the same command after an interruption continues where it stopped and produces the
-same bytes as an uninterrupted run; rerunning it on a finished dataset only confirms it. An
-``--out`` holding a dataset of another profile, size or seed is refused without touching it.
+same bytes as an uninterrupted run; rerunning it on a finished dataset confirms it (a cached
+checksum check) and renders again any file that no longer matches its manifest. Shards found on
+disk that this code's journal does not vouch for are rendered again and compared byte for byte.
+An ``--out`` holding a dataset of another profile, size or seed is refused without touching it.
+
+One process renders into a directory at a time (``DIR/.simulate.lock``): a second invocation waits
+for the first, saying who holds the lock, then finds the dataset finished; with ``--no-wait`` it
+exits 2 instead, naming the holder (pid, host, start). A lock left by a killed process is taken
+over. Disk full and permission errors end in one line naming the path and the fix (exit 2).
 """
 
 from __future__ import annotations
@@ -66,6 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="where built cities are cached (default: $UAVBENCH_CACHE or ~/.cache/uavbench/cities)",
     )
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="exit 2 if another process is rendering into --out (default: wait for it)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -82,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(err)) from err
     out = args.out if args.out is not None else default_out(args.profile, args.size, args.seed)
     single_thread_env()
+    from benchmark.data.format import DatasetError, os_error_message
     from benchmark.data.writer import ConfigMismatchError, simulate_dataset
+    from benchmark.locks import LockBusyError
 
     try:
         stats = simulate_dataset(
@@ -92,9 +106,18 @@ def run(args: argparse.Namespace) -> int:
             workers=args.workers,
             cache_dir=args.city_cache,
             progress=not args.quiet,
+            wait=not args.no_wait,
         )
-    except ConfigMismatchError as err:
+    except (ConfigMismatchError, LockBusyError, DatasetError) as err:
         raise UsageError(str(err)) from err
+    except OSError as err:
+        message = os_error_message(err)
+        if message is None:
+            raise
+        raise UsageError(message) from None
+    if stats.get("replaced"):
+        print(f"{out}: replaced {len(stats['replaced'])} corrupted shard(s): "
+              + ", ".join(stats["replaced"]), file=sys.stderr)  # fmt: skip
     if stats["state"] == "complete":
         print(f"{out}: already complete (profile {profile.name}, seed {args.seed}); nothing to do")
     else:

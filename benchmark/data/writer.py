@@ -8,10 +8,13 @@ processes that share the cities copy-on-write and use one thread each.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import os
+import sys
 import time
+from collections.abc import Callable
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -24,18 +27,22 @@ from benchmark.data.format import (
     CONFIG,
     FORMAT_VERSION,
     MANIFEST,
+    TABLES,
     DatasetError,
     atomic_write_bytes,
     canonical_json,
-    file_entry,
-    npy_complete,
     read_json,
+    read_manifest,
     shard_name,
 )
+from benchmark.data.integrity import check_files
+from benchmark.data.journal import JOURNAL, append_journal, read_journal, remove_journal, trusted
 from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, Profile
 from benchmark.data.render_pool import RenderContext, RenderPool, _shard_shape, shard_size
+from benchmark.locks import work_lock
 from benchmark.progress import Progress
 
+LOCK = ".simulate.lock"  # one writer per dataset directory (benchmark.locks)
 PLAN_VERSION = 2  # bump when benchmark.sim.flights / splits change what they produce
 
 
@@ -92,7 +99,7 @@ def check_output_dir(out: Path, config: dict[str, Any]) -> str:
         raise ConfigMismatchError(f"--out {out} exists and is not a directory")
     cfg_path = out / CONFIG
     if not cfg_path.is_file():
-        if any(out.iterdir()):
+        if any(p.name not in (LOCK, JOURNAL) for p in out.iterdir()):
             raise ConfigMismatchError(
                 f"--out {out} is a non-empty directory without {CONFIG}; refusing to write into it"
             )
@@ -168,6 +175,36 @@ def n_shards(kind: str, n_rows: int, p: Profile) -> int:
     return -(-n_rows // shard_size(kind, p))
 
 
+def _say(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def dataset_problems(out: Path) -> list[tuple[str, str]]:
+    """``(file, problem)`` for every file of a finished dataset that disagrees with its manifest
+    (cached sha256: a stat per file once each was hashed, ``benchmark.data.integrity``)."""
+    try:
+        manifest = read_manifest(out)
+    except DatasetError as err:
+        return [(MANIFEST, str(err))]
+    problems: list[tuple[str, str]] = []
+    check_files(out, manifest, list(manifest["files"]), collect=problems)
+    return problems
+
+
+def _start_repair(out: Path, problems: list[tuple[str, str]], say: Callable[[str], None]) -> None:
+    """Turn a finished dataset with bad files into a resumable one: journal the files that still
+    match the manifest, then remove the manifest (the bad files get rendered again)."""
+    bad = {rel for rel, _ in problems}
+    for _, problem in problems:
+        say(f"simulate: {problem}; rendering it again")
+    if MANIFEST not in bad:
+        files = read_manifest(out)["files"]
+        for rel, entry in files.items():
+            if rel not in bad:
+                append_journal(out, rel, entry["sha256"], int(entry["bytes"]), "manifest")
+    (out / MANIFEST).unlink(missing_ok=True)
+
+
 def simulate_dataset(
     out: Path,
     profile: Profile,
@@ -177,24 +214,58 @@ def simulate_dataset(
     cache_dir: Path | None = None,
     max_tasks: int | None = None,
     progress: bool = True,
+    wait: bool = True,
+    notify: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """Write (or resume, or confirm) the dataset of (profile, seed) at ``out``.
+    """Write (or resume, repair or confirm) the dataset of (profile, seed) at ``out``.
+
+    A finished dataset is confirmed by a cached checksum check of every file; a file that
+    disagrees with the manifest is rendered again. Shards found on disk are trusted only through
+    the render journal (``benchmark.data.journal``); others are rendered again and compared byte
+    for byte, a differing one is replaced. One process renders into ``out`` at a time: the lock
+    ``out/.simulate.lock`` (``benchmark.locks``); with ``wait`` a second call waits for it (saying
+    so through ``notify``, default stderr), else it raises ``LockBusyError`` naming the holder.
 
     ``max_tasks`` stops after that many shards without writing the manifest (an interruption, for
-    tests and benchmarks). Returns timing statistics. Raises ConfigMismatchError before touching
-    ``out`` if it holds a different dataset.
+    tests and benchmarks). Returns statistics: ``state`` (complete, written, interrupted),
+    timings, ``rendered_uav``/``rendered_sat`` images, ``replaced`` (shards whose bytes on disk
+    differed from their render). Raises ConfigMismatchError before touching ``out`` if it holds a
+    different dataset.
     """
     out = Path(out)
+    say = notify or _say
     config = dataset_config(profile, seed)
     state = check_output_dir(out, config)
-    stats: dict[str, Any] = {"state": state}
-    if state == "complete":
-        return stats
+    if state == "complete" and not dataset_problems(out):
+        return {"state": "complete"}
     out.mkdir(parents=True, exist_ok=True)
-    if state == "new":
-        atomic_write_bytes(out / CONFIG, canonical_json(config))
-    _remove_stale_temporaries(out)
+    what = f"uavbench simulate (profile {profile.name}, seed {seed})"
+    with work_lock(out / LOCK, what=what, wait=wait, notify=say):
+        state = check_output_dir(out, config)  # another process may have finished it meanwhile
+        if state == "complete":
+            problems = dataset_problems(out)
+            if not problems:
+                return {"state": "complete"}
+            _start_repair(out, problems, say)
+        elif state == "new":
+            atomic_write_bytes(out / CONFIG, canonical_json(config))
+        return _render(out, profile, seed, config, workers, cache_dir, max_tasks, progress, say)
 
+
+def _render(
+    out: Path,
+    profile: Profile,
+    seed: int,
+    config: dict[str, Any],
+    workers: int,
+    cache_dir: Path | None,
+    max_tasks: int | None,
+    progress: bool,
+    say: Callable[[str], None],
+) -> dict[str, Any]:
+    """Plan, render what is not trusted on disk, write the manifest (under the lock)."""
+    _remove_stale_temporaries(out)
+    stats: dict[str, Any] = {"state": "resume"}
     t0 = time.perf_counter()
     cities = build_cities(profile, seed, cache_dir, progress=progress)
     stats["cities_s"] = time.perf_counter() - t0
@@ -204,14 +275,16 @@ def simulate_dataset(
     t0 = time.perf_counter()
     plan = make_plan(profile, cities, seed)
     stats["plan_s"] = time.perf_counter() - t0
+    known: dict[str, tuple[int, str]] = {}  # file -> (bytes, sha256) of bytes this code produced
     tables = {"uav.parquet": plan.uav, "sat.parquet": plan.sat, "pairs.parquet": plan.pairs}
     for name, df in tables.items():
         data = parquet_bytes(df)
         path = out / name
         if path.is_file() and path.read_bytes() != data:
-            raise DatasetError(f"{path} differs from the plan this code computes; delete {out}")
-        if not path.is_file():
+            say(f"simulate: {path} differs from the plan (same config and code): rewriting it")
+        if not path.is_file() or path.read_bytes() != data:
             atomic_write_bytes(path, data)
+        known[name] = (len(data), hashlib.sha256(data).hexdigest())
 
     tasks = [("sat", k) for k in range(n_shards("sat", len(plan.sat), profile))]
     tasks += [("uav", k) for k in range(n_shards("uav", len(plan.uav), profile))]
@@ -220,37 +293,61 @@ def simulate_dataset(
         return _shard_shape(kind, len(plan.uav if kind == "uav" else plan.sat), k, profile)
 
     sizes = {t: shape_of(*t)[0] for t in tasks}
-    pending = [t for t in tasks if not npy_complete(out / shard_name(*t), shape_of(*t))]
+    journal = read_journal(out)
+    pending = []
+    for t in tasks:
+        entry = trusted(out, shard_name(*t), journal)
+        if entry is None:
+            pending.append(t)
+        else:
+            known[shard_name(*t)] = (entry["bytes"], entry["sha256"])
     todo = pending if max_tasks is None else pending[:max_tasks]
     total = len(plan.uav) + len(plan.sat)
     done = total - sum(sizes[t] for t in pending)
 
     ctx = RenderContext(out, profile, seed, cities, plan.uav, plan.sat)
+    stats["replaced"] = []
     t0 = time.perf_counter()
     with Progress(total, "simulate", unit="img", initial=done, enabled=progress) as bar:
         factory = partial(build_cities, profile, seed, cache_dir)
         with RenderPool(ctx, min(workers, len(todo)), factory) as pool:
-            for kind, k, n in pool.imap(todo):
-                bar.update(n, postfix=f"{kind} shard {k}")
+            for r in pool.imap(todo):
+                rel = shard_name(r.kind, r.k)
+                append_journal(out, rel, r.sha256, r.bytes)
+                known[rel] = (r.bytes, r.sha256)
+                if r.status == "replaced":
+                    stats["replaced"].append(rel)
+                    say(f"simulate: {out / rel} differed from its render (corrupted): replaced")
+                bar.update(r.n, postfix=f"{r.kind} shard {r.k}")
     stats["render_s"] = time.perf_counter() - t0
     stats["rendered_uav"] = sum(sizes[t] for t in todo if t[0] == "uav")
     stats["rendered_sat"] = sum(sizes[t] for t in todo if t[0] == "sat")
     if len(todo) < len(pending):
         stats["state"] = "interrupted"
         return stats
-    write_manifest(out, config, plan, {t: shape_of(*t) for t in tasks})
+    write_manifest(out, config, plan, {t: shape_of(*t) for t in tasks}, known)
+    remove_journal(out)
     stats["state"] = "written"
     return stats
 
 
 def write_manifest(
-    out: Path, config: dict[str, Any], plan: Any, shards: dict[tuple[str, int], tuple[int, ...]]
+    out: Path,
+    config: dict[str, Any],
+    plan: Any,
+    shards: dict[tuple[str, int], tuple[int, ...]],
+    known: dict[str, tuple[int, str]],
 ) -> None:
-    files = {
-        name: file_entry(out, name) for name in ("uav.parquet", "sat.parquet", "pairs.parquet")
-    }
+    """The manifest, from the digests of bytes this code produced (``known``: file -> (bytes,
+    sha256)), never from hashing what happens to be on disk."""
+
+    def entry(rel: str, shape: tuple[int, ...] | None = None) -> dict[str, Any]:
+        nbytes, sha = known[rel]
+        return {"bytes": nbytes, "sha256": sha, **({"shape": list(shape)} if shape else {})}
+
+    files = {name: entry(name) for name in TABLES}
     for (kind, k), shape in sorted(shards.items()):
-        files[shard_name(kind, k)] = file_entry(out, shard_name(kind, k), shape)
+        files[shard_name(kind, k)] = entry(shard_name(kind, k), shape)
     counts = plan.pairs.split.value_counts()
     manifest = {
         **config,

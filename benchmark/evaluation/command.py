@@ -7,6 +7,12 @@ The dataset defaults to the one the checkpoint was trained on (its config's ``da
 ``--satellite swap`` is the satellite-swap probe: each pair is shown the satellite image of another
 place (``benchmark.data.swap``), labels unchanged; its files are ``<split>__swap.csv`` and
 ``metrics__swap.json``.
+
+The dataset's files are checked against its manifest's sha256 by default (``--verify sha256``:
+hashed once per file and cached, later opens cost a stat; ``benchmark.data.integrity``), whatever
+the checkpoint was trained with. Errors end in one line (exit 2): a missing, truncated or corrupted
+dataset file (named, with ``uavbench verify`` as the way to a full report), disk full or no
+permission for ``--out`` (the path and the fix).
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 HELP = "evaluate a trained checkpoint on dataset splits: per-sample CSV and the paper's metrics"
 
@@ -37,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="true",
         help="true: each pair's own satellite image; swap: another place's (the swap probe)",
     )
+    parser.add_argument(
+        "--verify",
+        choices=("sha256", "size", "full"),
+        default="sha256",
+        help="dataset file check: sha256 (default; hashed once, cached), size, full (always hash)",
+    )
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -48,8 +61,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
     if args.batch_size < 1:
         raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
-    from benchmark.data import DatasetError, PairDataset, list_splits
-    from benchmark.evaluation.evaluate import evaluate
+    from benchmark.data import DatasetError, list_splits, os_error_message
     from benchmark.models.checkpoint import load_checkpoint, load_trained_model
 
     try:
@@ -70,16 +82,31 @@ def run(args: argparse.Namespace) -> int:
                 f"--split {split!r} is not in {root}; available: {', '.join(available)}"
             )
     out = args.out or args.checkpoint.parent / "predictions"
+    try:
+        _evaluate_splits(args, model, ckpt, root, splits, out)
+    except DatasetError as err:
+        raise UsageError(f"{err} (`uavbench verify {root}` checks every file)") from None
+    except OSError as err:
+        if err.filename is None:  # a bare write error (e.g. ENOSPC from a CSV writer): name --out
+            err = OSError(err.errno, err.strerror, str(out))
+        message = os_error_message(err)
+        if message is None:
+            raise
+        raise UsageError(message) from None
+    return 0
+
+
+def _evaluate_splits(
+    args: argparse.Namespace, model: Any, ckpt: dict, root: Path, splits: list[str], out: Path
+) -> None:
+    from benchmark.data import PairDataset, atomic_write_bytes
+    from benchmark.evaluation.evaluate import evaluate
+
     shared = bool(ckpt["config"]["model"].get("shared_satellite", True))
     results = {}
     suffix = "" if args.satellite == "true" else "__swap"
     for split in splits:
-        try:
-            dataset = PairDataset(
-                root, split, verify=data_cfg.get("verify", "size"), satellite=args.satellite
-            )
-        except DatasetError as err:
-            raise UsageError(f"--satellite {args.satellite} on {split}: {err}") from None
+        dataset = PairDataset(root, split, verify=args.verify, satellite=args.satellite)
         summary, _ = evaluate(
             model,
             dataset,
@@ -95,6 +122,6 @@ def run(args: argparse.Namespace) -> int:
             f"{split} ({args.satellite} satellite): n={int(summary['n'])} "
             + ", ".join(f"{k}={summary[k]:.3f}" for k in keys)
         )
-    (out / f"metrics{suffix}.json").write_text(json.dumps(results, indent=1, sort_keys=True) + "\n")
+    metrics = out / f"metrics{suffix}.json"
+    atomic_write_bytes(metrics, (json.dumps(results, indent=1, sort_keys=True) + "\n").encode())
     print(f"predictions and metrics{suffix}.json in {out}", file=sys.stderr)
-    return 0

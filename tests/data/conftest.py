@@ -9,6 +9,14 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import pytest
 
 
+@pytest.fixture(autouse=True)
+def verify_cache(tmp_path_factory, monkeypatch):
+    """Each test's verification cache (benchmark.data.integrity) in a temporary directory."""
+    path = tmp_path_factory.mktemp("verified")
+    monkeypatch.setenv("UAVBENCH_VERIFY_CACHE", str(path))
+    return path
+
+
 @pytest.fixture(scope="session")
 def city_cache(tmp_path_factory):
     return tmp_path_factory.mktemp("cities")

@@ -1,0 +1,180 @@
+"""``uavbench verify DATASET``: check every file of a dataset against its manifest, in full.
+
+    uavbench verify data/quick [--quiet]
+
+Hashes every file (sha256; no cache is trusted, so this also finds what a stat cannot see, such as
+bit rot), and checks sizes, the shape and dtype of every shard, the row counts of the tables and
+of every split, and that ``config.json`` agrees with the manifest. Exit 0 when all is good; exit 1
+naming each bad file, what is wrong with it and the fix (the ``uavbench simulate`` call that
+renders it again: simulate re-renders exactly the files that disagree with the manifest); exit 2
+for a path that is not a dataset at all. Files found good are recorded in the verification cache
+(``benchmark.data.integrity``), so the next ``train`` opens them with a stat.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from benchmark.data.format import CONFIG, MANIFEST, DatasetError, read_json, read_manifest
+from benchmark.data.integrity import check_files
+from benchmark.data.profiles import PROFILES, Profile, get_profile
+from benchmark.errors import UsageError
+from benchmark.progress import Progress
+
+HELP = "check every file of a dataset against its manifest (sha256, shapes, counts); exit 1 if bad"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong: the file (relative to the dataset) and what is wrong with it."""
+
+    file: str
+    what: str
+
+
+def simulate_command(root: Path, manifest: dict[str, Any]) -> str:
+    """The ``uavbench simulate`` call that renders this dataset (or, for a profile the command
+    does not offer, a description of it)."""
+    stored = manifest.get("profile", {})
+    seed = int(manifest.get("seed", 0))
+    name = stored.get("name", "?")
+    if name in PROFILES:
+        size = stored.get("n_standard")
+        base = PROFILES[name]
+        try:
+            again = base if size == base.n_standard else get_profile(name, size)
+        except (ValueError, TypeError):
+            again = None
+        if again is not None and again.to_dict() == Profile.from_dict(stored).to_dict():
+            args = f"--profile {name}" + ("" if again is base else f" --size {size}")
+            args += f" --seed {seed}" if seed else ""
+            return f"`uavbench simulate {args} --out {root}`"
+    return f"the command that rendered it (profile {name}, seed {seed}) with its output {root}"
+
+
+def _shape_problem(path: Path, entry: dict[str, Any]) -> str | None:
+    try:
+        arr = np.load(path, mmap_mode="r", allow_pickle=False)
+    except (OSError, ValueError) as err:
+        return f"{path} is not a readable .npy ({err})"
+    want = tuple(entry["shape"])
+    if arr.dtype != np.uint8 or tuple(arr.shape) != want:
+        return f"{path}: {arr.dtype} {tuple(arr.shape)}, {MANIFEST} says uint8 {want}"
+    return None
+
+
+def _count_problems(root: Path, manifest: dict[str, Any]) -> list[Problem]:
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    out: list[Problem] = []
+    counts = manifest.get("counts", {})
+    for table, key in (("uav.parquet", "uav_images"), ("sat.parquet", "sat_images")):
+        n = pq.read_metadata(root / table).num_rows
+        if n != counts.get(key):
+            out.append(Problem(table, f"{n} rows, {MANIFEST} counts {key} = {counts.get(key)}"))
+        kind = table.split(".")[0]
+        in_shards = sum(
+            e["shape"][0] for f, e in manifest["files"].items() if f.startswith(f"{kind}/")
+        )
+        if in_shards != counts.get(key):
+            out.append(Problem(MANIFEST, f"{kind} shards hold {in_shards} images, counts {n}"))
+    split = pd.read_parquet(root / "pairs.parquet", columns=["split"]).split.value_counts()
+    if int(split.sum()) != counts.get("pairs"):
+        out.append(Problem("pairs.parquet", f"{int(split.sum())} rows, {MANIFEST} counts pairs"))
+    for name, want in manifest.get("splits", {}).items():
+        have = int(split.get(name, 0))
+        if have != want:
+            out.append(Problem("pairs.parquet", f"split {name!r}: {have} rows, {MANIFEST} {want}"))
+    return out
+
+
+def verify_dataset(root: str | Path, *, progress: bool = False) -> list[Problem]:
+    """Every problem of the dataset at ``root`` (empty: all good). DatasetError if ``root`` has no
+    readable manifest (not a finished dataset)."""
+    root = Path(root)
+    manifest = read_manifest(root)
+    files: dict[str, Any] = manifest["files"]
+    problems: list[Problem] = []
+    config = read_json(root / CONFIG, "dataset config") if (root / CONFIG).is_file() else None
+    if config is None:
+        problems.append(Problem(CONFIG, f"missing file {root / CONFIG}"))
+    elif any(manifest.get(k) != v for k, v in config.items()):
+        problems.append(Problem(CONFIG, f"{root / CONFIG} disagrees with {MANIFEST}"))
+    total_mb = math.ceil(sum(int(e["bytes"]) for e in files.values()) / 1e6)
+    done = [0, 0]  # bytes checked, MB shown
+
+    def on_bytes(n: int) -> None:
+        done[0] += n
+        step = min(round(done[0] / 1e6), total_mb) - done[1]
+        done[1] += step
+        bar.update(step)
+
+    collected: list[tuple[str, str]] = []
+    with Progress(total_mb, "verify", unit="MB", enabled=progress) as bar:
+        for rel in files:
+            before = len(collected)
+            check_files(root, manifest, [rel], mode="full", on_bytes=on_bytes, collect=collected)
+            if len(collected) == before and "shape" in files[rel]:
+                shape = _shape_problem(root / rel, files[rel])
+                if shape is not None:
+                    collected.append((rel, shape))
+        bar.update(total_mb - done[1])  # the rounding remainder (and the bad files' bytes)
+    problems += [Problem(rel, what) for rel, what in collected]
+    bad = {p.file for p in problems}
+    if not bad & {"uav.parquet", "sat.parquet", "pairs.parquet"}:
+        problems += _count_problems(root, manifest)
+    return problems
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", type=Path, help="dataset directory (written by simulate)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _fix(root: Path) -> str:
+    """The simulate call from the manifest, else from config.json (written first)."""
+    for name in (MANIFEST, CONFIG):
+        try:
+            return simulate_command(root, read_json(root / name, name))
+        except DatasetError:
+            continue
+    return f"the command that rendered {root}"
+
+
+def run(args: argparse.Namespace) -> int:
+    from benchmark.data.format import os_error_message
+
+    root: Path = args.dataset
+    try:
+        problems = verify_dataset(root, progress=not args.quiet)
+        n = len(read_manifest(root)["files"])
+    except DatasetError as err:
+        if not (root / CONFIG).is_file() or not (root / MANIFEST).is_file():
+            raise UsageError(str(err)) from None  # not a dataset, or an unfinished one
+        problems, n = [Problem(MANIFEST, str(err))], 1  # a damaged manifest: simulate rebuilds it
+    except OSError as err:
+        message = os_error_message(err)
+        if message is None:
+            raise
+        raise UsageError(message) from None
+    if not problems:
+        print(f"{root}: OK, {n} files match {MANIFEST} (sha256, sizes, shapes, split counts)")
+        return 0
+    for p in problems:
+        where = str(root / p.file)
+        print(p.what if where in p.what else f"{where}: {p.what}", file=sys.stderr)
+    print(
+        f"{root}: {len(problems)} problem(s) in {len({p.file for p in problems})} file(s); "
+        f"fix: rerun {_fix(root)} to render the bad files again (it re-renders exactly the "
+        f"files that disagree with {MANIFEST} and keeps the rest)",
+        file=sys.stderr,
+    )
+    return 1
