@@ -81,7 +81,8 @@ def train_config(
             root=str(data_root),
             train_split=job.train_split,
             val_split=val_split_for(job.train_split, splits),
-            verify="size",
+            # verify: DataConfig's default, as for `uavbench train` (the same config, the same
+            # run key); the default checks sha256 once per file and caches it (issue 14).
         ),
         model=job.variant.model_config(width=profile.width),
         optim=profile.optim,
