@@ -176,7 +176,7 @@ def cost_table(
         "Size = float32 parameters (4 bytes each, 1 MB = 1e6 bytes); FLOPs counted with "
         "`torch.utils.flop_counter` (2 per multiply-add) for one pair at batch 1 in inference "
         "(no auxiliary heads); latency = median of 10 CPU forward passes at batch 1 "
-        f"({'/'.join(map(str, threads))} threads) on this machine.", "",
+        f"({'/'.join(map(str, threads))} torch thread(s)) on this machine.", "",
         "| model | config | params | size MB paper | size MB ours | MFLOPs paper | MFLOPs ours | "
         "of which dense layers | latency ms |",
         "|---|---|---|---|---|---|---|---|---|",
