@@ -33,10 +33,13 @@ HELP = "check every file of a dataset against its manifest (sha256, shapes, coun
 
 @dataclass(frozen=True)
 class Problem:
-    """One thing wrong: the file (relative to the dataset) and what is wrong with it."""
+    """One thing wrong: the file (relative to the dataset), what is wrong with it, and its kind:
+    ``"file"`` (bytes disagree with the manifest: re-render), ``"manifest"`` (the manifest
+    disagrees with itself or its tables: rebuild it), ``"config"`` (config.json)."""
 
     file: str
     what: str
+    kind: str = "file"
 
 
 def simulate_command(root: Path, manifest: dict[str, Any]) -> str:
@@ -79,20 +82,32 @@ def _count_problems(root: Path, manifest: dict[str, Any]) -> list[Problem]:
     for table, key in (("uav.parquet", "uav_images"), ("sat.parquet", "sat_images")):
         n = pq.read_metadata(root / table).num_rows
         if n != counts.get(key):
-            out.append(Problem(table, f"{n} rows, {MANIFEST} counts {key} = {counts.get(key)}"))
+            out.append(
+                Problem(table, f"{n} rows, {MANIFEST} counts {key} = {counts.get(key)}", "manifest")
+            )
         kind = table.split(".")[0]
         in_shards = sum(
             e["shape"][0] for f, e in manifest["files"].items() if f.startswith(f"{kind}/")
         )
         if in_shards != counts.get(key):
-            out.append(Problem(MANIFEST, f"{kind} shards hold {in_shards} images, counts {n}"))
+            out.append(
+                Problem(MANIFEST, f"{kind} shards hold {in_shards} images, counts {n}", "manifest")
+            )
     split = pd.read_parquet(root / "pairs.parquet", columns=["split"]).split.value_counts()
     if int(split.sum()) != counts.get("pairs"):
-        out.append(Problem("pairs.parquet", f"{int(split.sum())} rows, {MANIFEST} counts pairs"))
+        out.append(
+            Problem(
+                "pairs.parquet", f"{int(split.sum())} rows, {MANIFEST} counts pairs", "manifest"
+            )
+        )
     for name, want in manifest.get("splits", {}).items():
         have = int(split.get(name, 0))
         if have != want:
-            out.append(Problem("pairs.parquet", f"split {name!r}: {have} rows, {MANIFEST} {want}"))
+            out.append(
+                Problem(
+                    "pairs.parquet", f"split {name!r}: {have} rows, {MANIFEST} {want}", "manifest"
+                )
+            )
     return out
 
 
@@ -105,9 +120,9 @@ def verify_dataset(root: str | Path, *, progress: bool = False) -> list[Problem]
     problems: list[Problem] = []
     config = read_json(root / CONFIG, "dataset config") if (root / CONFIG).is_file() else None
     if config is None:
-        problems.append(Problem(CONFIG, f"missing file {root / CONFIG}"))
+        problems.append(Problem(CONFIG, f"missing file {root / CONFIG}", "config"))
     elif any(manifest.get(k) != v for k, v in config.items()):
-        problems.append(Problem(CONFIG, f"{root / CONFIG} disagrees with {MANIFEST}"))
+        problems.append(Problem(CONFIG, f"{root / CONFIG} disagrees with {MANIFEST}", "config"))
     total_mb = math.ceil(sum(int(e["bytes"]) for e in files.values()) / 1e6)
     done = [0, 0]  # bytes checked, MB shown
 
@@ -171,10 +186,23 @@ def run(args: argparse.Namespace) -> int:
     for p in problems:
         where = str(root / p.file)
         print(p.what if where in p.what else f"{where}: {p.what}", file=sys.stderr)
+    kinds = {p.kind for p in problems}
+    fixes = []
+    if "file" in kinds:
+        fixes.append(
+            f"rerun {_fix(root)} to render the bad files again (it re-renders exactly the files "
+            f"that disagree with {MANIFEST} and keeps the rest)"
+        )
+    if "manifest" in kinds:
+        fixes.append(
+            f"{MANIFEST} disagrees with its own tables: delete {root / MANIFEST} and rerun "
+            f"{_fix(root)} (it renders every shard again, compares it and rebuilds {MANIFEST})"
+        )
+    if "config" in kinds:
+        fixes.append(f"render the dataset again into a new directory with {_fix(root)}")
     print(
         f"{root}: {len(problems)} problem(s) in {len({p.file for p in problems})} file(s); "
-        f"fix: rerun {_fix(root)} to render the bad files again (it re-renders exactly the "
-        f"files that disagree with {MANIFEST} and keeps the rest)",
+        f"fix: {'; and '.join(fixes)}",
         file=sys.stderr,
     )
     return 1

@@ -194,12 +194,19 @@ class TestVerifyCommand:
         err = capsys.readouterr().err
         assert f"truncated file {shard}" in err and "missing file" in err
 
-    def test_count_disagreement_named(self, dataset, capsys):
+    def test_edited_manifest_named_and_the_fix_works(self, dataset, reference, city_cache,
+                                                     capsys):  # fmt: skip
         manifest = json.loads((dataset / "manifest.json").read_text())
         manifest["splits"]["standard/test"] += 1
         (dataset / "manifest.json").write_text(json.dumps(manifest))
         assert main(["verify", "--quiet", str(dataset)]) == 1
-        assert "split 'standard/test'" in capsys.readouterr().err
+        err = capsys.readouterr().err
+        assert "split 'standard/test'" in err
+        assert f"delete {dataset / 'manifest.json'} and rerun `uavbench simulate" in err
+        (dataset / "manifest.json").unlink()
+        stats = simulate_dataset(dataset, SMOKE, 0, cache_dir=city_cache, progress=False)
+        assert stats["state"] == "written" and stats["replaced"] == []
+        assert all_files(dataset) == all_files(reference)
 
     def test_not_a_dataset_exits_2(self, tmp_path, capsys):
         assert main(["verify", str(tmp_path / "nothing")]) == 2
