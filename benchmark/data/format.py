@@ -10,9 +10,13 @@ Layout (all paths relative to the dataset root)::
     uav/shard_00000.npy    uint8 (n, H, W, 3) UAV images, rows [k * shard_size, ...)
     sat/shard_00000.npy    uint8 (m, H, W, 3) satellite images, rows [k * sat_shard_size, ...)
     manifest.json          written last: config, counts, splits and {path: bytes, sha256, shape}
+    .simulate.lock         while simulate runs: its pid, host and start (benchmark.locks)
+    .render-journal.jsonl  while unfinished: sha256 of each shard as rendered (data.journal)
 
 Every file is written to a temporary name and renamed into place, so a killed run leaves either a
-complete file or none; the manifest exists only once every shard does.
+complete file or none; the manifest exists only once every shard does. Its digests are those
+of the bytes simulate rendered, never of whatever is found on disk. Opening a dataset checks them
+once per file and caches the verdict outside the dataset (``benchmark.data.integrity``).
 """
 
 from __future__ import annotations
