@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -153,3 +154,36 @@ class TestSimulateLock:
         ref = tmp_path / "ref"
         subprocess.run([*args[:-4], str(ref), *args[-3:]], env=env, check=True)
         assert all_files(out) == all_files(ref)
+
+    @pytest.mark.slow
+    def test_kill_9_during_render_then_rerun(self, tmp_path, city_cache):
+        """kill -9 mid-render leaves the lock file (naming the dead pid) and the render journal;
+        the rerun takes the lock over, trusts only journalled bytes, and ends with the bytes of
+        an uninterrupted run."""
+        out, ref = tmp_path / "ds", tmp_path / "ref"
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+
+        def args(path):
+            return [*CLI, "simulate", "--profile", "smoke", "--size", "240", "--workers", "1",
+                    "--out", str(path), "--city-cache", str(city_cache), "--quiet"]  # fmt: skip
+
+        proc = subprocess.Popen(args(out), env=env, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 120
+        while len(list(out.glob("uav/shard_*.npy"))) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+        assert read_holder(out / ".simulate.lock").pid == proc.pid
+        assert (out / ".render-journal.jsonl").is_file() and not (out / "manifest.json").exists()
+        rerun = subprocess.run(args(out), env=env, capture_output=True, text=True, timeout=600)
+        assert rerun.returncode == 0, rerun.stderr
+        assert (
+            f"took over the stale lock {out / '.simulate.lock'} of pid {proc.pid}" in rerun.stderr
+        )
+        full = subprocess.run(args(ref), env=env, check=True, capture_output=True, text=True)
+        assert all_files(out) == all_files(ref)
+
+        def rendered(stdout: str) -> int:
+            return int(re.search(r"rendered (\d+) UAV", stdout).group(1))
+
+        assert rendered(rerun.stdout) < rendered(full.stdout)  # journalled shards were kept
