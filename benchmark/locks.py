@@ -1,7 +1,13 @@
 """One writer per work directory: an exclusive lock file naming its holder (pid, host, start).
 
-    with work_lock(out / ".lock", what="simulate", wait=True, notify=print):
+    with work_lock(out / ".simulate.lock", what="uavbench simulate", wait=True, notify=print):
         ...  # only one process at a time gets here for this path
+
+    try:  # a command that refuses instead of waiting: exit 2 naming the holder
+        with work_lock(workdir / ".reproduce.lock", what="uavbench reproduce"):
+            ...
+    except LockBusyError as err:
+        raise UsageError(str(err)) from None
 
 The lock is an ``fcntl.flock`` on the lock file, so the kernel releases it when its holder exits,
 however it exits (kill -9 included): a lock left by a dead process is free and is taken over at
