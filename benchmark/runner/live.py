@@ -51,7 +51,8 @@ class UnitTracking:
     tags: dict[str, str] = field(default_factory=dict)
     description: str = ""
     dataset: DatasetRef | None = None
-    system_metrics_s: float = 5.0  # sampling interval of CPU / memory
+    system_metrics_s: float = 2.0  # sampling interval of CPU / memory (a sample per interval)
+    log_model: bool = True  # False: --no-models (the checkpoint stays in the unit directory)
 
 
 def open_unit_run(t: UnitTracking) -> tuple[Run | None, RunInfo | None]:
@@ -109,7 +110,7 @@ def track_unit(
             run.log_artifact(unit_dir / name)
     if (unit_dir / "eval").is_dir():
         run.log_artifact(unit_dir / "eval")  # predictions: once per unit, not per table row
-    model_uri = run.log_model(_predictor(done), _input_example(cfg))
+    model_uri = run.log_model(_predictor(done), _input_example(cfg)) if t.log_model else ""
     if model_uri:
         run.set_tags({"model_uri": model_uri})
     return done, model_uri

@@ -137,8 +137,9 @@ class Logbook:
         return f"The `{self.profile}` reproduction of {what}: its rows are the nested runs."
 
     # ------------------------------------------------------------------ training runs
-    def unit_tracking(self, unit: Unit) -> UnitTracking:
-        """How the worker training ``unit`` logs its training run (``benchmark.runner.live``)."""
+    def unit_tracking(self, unit: Unit, *, log_model: bool = True) -> UnitTracking:
+        """How the worker training ``unit`` logs its training run (``benchmark.runner.live``);
+        ``log_model=False`` logs no model (``--no-models``)."""
         self._describe(descriptions.UNITS_TABLE)
         readers = [
             f"{job.table} ({job.label}{f' [{job.x}]' if job.x is not None else ''})"
@@ -158,15 +159,17 @@ class Logbook:
             tags={k: v for k, v in tags.items() if v},
             description=descriptions.unit_run(unit, readers),
             dataset=self._dataset(unit.cfg.data.train_split),
+            log_model=log_model,
         )
 
     def kill_unfinished_units(self, keys: Iterable[str]) -> int:
         """Mark KILLED the training runs of ``keys`` still RUNNING (their workers were stopped
         by Ctrl-C); returns how many."""
         experiment = experiment_name(self.profile, descriptions.UNITS_TABLE)
+        wanted = set(keys)
         killed = 0
-        for key in keys:
-            for info in self.tracker.find_runs(experiment, key, (RunStatus.RUNNING.value,)):
+        for info in self.tracker.find_runs(experiment, None, (RunStatus.RUNNING.value,)):
+            if info.tags.get(RUN_KEY_TAG) in wanted:
                 self.tracker.attach(info, reopen=False).end(RunStatus.KILLED)
                 killed += 1
         return killed

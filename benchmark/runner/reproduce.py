@@ -53,6 +53,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--tracker", choices=("mlflow", "local", "null"), default="mlflow", help="tracking backend"
     )
     parser.add_argument("--tracking-uri", default=None, help="MLflow server (or env)")
+    parser.add_argument(
+        "--no-models",
+        action="store_true",
+        help="log no trained model to the tracker (about 15 MB each at the smoke/quick width; "
+        "the checkpoints stay in --workdir)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -185,7 +191,9 @@ def run(args: argparse.Namespace) -> int:
             results[unit.key] = UnitResult(unit.key, True, metrics=merged, seconds=seconds)
             continue
         unit_dir = workdir / "units" / unit.key
-        live = logbook.unit_tracking(unit) if args.tracker != "null" else None
+        live = None
+        if args.tracker != "null":
+            live = logbook.unit_tracking(unit, log_model=not args.no_models)
         todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir, tracking=live)))
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "

@@ -17,6 +17,7 @@ mlflow is imported lazily (in the constructor), so importing this module costs n
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import re
 import time
@@ -362,6 +363,8 @@ class MlflowTracker(Tracker):
             try:
                 from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
 
+                # Its INFO lines (started / stopped) would print twice per unit.
+                logging.getLogger("mlflow.system_metrics").setLevel(logging.WARNING)
                 monitor = SystemMetricsMonitor(
                     run.run_id, sampling_interval=interval_s, tracking_uri=self.uri
                 )

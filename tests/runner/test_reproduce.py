@@ -35,7 +35,8 @@ def full_run(tmp_path_factory, smoke_dataset):
     previous = os.getcwd()
     os.chdir(tmp)  # the tracking store lives in the working directory
     try:
-        code = reproduce(tmp, smoke_dataset, "--jobs", "1")
+        # Logged models are checked by tests/tracking/test_reproduce_on_server.py.
+        code = reproduce(tmp, smoke_dataset, "--jobs", "1", "--no-models")
     finally:
         os.chdir(previous)
     return tmp, code
@@ -174,6 +175,14 @@ class TestReproduceSmoke:
             "run_key",
         ):
             assert key in tags
+        # One training run per unit (experiment uavbench-smoke/training), FINISHED, with the
+        # real start and end; every table row points at its unit's training run.
+        training = [r for r in runs if r["experiment"] == "uavbench-smoke/training"]
+        units = list((tmp / "runs" / "units").iterdir())
+        assert len(training) == len(units) and {r["status"] for r in training} == {"FINISHED"}
+        assert all(r["end_time_ms"] > r["start_time_ms"] for r in training)
+        ids = {r["run_id"] for r in training}
+        assert all(r["tags"]["training_run_id"] in ids for r in nested if "unit" in r["tags"])
 
     def test_second_invocation_runs_nothing(self, full_run, smoke_dataset, capsys, monkeypatch):
         tmp, _ = full_run

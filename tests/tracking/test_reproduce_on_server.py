@@ -105,6 +105,8 @@ class TestReproduceOnServer:
             assert sorted(m.step for m in losses) == list(range(1, EPOCHS + 1))
             assert len(client.get_metric_history(run.info.run_id, "val_dphi_deg")) == EPOCHS
             assert "standard/test/dphi_deg" in run.data.metrics
+        # CPU and memory, sampled every 2 s while a unit trains and evaluates.
+        assert any("system/cpu_utilization_percentage" in r.data.metrics for r in runs)
         for row in rows:
             if "training_run_id" in row.data.tags:
                 unit_run = by_id[row.data.tags["training_run_id"]]
