@@ -17,12 +17,14 @@ TARGETS: dict[str, str] = {
     "simulate": "benchmark.data.bench_simulate:main",
     "train": "benchmark.training.bench:main",
     "model": "benchmark.models.bench_model:main",
+    "verify": "benchmark.data.bench_verify:main",
 }
 
 TARGET_HELP: dict[str, str] = {
     "simulate": "pairs/s at 96 and 224 px with all workers, and the time to build a city",
     "train": "training pairs/s (quick and paper model) and the ratio to a plain reference loop",
     "model": "speed-ups of the shared-satellite encoding and channels_last, side by side",
+    "verify": "cost of opening a dataset: size check, first sha256, cached sha256, side by side",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

@@ -88,8 +88,8 @@ def constant_baseline(
     from benchmark.evaluation.evaluate import pair_columns
     from benchmark.evaluation.reference import constant_predictor
 
-    train = PairDataset(data_root, train_split, verify="size")
-    evaluated = PairDataset(data_root, eval_split, verify="size")
+    train = PairDataset(data_root, train_split)
+    evaluated = PairDataset(data_root, eval_split)
     summary, frame = constant_predictor(train, evaluated)
     flights = pair_columns(evaluated).get("flight")  # item order, as the frame's rows
     if flights is not None:

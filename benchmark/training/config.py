@@ -36,7 +36,9 @@ class DataConfig:
     limit_train: int | None = None  # first N training pairs only (smoke runs)
     limit_val: int | None = None
     num_workers: int = 0  # DataLoader worker processes (0: load in the training process)
-    verify: Literal["sha256", "size"] = "size"  # dataset file check when opening
+    # dataset file check when opening: sha256 hashes each file once and caches the result by file
+    # identity (benchmark.data.integrity), so later opens cost a stat; "size" is the cheap opt-out
+    verify: Literal["sha256", "size", "full"] = "sha256"
 
     def __post_init__(self) -> None:
         for name in ("limit_train", "limit_val"):

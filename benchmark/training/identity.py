@@ -26,8 +26,11 @@ MODEL_KEY_TAG = "model_key"  # the tag holding run_key(cfg, manifest) on every t
 
 
 def portable_config(cfg: TrainConfig) -> TrainConfig:
-    """``cfg`` without what only locates or schedules the run: ``data.root`` and ``threads``."""
-    return dataclasses.replace(cfg, data=dataclasses.replace(cfg.data, root=""), threads=None)
+    """``cfg`` without what only locates, schedules or checks the run: ``data.root``,
+    ``threads`` and ``data.verify`` (how the files are checked never changes the numbers; it is
+    pinned to ``"size"``, its value before checksums became the default, so keys stay valid)."""
+    data = dataclasses.replace(cfg.data, root="", verify="size")
+    return dataclasses.replace(cfg, data=data, threads=None)
 
 
 def run_key(cfg: TrainConfig, dataset_manifest: str) -> str:

@@ -93,11 +93,6 @@ class TestTrainingOpen:
         with pytest.raises(DatasetError, match=r"corrupted file .*sat/shard_00000\.npy"):
             open_datasets(cfg)
 
-    @pytest.mark.xfail(
-        strict=True,
-        reason="DataConfig.verify defaults to 'size' until benchmark/training/config.py says "
-        "'sha256' (issue 14; with identity.portable_config pinning verify so keys stay)",
-    )
     def test_default_config_refuses_a_flipped_byte(self, dataset):
         from benchmark.training import TrainConfig
         from benchmark.training.build import open_datasets
