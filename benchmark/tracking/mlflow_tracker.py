@@ -16,21 +16,18 @@ mlflow is imported lazily (in the constructor), so importing this module costs n
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import os
 import re
 import time
 import urllib.error
 import urllib.request
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from benchmark.tracking.base import (
     RUN_KEY_TAG,
-    DatasetRef,
     MetricPoint,
     Run,
     RunInfo,
@@ -39,14 +36,12 @@ from benchmark.tracking.base import (
     TrackerSpec,
 )
 from benchmark.tracking.local import LocalTracker, _safe_dirname
+from benchmark.tracking.mlflow_lineage import LineageMixin
 
 # Retries of a failed MLflow call before falling back (see MlflowTracker._guard).
 _RETRIES, _RETRY_PAUSE_S = 3, 0.3
 # MLflow's REST limits per log_batch request (mlflow.utils.validation).
 _MAX_METRICS, _MAX_PARAMS_TAGS, _MAX_ENTITIES = 1000, 100, 1000
-# A dataset input's digest is at most 36 characters (mlflow.utils.validation): the first 32 hex
-# digits of the manifest sha256 (128 bits); the full hash is the run tag dataset_manifest_sha256.
-_MAX_DIGEST = 32
 # A run_key goes into a search filter string: keep it to characters that need no quoting.
 _RUN_KEY_RE = re.compile(r"^[A-Za-z0-9_.:-]{1,128}$")
 # Shorter retries than MLflow's defaults (7 retries, 120 s timeout: minutes before giving up) so a
@@ -91,7 +86,7 @@ def server_is_healthy(uri: str, timeout: float = 5.0) -> tuple[bool, str]:
         return False, f"{url}: {reason}"
 
 
-class MlflowTracker(Tracker):
+class MlflowTracker(LineageMixin, Tracker):
     """One MLflow experiment per table/figure, a parent run per invocation, nested runs per
     (variant, seed). See the module docstring for the store defaults and the fallback."""
 
@@ -325,59 +320,6 @@ class MlflowTracker(Tracker):
         if not self._guard("set_experiment_tag", send):
             self._fallback._set_experiment_tags(experiment, tags)
 
-    def _log_inputs(self, run: Run, datasets: list[DatasetRef]) -> None:
-        if self._fallback is not None:
-            self._fallback._log_inputs(run, datasets)
-            return
-        from mlflow.data.meta_dataset import MetaDataset
-        from mlflow.data.sources import LocalArtifactDatasetSource
-        from mlflow.entities import DatasetInput, InputTag
-        from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
-
-        inputs = [
-            DatasetInput(
-                MetaDataset(
-                    LocalArtifactDatasetSource(d.source), name=d.name, digest=d.digest[:_MAX_DIGEST]
-                )._to_mlflow_entity(),
-                tags=[InputTag(MLFLOW_DATASET_CONTEXT, d.context)],
-            )
-            for d in datasets
-        ]
-        self._guard("log_inputs", self._client.log_inputs, run.run_id, inputs)
-
-    def _log_model(self, run: Run, model: object, input_example: object, name: str) -> str:
-        if self._fallback is not None:
-            return self._fallback._log_model(run, model, input_example, name)
-        from benchmark.tracking.models import log_pytorch_model
-
-        try:
-            return log_pytorch_model(model, input_example, run.run_id, self.uri, name)
-        except Exception as err:  # a model that cannot be logged must not stop the work
-            warnings.warn(f"could not log the model of run {run.run_name!r}: {err!r}", stacklevel=3)
-            return ""
-
-    @contextlib.contextmanager
-    def _system_metrics(self, run: Run, interval_s: float) -> Iterator[None]:
-        monitor = None
-        if self._fallback is None:
-            try:
-                from mlflow.system_metrics.system_metrics_monitor import SystemMetricsMonitor
-
-                # Its INFO lines (started / stopped) would print twice per unit.
-                logging.getLogger("mlflow.system_metrics").setLevel(logging.WARNING)
-                monitor = SystemMetricsMonitor(
-                    run.run_id, sampling_interval=interval_s, tracking_uri=self.uri
-                )
-                monitor.start()
-            except Exception as err:  # psutil missing, ...: train anyway
-                warnings.warn(f"no system metrics for run {run.run_name!r}: {err!r}", stacklevel=3)
-                monitor = None
-        try:
-            yield
-        finally:
-            if monitor is not None:
-                monitor.finish()
-
     # ------------------------------------------------------------------ lookup
     def find_runs(
         self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
@@ -393,9 +335,12 @@ class MlflowTracker(Tracker):
                 exp = self._client.get_experiment_by_name(experiment)
                 if exp is None:
                     return
+                clauses = [f"tags.{RUN_KEY_TAG} = '{run_key}'"] if run_key else []
+                if len(statuses) == 1:  # the common case (FINISHED, RUNNING): let the store filter
+                    clauses.append(f"attributes.status = '{RunStatus(statuses[0]).value}'")
                 runs = self._client.search_runs(
                     [exp.experiment_id],
-                    filter_string=f"tags.{RUN_KEY_TAG} = '{run_key}'" if run_key else "",
+                    filter_string=" and ".join(clauses),
                     order_by=["attributes.start_time DESC"],
                     max_results=1000,
                 )
