@@ -75,9 +75,11 @@ class TestTags:
         assert json.loads(expected["head_options"]) == {"attitude": {}, "translation": {}}
 
         # What the reproduce logbook writes on the job's tracked run carries the same tags.
+        from benchmark.runner.execute import UnitResult
+
         tracker = create_tracker("local", workdir=tmp_path)
         logbook = Logbook(tracker, "smoke", {"git_commit": "abc", "dataset_manifest": "m"})
-        logbook.log_job(unit.jobs[0], unit, [], {}, [])
+        logbook.log_job(unit.jobs[0], unit, UnitResult(unit.key, True))
         logbook.close(RunStatus.FINISHED)
         runs = [
             json.loads(p.read_text())
