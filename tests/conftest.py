@@ -19,3 +19,16 @@ def smoke_dataset(tmp_path_factory):
     cache = tmp_path_factory.mktemp("smoke-cities")
     simulate_dataset(root, PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
     return root
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_tracking_uri():
+    """``mlflow.set_tracking_uri`` also writes ``MLFLOW_TRACKING_URI`` into ``os.environ``: a test
+    that tracks to a server must not point every later test (and ``uavbench ui``'s default) at a
+    server that is gone."""
+    before = os.environ.get("MLFLOW_TRACKING_URI")
+    yield
+    if before is None:
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
+    else:
+        os.environ["MLFLOW_TRACKING_URI"] = before

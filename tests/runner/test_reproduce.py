@@ -251,9 +251,13 @@ class TestReproduceInterrupted:
         ]  # fmt: skip
         root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
         env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "PYTHONPATH": root}
+        # A process started with SIGINT ignored (a background job of a non-interactive shell, as
+        # `nohup bash .ci/run &`) passes that on, and Python then installs no KeyboardInterrupt
+        # handler: restore the default, as a terminal's foreground job has it.
         proc = subprocess.Popen(
             argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
             text=True, start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )  # fmt: skip
         training = tmp_path / "tracking-local" / "uavbench-smoke_training"
         deadline = time.monotonic() + 120
