@@ -1,18 +1,23 @@
 """Experiment tracking behind one small interface (pykeen style).
 
 ``create_tracker()`` gives an :class:`MlflowTracker` on the embedded sqlite store (or a server from
-``--tracking-uri`` / ``MLFLOW_TRACKING_URI``) that falls back to local files if MLflow fails;
-:class:`NullTracker` logs nothing (tests). mlflow is imported only when an MlflowTracker is built.
+``--tracking-uri`` / ``MLFLOW_TRACKING_URI``, checked by :func:`normalize_tracking_uri`) that
+falls back to local files, loudly, if MLflow fails; :class:`NullTracker` logs nothing (tests).
+``tracker.summary()`` says at the end where the runs are; ``uavbench sync``
+(:mod:`benchmark.tracking.sync`) copies fallback runs into a store. mlflow is imported only when
+an MlflowTracker is built.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from benchmark.tracking.base import (
     DESCRIPTION_TAG,
     EXPERIMENT_KIND,
     EXPERIMENT_KIND_TAG,
+    FAILURE_REASON_TAG,
     RUN_KEY_TAG,
     DatasetRef,
     MetricPoint,
@@ -30,11 +35,13 @@ from benchmark.tracking.mlflow_tracker import (
     server_is_healthy,
 )
 from benchmark.tracking.provenance import file_sha256, git_commit, manifest_sha256
+from benchmark.tracking.uri import normalize_tracking_uri
 
 __all__ = [
     "DESCRIPTION_TAG",
     "EXPERIMENT_KIND",
     "EXPERIMENT_KIND_TAG",
+    "FAILURE_REASON_TAG",
     "RUN_KEY_TAG",
     "DatasetRef",
     "LocalTracker",
@@ -52,6 +59,7 @@ __all__ = [
     "file_sha256",
     "git_commit",
     "manifest_sha256",
+    "normalize_tracking_uri",
     "server_is_healthy",
     "tracker_from_spec",
 ]
@@ -64,18 +72,27 @@ def create_tracker(
     workdir: str | Path | None = None,
 ) -> Tracker:
     """``kind``: ``"mlflow"`` (default store in ``workdir`` or a server), ``"local"`` (files under
-    ``workdir/tracking-local``) or ``"null"``."""
+    ``workdir/tracking-local``) or ``"null"``.
+
+    ``tracking_uri`` goes through :func:`normalize_tracking_uri` (``x.db`` -> ``sqlite:///``;
+    an unusable value raises :class:`~benchmark.errors.UsageError`). An MLflow tracker whose
+    store is reachable but misses runs an earlier invocation kept in ``tracking-fallback`` prints
+    its :meth:`~MlflowTracker.pending_sync_notice` on stderr here, once per command."""
     base = Path(workdir) if workdir is not None else Path.cwd()
     if kind == "null":
         return NullTracker()
     if kind == "local":
         return LocalTracker(base / "tracking-local")
     if kind == "mlflow":
-        return MlflowTracker(
-            tracking_uri or default_tracking_uri(base),
+        tracker = MlflowTracker(
+            normalize_tracking_uri(tracking_uri) or default_tracking_uri(base),
             artifact_root=base / "mlartifacts",
             fallback_dir=base / "tracking-fallback",
         )
+        notice = tracker.pending_sync_notice()
+        if notice:
+            print(notice, file=sys.stderr, flush=True)
+        return tracker
     raise ValueError(f"unknown tracker kind {kind!r}; expected one of 'mlflow', 'local', 'null'")
 
 

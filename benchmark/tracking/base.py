@@ -6,7 +6,8 @@ metrics, which a backend may ignore). Everything a caller touches is a :class:`R
 written once here for every backend: it buffers metrics and sends them in batches, keeps a record of
 everything logged (so a backend that fails mid-run can hand the whole run over to a local fallback
 without losing anything), and, used as a context manager, ends the run FINISHED on success, FAILED
-on an exception and KILLED on ``KeyboardInterrupt``.
+on an exception (the exception is the run's ``failure_reason`` tag and is added to its note) and
+KILLED on ``KeyboardInterrupt``. :meth:`Run.fail` fails a run with a reason explicitly.
 
 The runner never imports mlflow: it gets a tracker from :func:`benchmark.tracking.create_tracker`
 and talks to this interface only.
@@ -19,82 +20,24 @@ import contextlib
 import time
 from collections.abc import Mapping
 from contextlib import AbstractContextManager
-from dataclasses import dataclass, field
-from enum import Enum
 from pathlib import Path
 from types import TracebackType
 
-# Tag under which the stable hash of a (variant, seed, config) is stored; find_finished_run
-# looks it up so a reproduction never redoes a finished run.
-RUN_KEY_TAG = "run_key"
-# MLflow's own tags: the experiment kind that opens the classic (not GenAI) view, and the
-# description shown on top of an experiment or a run page (Markdown).
-EXPERIMENT_KIND_TAG = "mlflow.experimentKind"
-EXPERIMENT_KIND = "custom_model_development"
-DESCRIPTION_TAG = "mlflow.note.content"
-
-
-class RunStatus(str, Enum):
-    """Terminal and live states, spelled as MLflow spells them."""
-
-    RUNNING = "RUNNING"
-    FINISHED = "FINISHED"
-    FAILED = "FAILED"
-    KILLED = "KILLED"
-
-
-@dataclass(frozen=True)
-class RunInfo:
-    """What :meth:`Tracker.find_finished_run` returns about a stored run.
-
-    ``metrics`` holds the latest value of each metric; ``backend`` is ``"mlflow"`` or ``"local"``.
-    """
-
-    run_id: str
-    experiment: str
-    run_name: str
-    status: str
-    tags: Mapping[str, str] = field(default_factory=dict)
-    params: Mapping[str, str] = field(default_factory=dict)
-    metrics: Mapping[str, float] = field(default_factory=dict)
-    artifact_uri: str = ""
-    backend: str = ""
-    start_time_ms: int | None = None
-    end_time_ms: int | None = None
-
-
-@dataclass(frozen=True)
-class DatasetRef:
-    """A dataset a run read, for :meth:`Run.log_input` (MLflow's Datasets column).
-
-    ``digest`` identifies the content (the manifest's sha256), ``name`` the dataset (its directory
-    name), ``source`` where it lives (its path), ``context`` the split read (``"standard/train"``).
-    """
-
-    name: str
-    digest: str
-    source: str
-    context: str
-
-
-@dataclass(frozen=True)
-class TrackerSpec:
-    """What another process needs to build the same tracker (picklable):
-    ``benchmark.tracking.tracker_from_spec``. ``kind`` is ``"mlflow"``, ``"local"`` or ``"null"``;
-    ``uri`` the MLflow tracking URI or the local root; the two paths are an MLflow tracker's."""
-
-    kind: str
-    uri: str = ""
-    artifact_root: str | None = None
-    fallback_dir: str | None = None
-
-
-@dataclass(frozen=True)
-class MetricPoint:
-    key: str
-    value: float
-    step: int
-    timestamp_ms: int
+from benchmark.tracking.records import (  # noqa: F401 - re-exported: base is the interface
+    DESCRIPTION_TAG,
+    EXPERIMENT_KIND,
+    EXPERIMENT_KIND_TAG,
+    FAILURE_REASON_TAG,
+    MAX_TAG_VALUE,
+    RUN_KEY_TAG,
+    DatasetRef,
+    MetricPoint,
+    RunInfo,
+    RunStatus,
+    TrackerSpec,
+    cut_text,
+    failed_note,
+)
 
 
 def _as_str(value: object) -> str:
@@ -235,6 +178,24 @@ class Run:
             self.end_time_ms = end_time_ms if end_time_ms is not None else _now_ms()
             self.tracker._end_run(self, status)
 
+    def fail(self, reason: str, end_time_ms: int | None = None) -> None:
+        """End the run FAILED because of ``reason`` (one line, e.g. ``"non-finite val_loss_total
+        = inf at epoch 3"``): the tag ``failure_reason`` holds it (cut to MLflow's 8000-character
+        limit) and the run's note (``mlflow.note.content``, shown on its page) gets it appended
+        below the existing description. A no-op on a run that already ended."""
+        if self.status is not RunStatus.RUNNING:
+            return
+        reason = " ".join(str(reason).split()) or "unknown reason"
+        try:
+            self.set_tags(
+                {
+                    FAILURE_REASON_TAG: cut_text(reason, MAX_TAG_VALUE),
+                    DESCRIPTION_TAG: failed_note(self.tags.get(DESCRIPTION_TAG, ""), reason),
+                }
+            )
+        finally:  # a backend that cannot take the tags still gets the status
+            self.end(RunStatus.FAILED, end_time_ms)
+
     def __enter__(self) -> Run:
         return self
 
@@ -249,7 +210,8 @@ class Run:
         elif issubclass(exc_type, KeyboardInterrupt):
             self.end(RunStatus.KILLED)
         else:
-            self.end(RunStatus.FAILED)
+            detail = str(exc).strip() if exc is not None else ""
+            self.fail(f"{exc_type.__name__}: {detail}" if detail else exc_type.__name__)
 
     def latest_metrics(self) -> dict[str, float]:
         out: dict[str, float] = {}
@@ -351,6 +313,17 @@ class Tracker(abc.ABC):
     def spec(self) -> TrackerSpec:
         """How a worker process builds the same tracker (``tracker_from_spec``)."""
         return TrackerSpec("null")
+
+    def summary(self) -> str:
+        """One line (two when runs wait to be synced) for the end of a command: where the runs
+        went, e.g. ``tracking: sqlite:///.../mlflow.db (12 runs written by this invocation)``."""
+        return f"tracking: {self.uri}"
+
+    def pending_sync_notice(self) -> str:
+        """A loud multi-line notice when finished runs exist only in a local fallback directory
+        that this tracker's store has not received (``uavbench sync`` sends them); ``""`` when
+        there are none. Printed by ``create_tracker`` at start and part of :meth:`summary`."""
+        return ""
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Release resources; runs must have been ended."""

@@ -49,6 +49,9 @@ class NullTracker(Tracker):
     ) -> list[RunInfo]:
         return []
 
+    def summary(self) -> str:
+        return "tracking: off (nothing was logged)"
+
     def _create_run(self, run: Run) -> str:
         return uuid.uuid4().hex
 
@@ -89,6 +92,10 @@ class LocalTracker(Tracker):
 
     def spec(self) -> TrackerSpec:
         return TrackerSpec("local", str(self.root))
+
+    def summary(self) -> str:
+        n = sum(1 for _ in self.root.glob("*/*/run.json")) if self.root.is_dir() else 0
+        return f"tracking: {n} run(s) as files under {self.root} (run.json, metrics.csv per run)"
 
     def _run_dir(self, run: Run) -> Path:
         return self.root / _safe_dirname(run.experiment) / run.run_id

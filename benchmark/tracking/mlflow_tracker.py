@@ -4,12 +4,26 @@ Embedded default: the sqlite store ``sqlite:///<cwd>/mlflow.db`` (MLflow 3.x no 
 plain file store) with artifacts under ``<cwd>/mlartifacts/<experiment>``; nothing to start.
 ``tracking_uri`` (``--tracking-uri`` or ``MLFLOW_TRACKING_URI``) points at a server instead.
 
+The URI goes through :func:`~benchmark.tracking.uri.normalize_tracking_uri` (a plain ``x.db``
+becomes ``sqlite:///<abs>``, anything unusable is refused), and the first open of a sqlite store
+runs under its schema lock (:func:`~benchmark.tracking.uri.open_sqlite_store_once`), so processes
+starting together on a fresh store do not race in MLflow's migration.
+
 Failure policy: if the server does not answer ``/health`` within ``health_timeout`` seconds at
 start, or any MLflow call fails later, the tracker switches for the rest of the process to a
-:class:`~benchmark.tracking.local.LocalTracker` under ``fallback_dir`` and emits ONE
-:class:`TrackingFallbackWarning`. Every run still open is handed over with its complete record
+:class:`~benchmark.tracking.local.LocalTracker` under ``fallback_dir``, prints ONE loud block on
+stderr (what failed, where the runs go, the exact ``uavbench sync --from DIR --to URI`` that sends
+them) and emits one :class:`TrackingFallbackWarning` (for programs; not displayed by default, the
+block is the message for people). Every run still open is handed over with its complete record
 (params, tags, all metrics logged so far, artifacts), tagged ``mlflow_run_id`` with its id on the
 server, so the local copy is self-contained. Runs that ended before the failure are on the server.
+:meth:`MlflowTracker.summary` says at the end where the runs really are.
+
+Runs found in the fallback directory by a later invocation are reused (a finished unit is not
+trained again), but they stay local: with the store reachable again, ``create_tracker`` prints
+:meth:`MlflowTracker.pending_sync_notice` (N runs exist only locally, and the sync command) and
+the summary repeats it. ``uavbench sync`` copies them; once copied (``synced.json`` beside each
+run) they are found in the store only, never twice.
 
 mlflow is imported lazily (in the constructor), so importing this module costs nothing.
 """
@@ -18,9 +32,8 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 import time
-import urllib.error
-import urllib.request
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -37,6 +50,16 @@ from benchmark.tracking.base import (
 )
 from benchmark.tracking.local import LocalTracker, _safe_dirname
 from benchmark.tracking.mlflow_lineage import LineageMixin
+from benchmark.tracking.mlflow_summary import SummaryMixin
+from benchmark.tracking.pending import fallback_message, is_synced
+from benchmark.tracking.uri import (
+    default_tracking_uri,
+    normalize_tracking_uri,
+    open_sqlite_store_once,
+    server_is_healthy,
+)
+
+__all__ = ["MlflowTracker", "TrackingFallbackWarning", "default_tracking_uri", "server_is_healthy"]
 
 # Retries of a failed MLflow call before falling back (see MlflowTracker._guard).
 _RETRIES, _RETRY_PAUSE_S = 3, 0.3
@@ -60,33 +83,16 @@ def _is_connection_error(err: Exception) -> bool:
 
 
 class TrackingFallbackWarning(UserWarning):
-    """MLflow could not be used; results go to a local directory instead."""
+    """MLflow could not be used; results go to a local directory instead. Its message is the
+    block printed on stderr; catch it with ``pytest.warns`` / ``warnings.catch_warnings``."""
 
 
-def default_tracking_uri(cwd: str | Path | None = None) -> str:
-    """``MLFLOW_TRACKING_URI`` if set, else ``sqlite:///<cwd>/mlflow.db`` (absolute path)."""
-    env = os.environ.get("MLFLOW_TRACKING_URI")
-    if env:
-        return env
-    base = Path(cwd) if cwd is not None else Path.cwd()
-    return f"sqlite:///{(base / 'mlflow.db').resolve()}"
+# The block on stderr is what people read; the warning is for programs, so by default it is not
+# displayed a second time (appended: a user's own -W / PYTHONWARNINGS filter still wins).
+warnings.filterwarnings("ignore", category=TrackingFallbackWarning, append=True)
 
 
-def server_is_healthy(uri: str, timeout: float = 5.0) -> tuple[bool, str]:
-    """``GET <uri>/health`` with ``timeout`` seconds; ``(ok, reason)``. Never raises."""
-    url = uri.rstrip("/") + "/health"
-    try:
-        with urllib.request.urlopen(url, timeout=timeout) as resp:
-            body = resp.read(64).decode("utf-8", "replace").strip()
-            if resp.status == 200:
-                return True, body
-            return False, f"HTTP {resp.status} from {url}"
-    except (urllib.error.URLError, OSError, ValueError) as err:
-        reason = getattr(err, "reason", err)
-        return False, f"{url}: {reason}"
-
-
-class MlflowTracker(LineageMixin, Tracker):
+class MlflowTracker(SummaryMixin, LineageMixin, Tracker):
     """One MLflow experiment per table/figure, a parent run per invocation, nested runs per
     (variant, seed). See the module docstring for the store defaults and the fallback."""
 
@@ -98,7 +104,7 @@ class MlflowTracker(LineageMixin, Tracker):
         fallback_dir: str | Path | None = None,
         health_timeout: float = 5.0,
     ) -> None:
-        self.uri = tracking_uri or default_tracking_uri()
+        self.uri = normalize_tracking_uri(tracking_uri) or default_tracking_uri()
         self._is_http = self.uri.startswith(("http://", "https://"))
         cwd = Path.cwd()
         # Artifacts of a local store go next to the db; a server decides for itself.
@@ -110,20 +116,26 @@ class MlflowTracker(LineageMixin, Tracker):
         self._open: list[Run] = []  # creation order: a parent is handed over before its children
         self._experiment_ids: dict[str, str] = {}
         self._client: Any = None
+        self._started_ms = int(time.time() * 1000)
+        self._failure = ""  # why the fallback is used, for the summary
         if self._is_http:
             for key, value in _HTTP_ENV_DEFAULTS.items():
                 os.environ.setdefault(key, value)
             ok, reason = server_is_healthy(self.uri, timeout=health_timeout)
             if not ok:
+                self._failure = "was unreachable"
                 self._switch_to_fallback(f"tracking server {self.uri} is unreachable ({reason})")
                 return
         try:
             from mlflow.tracking import MlflowClient
 
             self._client = MlflowClient(tracking_uri=self.uri)
-            if not self._is_http:
-                self._client.search_experiments(max_results=1)  # creates/migrates the sqlite db
+            if not self._is_http:  # creates/migrates the sqlite db: once, under its lock
+                open_sqlite_store_once(
+                    self.uri, lambda: self._client.search_experiments(max_results=1)
+                )
         except Exception as err:  # any store error: fall back, never abort the work
+            self._failure = "could not be opened"
             self._switch_to_fallback(f"MLflow store {self.uri} cannot be opened ({err!r})")
 
     def spec(self) -> TrackerSpec:
@@ -142,13 +154,10 @@ class MlflowTracker(LineageMixin, Tracker):
         if self._fallback is not None:
             return
         self._fallback = LocalTracker(self.fallback_dir)
-        warnings.warn(
-            f"MLflow tracking disabled: {reason}. Results of this invocation are written to "
-            f"{self.fallback_dir} instead (run.json, metrics.csv and artifacts per run); "
-            "nothing is lost, and finished runs there are found again on the next invocation.",
-            TrackingFallbackWarning,
-            stacklevel=3,
-        )
+        self._failure = self._failure or "failed during the run"
+        message = fallback_message(reason, self.fallback_dir, self.uri)
+        print(message, file=sys.stderr, flush=True)
+        warnings.warn(message, TrackingFallbackWarning, stacklevel=3)
         for run in list(self._open):
             self._hand_over(run, reason)
 
@@ -325,7 +334,8 @@ class MlflowTracker(LineageMixin, Tracker):
         self, experiment: str, run_key: str | None = None, statuses: tuple[str, ...] = ()
     ) -> list[RunInfo]:
         """MLflow's runs first (most recent first), then those an earlier invocation wrote to
-        the fallback directory."""
+        the fallback directory (except those ``uavbench sync`` copied into this store: the
+        store has them)."""
         if run_key is not None and not _RUN_KEY_RE.match(run_key):
             raise ValueError(f"run_key {run_key!r} must match {_RUN_KEY_RE.pattern}")
         found: list[RunInfo] = []
@@ -352,6 +362,9 @@ class MlflowTracker(LineageMixin, Tracker):
 
             self._guard("search_runs", search)
         local = LocalTracker(self.fallback_dir).find_runs(experiment, run_key, statuses)
+        if self._fallback is None:
+            exp_dir = self.fallback_dir / _safe_dirname(experiment)
+            local = [r for r in local if not is_synced(exp_dir / r.run_id, self.uri)]
         return found + local
 
     @staticmethod

@@ -125,7 +125,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--tracking-uri",
         default=None,
-        help="tracking store (default: MLFLOW_TRACKING_URI, else sqlite:///./mlflow.db)",
+        help="tracking store: a server URL, a sqlite:/// URI or a path ending in .db "
+        "(default: MLFLOW_TRACKING_URI, else sqlite:///./mlflow.db)",
     )
     parser.add_argument(
         "--artifacts-dir",
@@ -148,10 +149,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from benchmark.errors import UsageError
-    from benchmark.tracking.mlflow_tracker import default_tracking_uri, server_is_healthy
     from benchmark.tracking.server import MlflowServer, port_is_free
+    from benchmark.tracking.uri import (
+        default_tracking_uri,
+        normalize_tracking_uri,
+        open_sqlite_store_once,
+        server_is_healthy,
+    )
 
-    uri = args.tracking_uri or default_tracking_uri()
+    # x.db -> sqlite:///<abs>; a directory or unknown scheme: one line and exit 2
+    uri = normalize_tracking_uri(args.tracking_uri) or default_tracking_uri()
     if uri.startswith(("http://", "https://")):
         print(f"MLflow UI: {uri} (a server already; nothing to start)", flush=True)
         ok, reason = server_is_healthy(uri, timeout=5.0)
@@ -169,6 +176,11 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"note: {db} does not exist yet; the UI starts on an empty store", file=sys.stderr
             )
+        # Create/migrate the schema here, under its lock (a reproduction may be opening the same
+        # fresh store): the server then opens a finished schema.
+        from mlflow.tracking import MlflowClient
+
+        open_sqlite_store_once(uri, lambda: MlflowClient(uri).search_experiments(max_results=1))
     alias = None
     if args.screenshots is not None:  # reached as ALIAS_HOST: no assistant panel in the pictures
         from benchmark.tracking.screenshots import ALIAS_HOST, alias_env
