@@ -1,0 +1,390 @@
+"""``uavbench reproduce --executor ray``: each training unit a Ray task, locally or on a cluster.
+
+The contract is :func:`benchmark.runner.reproduce.execute_units`'s: ``todo`` holds
+``(Unit, UnitTask)`` pairs, ``on_done(unit, UnitResult)`` runs in this (driver) process in order of
+completion, and the worker writes the same ``units/<key>/`` files through the same
+:func:`benchmark.runner.execute.run_unit` (one torch thread, as ``worker_init`` sets up), so the
+reports and ``results.csv`` are those of the process pool, number for number.
+
+- ``address=None``: a local Ray (``ray.init(address="local", num_cpus=...)``) is started for the
+  run and shut down after it; an address (``ray start --head`` prints it) connects to that
+  cluster. A Ray the caller already initialised is used as it is and left running.
+- Failures: an exception inside a unit comes back as ``UnitResult(ok=False)`` (``run_unit`` never
+  raises; a deterministic failure such as a non-finite loss would only fail again, so it is not
+  retried). A unit whose worker process or node dies is resubmitted by Ray up to ``max_retries``
+  times, then reported as failed ("worker died ..."); the other units carry on. Rerunning the
+  command resumes: finished units are read from the tracking store or their files.
+- Data: each task first checks on its node that the dataset directory is readable and its manifest
+  has the driver's sha256 (a cluster needs the data on a shared file system, at the same path);
+  otherwise that unit fails with the reason.
+- Tracking: with a non-local cluster the runs must go to an MLflow server; a file or sqlite store
+  is refused (:func:`check_ray_tracking`), because every node would write into its own disk.
+- Ctrl-C: outstanding tasks are cancelled (their workers killed) and a local Ray is shut down;
+  ``reproduce`` then marks the open unit runs KILLED, as with the pool.
+
+``ray`` is optional (``pip install -e ".[ray]"``) and imported only inside these functions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from urllib.parse import urlsplit
+
+from benchmark.errors import UsageError
+from benchmark.progress import Progress
+from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
+
+INSTALL_LINE = 'pip install -e ".[ray]"'
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+DEFAULT_CPUS_PER_UNIT = 1.0
+DEFAULT_GPUS_PER_UNIT = 0.0
+DEFAULT_MAX_RETRIES = 2
+SHARED_FS_HINT = (
+    "the data directory must be on a shared file system, mounted at the same path on every node"
+)
+
+OnDone = Callable[[object, UnitResult], None]
+
+
+# ----------------------------------------------------------------------------- CLI
+def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--executor {pool,ray}``, ``--ray-address``, ``--cpus-per-unit``, ``--gpus-per-unit``,
+    ``--max-retries``. The Ray-only flags default to None, so :func:`check_executor` can refuse
+    them without ``--executor ray``."""
+    group = parser.add_argument_group("executor (where the training units run)")
+    group.add_argument(
+        "--executor",
+        choices=("pool", "ray"),
+        default="pool",
+        help="pool: --jobs local worker processes (default); ray: one Ray task per unit, on a "
+        f"local Ray or on --ray-address (needs {INSTALL_LINE})",
+    )
+    group.add_argument(
+        "--ray-address",
+        default=None,
+        help="Ray cluster to submit to, as `ray start --head` prints it (HOST:6379 or "
+        "ray://HOST:10001); default: a local Ray with --jobs x --cpus-per-unit CPUs, "
+        "started for this run",
+    )
+    group.add_argument(
+        "--cpus-per-unit",
+        type=float,
+        default=None,
+        help=f"CPUs Ray reserves per unit (default {DEFAULT_CPUS_PER_UNIT:g}; training uses one "
+        "torch thread, the others serve DataLoader workers)",
+    )
+    group.add_argument(
+        "--gpus-per-unit",
+        type=float,
+        default=None,
+        help=f"GPUs Ray reserves per unit (default {DEFAULT_GPUS_PER_UNIT:g}; 0.5 puts two units "
+        "on one GPU)",
+    )
+    group.add_argument(
+        "--max-retries",
+        type=int,
+        default=None,
+        help="times Ray reruns a unit whose worker process or node died "
+        f"(default {DEFAULT_MAX_RETRIES})",
+    )
+
+
+RAY_ONLY_FLAGS = {
+    "ray_address": "--ray-address",
+    "cpus_per_unit": "--cpus-per-unit",
+    "gpus_per_unit": "--gpus-per-unit",
+    "max_retries": "--max-retries",
+}
+
+
+def check_executor(args: argparse.Namespace) -> None:
+    """Refuse a bad executor choice before any work is done (a dataset rendered, a unit
+    planned): Ray-only flags without ``--executor ray``, Ray not installed, resources out of
+    range, a node-local tracking store with a cluster (the store as ``reproduce`` will resolve
+    it: ``--tracking-uri``, else ``MLFLOW_TRACKING_URI``, else ``./mlflow.db``)."""
+    if getattr(args, "executor", "pool") != "ray":
+        given = [flag for name, flag in RAY_ONLY_FLAGS.items() if getattr(args, name, None)]
+        if given:
+            raise UsageError(f"{', '.join(given)} only apply to --executor ray")
+        return
+    import_ray()
+    _resources(args)
+    check_ray_tracking(args.ray_address, _planned_tracking_uri(args))
+
+
+def run_executor(
+    args: argparse.Namespace,
+    todo: list[tuple[object, UnitTask]],
+    on_done: OnDone,
+    quiet: bool,
+    tracking_uri: str | None,
+) -> None:
+    """Run ``todo`` with the executor ``args`` chose. ``tracking_uri`` is where the units log
+    (the tracker's resolved URI; None or "" when nothing is logged, ``--tracker null``)."""
+    check_executor(args)
+    if getattr(args, "executor", "pool") == "pool":
+        from benchmark.runner.reproduce import execute_units
+
+        execute_units(todo, args.jobs, on_done, quiet)
+        return
+    check_ray_tracking(args.ray_address, tracking_uri)
+    cpus, gpus, retries = _resources(args)
+    local = args.ray_address is None or args.ray_address == "local"
+    execute_units_ray(
+        todo,
+        on_done,
+        quiet,
+        address=args.ray_address,
+        cpus_per_unit=cpus,
+        gpus_per_unit=gpus,
+        max_retries=retries,
+        # --jobs means the same for both executors: units training at once on this machine
+        num_cpus=max(1, round(args.jobs * cpus)) if local else None,
+    )
+
+
+def _resources(args: argparse.Namespace) -> tuple[float, float, int]:
+    cpus = DEFAULT_CPUS_PER_UNIT if args.cpus_per_unit is None else args.cpus_per_unit
+    gpus = DEFAULT_GPUS_PER_UNIT if args.gpus_per_unit is None else args.gpus_per_unit
+    retries = DEFAULT_MAX_RETRIES if args.max_retries is None else args.max_retries
+    _check_resources(cpus, gpus, retries)
+    return cpus, gpus, retries
+
+
+def _check_resources(cpus: float, gpus: float, retries: int) -> None:
+    if not cpus > 0:
+        raise UsageError(f"--cpus-per-unit must be > 0, got {cpus:g}")
+    if not gpus >= 0:
+        raise UsageError(f"--gpus-per-unit must be >= 0, got {gpus:g}")
+    if retries < 0:
+        raise UsageError(f"--max-retries must be >= 0, got {retries}")
+
+
+def _planned_tracking_uri(args: argparse.Namespace) -> str | None:
+    kind = getattr(args, "tracker", "mlflow")
+    if kind == "null":
+        return None
+    if kind == "local":
+        return str(Path.cwd() / "tracking-local")  # a directory on this machine
+    return args.tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
+
+
+# ----------------------------------------------------------------------------- guards
+def import_ray():
+    """The ``ray`` module, or a :class:`UsageError` (exit 2) with the install line."""
+    try:
+        import ray
+    except ImportError as err:
+        raise UsageError(
+            f"--executor ray needs the optional dependency ray ({err}); install it with: "
+            f"{INSTALL_LINE}"
+        ) from err
+    return ray
+
+
+def is_local_address(address: str | None) -> bool:
+    """None / ``"local"`` (a Ray started here) or a cluster whose head is this machine's
+    loopback address (``127.0.0.1:6379``, ``ray://localhost:10001``)."""
+    if address is None or address.strip() in ("", "local"):
+        return True
+    text = address.strip()
+    host = urlsplit(text if "://" in text else f"//{text}").hostname or ""
+    return host.lower() in LOCAL_HOSTS
+
+
+def is_node_local_uri(uri: str) -> bool:
+    """A tracking store in a file of this machine: ``sqlite:``, ``file:`` or a plain path."""
+    scheme = urlsplit(uri).scheme.lower()
+    return scheme in ("", "file", "sqlite") or len(scheme) == 1  # len 1: a Windows drive "C:"
+
+
+def check_ray_tracking(address: str | None, tracking_uri: str | None) -> None:
+    """Refuse a file or sqlite tracking store with a non-local Ray cluster: each unit's run is
+    logged by the worker that trains it, on whatever node Ray picked, so a store that is a file
+    would be written on that node's disk and the runs would be lost to this machine and the UI.
+    ``tracking_uri`` None or "" (nothing logged) always passes."""
+    if is_local_address(address) or not tracking_uri or not is_node_local_uri(tracking_uri):
+        return
+    raise UsageError(
+        f"--executor ray --ray-address {address} cannot track to {tracking_uri}: that store is a "
+        "file, and each unit's run is logged by the node that trains it, into a file of that "
+        "node's own disk, so the runs would be lost (the driver and the UI never see them). Run "
+        "an MLflow server every node reaches, e.g. `mlflow server --host 0.0.0.0 --port 5000 "
+        "--backend-store-uri sqlite:///mlflow.db --artifacts-destination ./mlartifacts`, and "
+        "pass --tracking-uri http://<that host>:5000 (`uavbench ui --tracking-uri http://...` "
+        "then lists the runs; `uavbench ui` alone serves on 127.0.0.1 only), or --tracker null"
+    )
+
+
+def check_dataset_on_node(root: str | Path, expected_sha256: str) -> str:
+    """Empty if the dataset at ``root`` is readable here and its manifest's sha256 is
+    ``expected_sha256`` (the driver's), else the reason, naming the path and this host."""
+    from benchmark.tracking import manifest_sha256
+
+    path = Path(root).absolute()
+    host = platform.node()
+    try:
+        digest = manifest_sha256(path)
+    except OSError as err:  # missing directory or manifest, permission denied, stale NFS handle
+        return f"dataset {path} not readable on node {host}: {SHARED_FS_HINT} ({err})"
+    if digest != expected_sha256:
+        return (
+            f"dataset {path} on node {host} is not the driver's (manifest sha256 {digest[:16]}..., "
+            f"expected {expected_sha256[:16]}...): {SHARED_FS_HINT}"
+        )
+    return ""
+
+
+# ----------------------------------------------------------------------------- the Ray task
+def ray_unit(task: UnitTask, manifest_digest: str, driver_cwd: str) -> UnitResult:
+    """What one Ray task runs on its node: the pool worker's set-up (one torch thread, SIGINT
+    ignored), the driver's working directory (relative paths of the plan resolve as on the
+    driver, when the file system is shared), the dataset check, then :func:`run_unit`."""
+    start = time.perf_counter()
+    worker_init()
+    if Path(driver_cwd).is_dir():
+        os.chdir(driver_cwd)
+    problem = check_dataset_on_node(task.cfg.data.root, manifest_digest)
+    if problem:
+        return UnitResult(task.key, False, seconds=time.perf_counter() - start, error=problem)
+    return run_unit(task)
+
+
+# ----------------------------------------------------------------------------- the driver
+def execute_units_ray(
+    todo: list[tuple[object, UnitTask]],
+    on_done: OnDone,
+    quiet: bool,
+    *,
+    address: str | None = None,
+    cpus_per_unit: float = DEFAULT_CPUS_PER_UNIT,
+    gpus_per_unit: float = DEFAULT_GPUS_PER_UNIT,
+    max_retries: int = DEFAULT_MAX_RETRIES,
+    num_cpus: int | None = None,
+    task_fn: Callable[..., UnitResult] = ray_unit,
+) -> None:
+    """Submit every task of ``todo`` to Ray and call ``on_done(unit, result)`` here as each ends.
+
+    ``num_cpus``: CPUs of a local Ray (default ``os.cpu_count()``); ignored with an address.
+    ``task_fn(task, manifest_digest, driver_cwd)`` is what a worker runs (:func:`ray_unit`;
+    tests wrap it to kill a worker mid-unit)."""
+    _check_resources(cpus_per_unit, gpus_per_unit, max_retries)
+    ray = import_ray()
+    if not todo:
+        return
+    digests: dict[str, str] = {}
+    with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
+        for _, task in todo:  # the driver's view of the data, which every node must share
+            root = str(task.cfg.data.root)
+            if root not in digests:
+                digests[root] = _manifest_digest(root)
+        bar.status("starting Ray" if is_local_address(address) else f"connecting to {address}")
+        owned = _connect(ray, address, num_cpus)
+        pending: dict[object, tuple[object, UnitTask, float]] = {}
+        try:
+            _check_nodes(ray, cpus_per_unit, gpus_per_unit, fatal=owned and address is None)
+            remote = ray.remote(
+                num_cpus=cpus_per_unit,
+                num_gpus=gpus_per_unit,
+                max_retries=max_retries,
+                retry_exceptions=False,  # an exception is the unit's own: it would fail again
+            )(task_fn)
+            cwd = str(Path.cwd())
+            for unit, task in todo:
+                name = f"unit {getattr(unit, 'title', task.key)}"[:120]
+                ref = remote.options(name=name).remote(task, digests[str(task.cfg.data.root)], cwd)
+                pending[ref] = (unit, task, time.monotonic())
+            bar.status(f"{len(pending)} unit(s) submitted")
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                unit, task, submitted = pending.pop(done[0])
+                result = _fetch(ray, done[0], task.key, submitted, max_retries)
+                on_done(unit, result)
+                bar.update(1, postfix=f"done {getattr(unit, 'title', task.key)}")
+        except BaseException:  # Ctrl-C or on_done failing: stop what still runs, then re-raise
+            for ref in pending:
+                try:
+                    ray.cancel(ref, force=True)  # kills the worker: it may be mid-training
+                except Exception:  # already finished or its node is gone
+                    pass
+            raise
+        finally:
+            if owned:
+                ray.shutdown()
+
+
+def _manifest_digest(root: str) -> str:
+    from benchmark.tracking import manifest_sha256
+
+    try:
+        return manifest_sha256(root)
+    except OSError as err:
+        raise UsageError(f"dataset {Path(root).absolute()} not readable: {err}") from err
+
+
+def _connect(ray, address: str | None, num_cpus: int | None) -> bool:
+    """Start or join Ray; True if this call did (and so shuts it down), False if the caller's
+    Ray is used."""
+    import logging
+
+    if ray.is_initialized():
+        return False
+    common = {"logging_level": logging.WARNING, "log_to_driver": True}
+    if address is None or address == "local":
+        ray.init(
+            address="local",  # never join a cluster RAY_ADDRESS points at by accident
+            num_cpus=num_cpus or os.cpu_count() or 1,
+            include_dashboard=False,
+            **common,
+        )
+    else:
+        try:
+            ray.init(address=address, **common)
+        except (ConnectionError, TimeoutError, RuntimeError) as err:
+            raise UsageError(f"cannot connect to the Ray cluster at {address}: {err}") from err
+    return True
+
+
+def _check_nodes(ray, cpus: float, gpus: float, *, fatal: bool) -> None:
+    """A task no node can hold would wait forever: refuse it on a local Ray, warn on a cluster
+    (an autoscaler may still add such a node)."""
+    nodes = [n.get("Resources", {}) for n in ray.nodes() if n.get("Alive")]
+    if any(r.get("CPU", 0) >= cpus and r.get("GPU", 0) >= gpus for r in nodes):
+        return
+    have = "; ".join(f"CPU {r.get('CPU', 0):g}, GPU {r.get('GPU', 0):g}" for r in nodes) or "none"
+    message = (
+        f"no Ray node has --cpus-per-unit {cpus:g} and --gpus-per-unit {gpus:g} free to give "
+        f"(nodes: {have})"
+    )
+    if fatal:
+        raise UsageError(message)
+    print(f"warning: {message}; the units wait until such a node joins", file=sys.stderr)
+
+
+def _fetch(ray, ref, key: str, submitted: float, max_retries: int) -> UnitResult:
+    """The task's :class:`UnitResult`, or a failed one saying why Ray could not produce it."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as err:  # raised outside run_unit: import or set-up
+        cause = err.cause if getattr(err, "cause", None) is not None else err
+        error = f"ray task failed: {type(cause).__name__}: {_first_line(cause)}"
+    except ray.exceptions.TaskCancelledError:
+        error = "cancelled"
+    except ray.exceptions.RayError as err:  # WorkerCrashedError, NodeDiedError, OutOfMemoryError
+        attempts = max_retries + 1
+        error = (
+            f"worker died on each of {attempts} attempt(s) (--max-retries {max_retries}): "
+            f"{type(err).__name__}: {_first_line(err)}"
+        )
+    return UnitResult(key, False, seconds=time.monotonic() - submitted, error=error)
+
+
+def _first_line(err: BaseException) -> str:
+    lines = [line.strip() for line in str(err).splitlines() if line.strip()]
+    return lines[0] if lines else repr(err)
