@@ -32,6 +32,7 @@ COMMANDS: dict[str, str] = {
     "train": "benchmark.training.command",
     "evaluate": "benchmark.evaluation.command",
     "ui": "benchmark.tracking.ui",
+    "sync": "benchmark.tracking.sync_command",
     "reproduce": "benchmark.runner.reproduce",
 }
 
@@ -47,6 +48,7 @@ COMMAND_HELP: dict[str, str] = {
     "train": "train one variant from a config (--set a.b=value), evaluate it, track it in MLflow",
     "evaluate": "evaluate a trained checkpoint on dataset splits: per-sample CSV and metrics",
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
+    "sync": "copy runs kept locally (./tracking-fallback) into an MLflow store; idempotent",
     "reproduce": "reproduce the paper's tables and figures: simulate, train, evaluate, report",
 }
 

@@ -17,6 +17,26 @@ from benchmark.tracking.base import DatasetRef, Run
 _MAX_DIGEST = 32
 
 
+def dataset_inputs(datasets: list[DatasetRef]) -> list[Any]:
+    """MLflow ``DatasetInput`` entities of ``datasets`` (for ``MlflowClient.log_inputs``): a
+    MetaDataset per dataset (name, digest cut to MLflow's 36-character limit, source path) with
+    the split read as its ``mlflow.data.context`` tag."""
+    from mlflow.data.meta_dataset import MetaDataset
+    from mlflow.data.sources import LocalArtifactDatasetSource
+    from mlflow.entities import DatasetInput, InputTag
+    from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
+
+    return [
+        DatasetInput(
+            MetaDataset(
+                LocalArtifactDatasetSource(d.source), name=d.name, digest=d.digest[:_MAX_DIGEST]
+            )._to_mlflow_entity(),
+            tags=[InputTag(MLFLOW_DATASET_CONTEXT, d.context)],
+        )
+        for d in datasets
+    ]
+
+
 class LineageMixin:
     """Needs ``self._fallback`` (a LocalTracker or None), ``self._client``, ``self._guard`` and
     ``self.uri`` (see MlflowTracker)."""
@@ -29,20 +49,7 @@ class LineageMixin:
         if self._fallback is not None:
             self._fallback._log_inputs(run, datasets)
             return
-        from mlflow.data.meta_dataset import MetaDataset
-        from mlflow.data.sources import LocalArtifactDatasetSource
-        from mlflow.entities import DatasetInput, InputTag
-        from mlflow.utils.mlflow_tags import MLFLOW_DATASET_CONTEXT
-
-        inputs = [
-            DatasetInput(
-                MetaDataset(
-                    LocalArtifactDatasetSource(d.source), name=d.name, digest=d.digest[:_MAX_DIGEST]
-                )._to_mlflow_entity(),
-                tags=[InputTag(MLFLOW_DATASET_CONTEXT, d.context)],
-            )
-            for d in datasets
-        ]
+        inputs = dataset_inputs(datasets)
         self._guard("log_inputs", self._client.log_inputs, run.run_id, inputs)
 
     def _log_model(self, run: Run, model: object, input_example: object, name: str) -> str:
