@@ -6,7 +6,8 @@ The parent process describes the run (:class:`UnitTracking`, picklable: the trac
 
 1. :func:`open_unit_run` when training starts: reuses a FINISHED run of the unit (nothing is
    logged again), continues the latest unfinished one (KILLED, FAILED or left RUNNING by a killed
-   process: same run, its start time kept, epochs already logged not repeated), or creates one;
+   process: same run, its start time kept, epochs already logged not repeated; never a RUNNING
+   run whose owning invocation still lives, see ``invocations.owner_lives``), or creates one;
 2. :func:`track_unit`: logs each epoch's metrics as the epoch ends (``train_loss_*``, ``val_*``,
    ``lr``, ``pairs_per_s``, ``epoch_time_s``; step = epoch; sent at once, so the UI draws curves
    during the reproduction), CPU and memory while training, then every evaluation
@@ -24,6 +25,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmark.runner.invocations import OWNER_TAGS, owner_lives
 from benchmark.tracking import (
     RUN_KEY_TAG,
     DatasetRef,
@@ -63,8 +65,14 @@ def open_unit_run(t: UnitTracking) -> tuple[Run | None, RunInfo | None]:
     finished = [info for info in found if info.status == RunStatus.FINISHED.value]
     if finished:
         return None, finished[0]
-    if found:  # interrupted earlier: continue that run
+    # A RUNNING run of a live invocation (another work directory on this store) is that
+    # invocation's to write: never log into it from here.
+    found = [i for i in found if i.status != RunStatus.RUNNING.value or not owner_lives(i.tags)]
+    if found:  # interrupted earlier: continue that run, now owned by this invocation
         run = tracker.attach(found[0], reopen=True)
+        owner = {k: t.tags[k] for k in OWNER_TAGS if k in t.tags}
+        if owner:
+            run.set_tags(owner)
         run.tags["_logged_epochs"] = str(int(found[0].metrics.get(EPOCH_METRIC, 0)))
         return run, None
     run = tracker.start_run(

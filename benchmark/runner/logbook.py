@@ -34,12 +34,14 @@ from typing import Any
 from benchmark.config import flatten
 from benchmark.runner import descriptions
 from benchmark.runner.execute import UnitResult, eval_keys
+from benchmark.runner.invocations import OWNER_TAGS, owner_lives
 from benchmark.runner.live import UnitTracking
 from benchmark.runner.plan import Unit, job_key
 from benchmark.runner.specs import Job, TableSpec
-from benchmark.tracking import RUN_KEY_TAG, DatasetRef, Run, RunStatus, Tracker
+from benchmark.tracking import RUN_KEY_TAG, DatasetRef, Run, RunInfo, RunStatus, Tracker
 from benchmark.training.identity import run_tags
 
+END_REASON_TAG = "uavbench.end_reason"  # why a run was ended by another invocation
 SECONDS_METRIC = "unit_seconds"  # wall time of the unit's training + evaluation in its worker
 # The headline metrics of a row, prefixed test_ / val_ (the paper's columns).
 HEADLINE = ("dphi_deg", "dpsi_deg", "dtheta_deg", "dgamma_deg", "dE_m", "dN_m", "dU_m")
@@ -72,8 +74,13 @@ class Logbook:
         *,
         specs: Iterable[TableSpec] = (),
         data_root: Path | None = None,
+        owner: dict[str, str] | None = None,
     ) -> None:
+        """``owner``: the invocation's ``invocations.owner_tags`` (pid, host, work directory),
+        set on its parent and training runs so a later invocation tells a dead owner from a live
+        one."""
         self.tracker = tracker
+        self.owner = dict(owner or {})
         self.profile = profile
         self.provenance = {k: v for k, v in provenance.items() if v}  # git commit, dataset hash
         self.specs = {spec.name: spec for spec in specs}
@@ -111,10 +118,14 @@ class Logbook:
             experiment = experiment_name(self.profile, table)
             text = json.dumps([self.profile, self.provenance.get("dataset_manifest", ""), table])
             key = "reproduce-" + hashlib.sha256(text.encode()).hexdigest()[:16]
-            found = self.tracker.find_runs(experiment, key)
+            # Reuse a parent that an earlier invocation ended (FINISHED or FAILED); a KILLED one
+            # records an interrupted invocation and keeps its state, a RUNNING one belongs to a
+            # live invocation (see close_stale): this invocation then starts its own.
+            ended = (RunStatus.FINISHED.value, RunStatus.FAILED.value)
+            found = [r for r in self.tracker.find_runs(experiment, key) if r.status in ended]
             if found:
                 run = self.tracker.attach(found[0], reopen=True)
-                run.set_tags(self.provenance)  # the code of the latest invocation
+                run.set_tags({**self.provenance, **self.owner})  # the latest invocation's
             else:
                 run = self.tracker.start_run(
                     experiment,
@@ -124,6 +135,7 @@ class Logbook:
                         "profile": self.profile,
                         RUN_KEY_TAG: key,
                         **self.provenance,
+                        **self.owner,
                     },
                     description=self._parent_text(table),
                     start_time_ms=self.started_ms,
@@ -150,6 +162,7 @@ class Logbook:
             "tables": ",".join(dict.fromkeys(job.table for job in unit.jobs)),
             "unit": unit.key,
             **self.provenance,
+            **self.owner,
         }
         return UnitTracking(
             spec=self.tracker.spec(),
@@ -173,6 +186,30 @@ class Logbook:
                 self.tracker.attach(info, reopen=False).end(RunStatus.KILLED)
                 killed += 1
         return killed
+
+    def close_stale(self, tables: Iterable[str]) -> list[RunInfo]:
+        """End KILLED every RUNNING parent run of ``tables`` and training run of this profile
+        whose owning invocation is gone (killed: ``kill -9``, power loss), tagging the reason;
+        runs of a live invocation (another work directory on the same store) are left alone.
+        A run without owner tags (logged before they existed) counts as gone. Returns the runs
+        ended."""
+        closed = []
+        for table in dict.fromkeys([*tables, descriptions.UNITS_TABLE]):
+            experiment = experiment_name(self.profile, table)
+            for info in self.tracker.find_runs(experiment, None, (RunStatus.RUNNING.value,)):
+                if owner_lives(info.tags):
+                    continue
+                owner = info.tags.get(OWNER_TAGS[0], "?"), info.tags.get(OWNER_TAGS[1], "?")
+                run = self.tracker.attach(info, reopen=False)
+                run.set_tags(
+                    {
+                        END_REASON_TAG: f"its invocation (pid {owner[0]} on {owner[1]}) ended "
+                        "without closing it (killed); closed by a later invocation"
+                    }
+                )
+                run.end(RunStatus.KILLED)
+                closed.append(info)
+        return closed
 
     # ------------------------------------------------------------------ table rows
     def finished(self, job: Job, unit: Unit) -> tuple[dict[str, dict[str, float]], float] | None:

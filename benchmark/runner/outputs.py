@@ -194,7 +194,9 @@ def write_reports(
             md_path = out / f"{spec.name}.md"
             paths = [md_path]
             if spec.kind == "table":
-                text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val)
+                gone = frozenset(label for label, _ in failed_jobs(spec.name, units, results))
+                gone -= set(part["label"]) if len(part) else set()  # some seeds of it did run
+                text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val, gone)
                 text += extra_metrics_table(spec, summary, EXTRA_METRICS)
             elif spec.kind == "sweep":
                 text = sweep_table(spec, summary, show_val)
@@ -207,7 +209,7 @@ def write_reports(
                 text = cost_table(
                     spec, profile, input_size, logbook, cost_cache, remeasure_costs, bar
                 )
-            md_path.write_text(text)
+            md_path.write_text(text + failed_section(spec.name, units, results))
             written += paths
             if logbook is not None:
                 logbook.log_table_outputs(spec.name, paths)
@@ -237,9 +239,42 @@ def write_reports(
     listed = in_spec_order([*specs, *kept_specs])
     text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit)
     text += merge_note(specs, kept_specs)
+    text += failed_section(None, units, results)
     readme.write_text(text + provenance_summary(record))
     written.append(readme)
     return written
+
+
+def failed_jobs(
+    table: str | None, units: list[Unit], results: dict[str, UnitResult]
+) -> list[tuple[str, str]]:
+    """``(row label with sweep value and seed, error's first line)`` of every row of ``table``
+    (every table: None) whose unit's training failed in this reproduction."""
+    out = []
+    for unit in units:
+        result = results.get(unit.key)
+        if result is None or result.ok:
+            continue
+        error = (result.error.strip().splitlines() or ["(no message)"])[0][:300]
+        for job in unit.jobs:
+            if table is None or job.table == table:
+                x = f" [{job.x}]" if job.x is not None else ""
+                name = job.label if table is not None else f"{job.table}: {job.label}"
+                out.append((name, f"{x} seed {unit.cfg.seed}: {error}"))
+    return out
+
+
+def failed_section(table: str | None, units: list[Unit], results: dict[str, UnitResult]) -> str:
+    """A Markdown section listing the failed rows (empty when none failed)."""
+    rows = failed_jobs(table, units, results)
+    if not rows:
+        return ""
+    lines = ["", "## Failed training runs", "",
+             f"{len(rows)} row(s) failed to train (cells read `failed` where no seed of the row "
+             "ran); the rest of the reproduction went on. Run the same command again to retry "
+             "them:", ""]  # fmt: skip
+    lines += [f"- {name}{detail}" for name, detail in rows]
+    return "\n".join(lines) + "\n"
 
 
 def _claims_section(
@@ -282,12 +317,17 @@ def _readme(
         "Invocations that produced these results (wall time: simulation, training and "
         "evaluation, before the reports):",
         "",
-        "| started (UTC) | wall time | training runs executed | machine | git commit |",
-        "|---|---|---|---|---|",
+        "| started (UTC) | state | wall time | training runs executed | machine | git commit |",
+        "|---|---|---|---|---|---|",
     ]
-    for r in runs:
+    for r in runs:  # benchmark.runner.invocations.read_invocations
+        failed = f", {r['failed']} failed" if r.get("failed") else ""
+        wall = f"{r['wall_s'] / 60:.1f} min"
+        state = r.get("state", "finished")
+        if state not in ("finished", "failed", "interrupted"):
+            wall += " (to its last finished run)"  # killed or still running: no end record
         lines.append(
-            f"| {r['started']} | {r['wall_s'] / 60:.1f} min | {r['trained']} of {r['units']} | "
+            f"| {r['started']} | {state} | {wall} | {r['trained']} of {r['units']}{failed} | "
             f"{r['machine']} | `{r['git_commit']}` |"
         )
     lines += [

@@ -174,11 +174,17 @@ def val_metrics(spec: TableSpec, summary: pd.DataFrame, show: bool | None = None
     return [m for m in spec.metrics if m in VAL_METRICS] if show else []
 
 
-def val_cell(row: pd.Series | None, m: str, train_split: str, val_splits: dict[str, str]) -> str:
+def val_cell(
+    row: pd.Series | None,
+    m: str,
+    train_split: str,
+    val_splits: dict[str, str],
+    missing: str = "not run",
+) -> str:
     """A validation cell: the value, ``–`` when ``train_split`` has no validation split."""
     if row is None:
-        return "not run" if train_split in val_splits else NO_VAL
-    return cell_text(row, m)
+        return missing if train_split in val_splits else NO_VAL
+    return cell_text(row, m, missing)
 
 
 def val_splits_of(summary: pd.DataFrame) -> dict[str, str]:
@@ -210,10 +216,11 @@ def uses_satellite(swap_row: pd.Series | None) -> str | None:
     )
 
 
-def cell_text(row: pd.Series | None, m: str) -> str:
-    """``mean ± half-width`` of metric ``m`` in a summary row; ``not run`` without the row."""
+def cell_text(row: pd.Series | None, m: str, missing: str = "not run") -> str:
+    """``mean ± half-width`` of metric ``m`` in a summary row; ``missing`` without the row
+    (``not run``, or ``failed`` for a row whose training failed)."""
     if row is None or m not in row:
-        return "not run"
+        return missing
     return format_value(row[m], row[f"{m}_lo"], row[f"{m}_hi"])
 
 
@@ -230,10 +237,13 @@ def markdown_table(
     paper: pd.DataFrame,
     extra_labels: list[str] = (),
     show_val: bool | None = None,
+    failed: frozenset[str] = frozenset(),
 ) -> str:
     """A Markdown table of one table spec: per metric, the paper's number (paper tables only),
     ours and (see :func:`val_metrics`, ``show_val``) ours on the validation split; then each
-    ``swap_metrics`` entry measured with the swapped satellite image."""
+    ``swap_metrics`` entry measured with the swapped satellite image. Rows of the labels in
+    ``failed`` (every training of that row failed) read ``failed``, other missing rows
+    ``not run``."""
     lines = [
         f"## {spec.title}",
         "",
@@ -261,6 +271,7 @@ def markdown_table(
         for label, paper_model, train in table_rows(spec, split, list(extra_labels)):
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
+            gone = "failed" if label in failed else "not run"
             cells = ([f"`{split}`"] if multi else []) + [label]
             cells += [f"`{train}`"] if trained_on else []
             for m in spec.metrics:
@@ -268,10 +279,11 @@ def markdown_table(
                     ps = paper_split.get(split)
                     pv = paper_value(paper, spec.paper_table, ps, paper_model, m)
                     cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
-                cells.append(cell_text(row, m))
+                cells.append(cell_text(row, m, gone))
                 if m in vals:
-                    cells.append(val_cell(pick_val(summary, label, train), m, train, val_splits))
-            cells += [cell_text(swap, m) for m in spec.swap_metrics]
+                    val_row = pick_val(summary, label, train)
+                    cells.append(val_cell(val_row, m, train, val_splits, gone))
+            cells += [cell_text(swap, m, gone) for m in spec.swap_metrics]
             lines.append("| " + " | ".join(cells) + " |")
     if spec.swap_metrics:
         lines += ["", swap_probe_table(spec, summary)]

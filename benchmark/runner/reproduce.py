@@ -11,17 +11,18 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures as cf
-import json
 import multiprocessing
-import os
 import platform
 import signal
+import sys
 import time
 from pathlib import Path
 
 from benchmark.errors import UsageError
+from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import Progress, format_duration
 from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
+from benchmark.runner.invocations import LOCK, owner_tags, relevant_invocations, start_invocation
 from benchmark.runner.logbook import Logbook, write_config
 from benchmark.runner.plan import Unit, plan_units
 from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
@@ -60,6 +61,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the checkpoints stay in --workdir)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument(
+        "--no-wait",
+        action="store_true",
+        help="exit 2 naming the holder instead of waiting when another reproduce holds --workdir",
+    )
 
 
 def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, quiet: bool) -> None:
@@ -128,23 +134,42 @@ def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
         process.join(timeout=10)
 
 
-def _log_invocation(workdir: Path, record: dict, keys: set[str]) -> list[dict]:
-    """Append this invocation to ``<workdir>/invocations.jsonl``; return those that trained units
-    of this plan (the provenance of the results), this one last."""
-    path = workdir / "invocations.jsonl"
-    history = [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
-    record = {**record, "unit_keys": sorted(keys)}
-    with path.open("a") as fh:
-        fh.write(json.dumps(record) + "\n")
-    relevant = [r for r in history if r.get("trained") and keys & set(r.get("unit_keys", []))]
-    return [*relevant, record]
+def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) -> UsageError:
+    """One line for a dataset that cannot be used or repaired: what is wrong and the fix."""
+    from benchmark.data.format import os_error_message
+
+    if isinstance(err, OSError):
+        what = os_error_message(err) or f"{err.strerror or err}: {err.filename or root}"
+    else:
+        what = str(err)
+    again = f"uavbench simulate --profile {profile.dataset} --out {root}"
+    again += f" --seed {seed}" if seed else ""
+    return UsageError(
+        f"dataset {root} is damaged and was not repaired ({what}); run "
+        f"`uavbench verify {root}` to list every bad file and its fix (bad bytes: rerun `{again}`)"
+    )
+
+
+def _check_data(root: Path, profile: ReproProfile, args: argparse.Namespace) -> str:
+    """Simulate or confirm the dataset before any training: every file's sha256 is checked
+    (cached by file identity, ``benchmark.data.integrity``) and bad files are rendered again. A
+    dataset that stays damaged (config unreadable, a repair that cannot write) is one line and
+    exit 2, never one failure per unit. Returns the manifest's sha256."""
+    from benchmark.data.format import DatasetError, os_error_message
+    from benchmark.tracking import manifest_sha256
+
+    try:
+        prepare_dataset(profile, root, args.dataset_seed, max(1, args.jobs), args.quiet)
+        return manifest_sha256(root)
+    except DatasetError as err:
+        raise _data_error(root, profile, args.dataset_seed, err) from None
+    except OSError as err:
+        if os_error_message(err) is None:
+            raise  # not a disk or permission problem: a bug, let it surface
+        raise _data_error(root, profile, args.dataset_seed, err) from None
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.runner.outputs import write_reports
-    from benchmark.tracking import RunStatus, create_tracker, git_commit, manifest_sha256
-
-    started = time.time()
     profile = get_repro_profile(args.profile)
     if args.seeds is not None and args.seeds < 1:
         raise UsageError(f"--seeds must be >= 1, got {args.seeds}")
@@ -155,15 +180,30 @@ def run(args: argparse.Namespace) -> int:
         specs = load_specs(args.specs, only or None)
     except SpecError as err:
         raise UsageError(str(err)) from err
+    workdir = args.workdir or Path("runs") / profile.name
+    # One writer per work directory for the whole invocation: a second one waits (or, with
+    # --no-wait, exits 2 naming the holder); a dead holder's lock is taken over.
+    try:
+        with work_lock(
+            workdir / LOCK,
+            what=f"uavbench reproduce --profile {profile.name}",
+            wait=not args.no_wait,
+            notify=lambda message: print(message, file=sys.stderr, flush=True),
+        ):
+            return _run_locked(args, profile, specs, workdir)
+    except LockBusyError as err:
+        raise UsageError(f"{err} (or choose another --workdir)") from None
+
+
+def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, workdir: Path) -> int:
+    from benchmark.data import list_splits
+    from benchmark.tracking import RunStatus, create_tracker, git_commit
+
+    started = time.time()
     seeds = list(range(args.seeds if args.seeds is not None else profile.seeds))
     data_root = args.data or Path("data") / f"{profile.dataset}-s{args.dataset_seed}"
-    workdir = args.workdir or Path("runs") / profile.name
     out = args.out or Path("reports") / profile.name
-
-    prepare_dataset(profile, data_root, args.dataset_seed, max(1, args.jobs), args.quiet)
-    from benchmark.data import list_splits
-
-    dataset_hash = manifest_sha256(data_root)
+    dataset_hash = _check_data(data_root, profile, args)
     try:
         units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash)
     except ValueError as err:
@@ -178,7 +218,12 @@ def run(args: argparse.Namespace) -> int:
         {k: str(v) for k, v in provenance.items()},
         specs=specs,
         data_root=data_root,
+        owner=owner_tags(workdir),
     )
+    # Runs left RUNNING by an invocation that was killed (kill -9, power loss) end KILLED.
+    stale = logbook.close_stale(spec.name for spec in load_specs(args.specs))
+    if stale:
+        print(f"closed {len(stale)} run(s) left RUNNING by a killed invocation: now KILLED")
     results: dict[str, UnitResult] = {}
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
@@ -200,7 +245,9 @@ def run(args: argparse.Namespace) -> int:
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
         f"tracking: {tracker.uri or args.tracker}"
     )
-
+    # Journalled now and as each unit finishes: a killed invocation still shows what it trained.
+    keys = [u.key for u in units]
+    invocation = start_invocation(workdir, keys, provenance["git_commit"], started)
     failures: list[str] = []
 
     def on_done(unit: Unit, result: UnitResult) -> None:
@@ -210,6 +257,7 @@ def run(args: argparse.Namespace) -> int:
             write_config(unit, unit_dir / "config.json")
         for job in unit.jobs:
             logbook.log_job(job, unit, result)
+        invocation.unit_done(unit.key, result.ok)
         if not result.ok:
             failures.append(f"{unit.title}: {result.error}")
             print(f"FAILED {unit.title}: {result.error}")
@@ -217,20 +265,14 @@ def run(args: argparse.Namespace) -> int:
     status = RunStatus.FINISHED
     try:
         execute_units(todo, args.jobs, on_done, args.quiet)
-        record = {
-            "started": time.strftime("%Y-%m-%d %H:%M", time.gmtime(started)),
-            "wall_s": time.time() - started,
-            "trained": len(todo),
-            "units": len(units),
-            "machine": f"{platform.node()}, {os.cpu_count()} cores",
-            "git_commit": provenance["git_commit"],
-        }
-        invocations = _log_invocation(workdir, record, {u.key for u in units})
-        written = write_reports(
-            specs, units, results, profile, data_root, out, logbook, invocations, workdir=workdir
+        invocation.end("failed" if failures else "finished")
+        invocations = relevant_invocations(workdir, keys, invocation.id)
+        written = _write_reports(
+            specs, units, results, profile, (data_root, out, workdir), logbook, invocations
         )
     except KeyboardInterrupt:
         status = RunStatus.KILLED
+        invocation.end("interrupted")
         logbook.kill_unfinished_units(unit.key for unit, _ in todo)
         print("interrupted: finished runs are kept; run the same command again to resume")
         raise
@@ -249,8 +291,26 @@ def run(args: argparse.Namespace) -> int:
     )
     if failures:
         print(f"{len(failures)} training run(s) failed:\n  " + "\n  ".join(failures))
+    # >>> H1 (issue 14 item 3): replace this line by the tracker's own end-of-run summary (where
+    # the runs went; how many exist only in the local fallback, and `uavbench sync`) once
+    # benchmark/tracking has it; until then browse_hint reports the fallback it can see.
     print(browse_hint(args.tracker, tracker))
     return 1 if failures else 0
+
+
+def _write_reports(specs, units, results, profile, paths, logbook, invocations) -> list[Path]:
+    """``outputs.write_reports``; a dataset damaged while the units ran (their results are kept
+    in the store) is one line with the fix instead of a traceback."""
+    from benchmark.data.format import DatasetError
+    from benchmark.runner.outputs import write_reports
+
+    data_root, out, workdir = paths
+    try:
+        return write_reports(
+            specs, units, results, profile, data_root, out, logbook, invocations, workdir=workdir
+        )
+    except DatasetError as err:
+        raise _data_error(data_root, profile, 0, err) from None
 
 
 def browse_hint(kind: str, tracker) -> str:
