@@ -126,8 +126,10 @@ def run_executor(
     tracking_uri: str | None,
 ) -> None:
     """Run ``todo`` with the executor ``args`` chose. ``tracking_uri`` is where the units log
-    (the tracker's resolved URI; None or "" when nothing is logged, ``--tracker null``)."""
+    (the tracker's resolved URI, ``tracker.uri``; ignored with ``--tracker null``)."""
     check_executor(args)
+    if getattr(args, "tracker", "mlflow") == "null":
+        tracking_uri = None  # nothing is logged (the null tracker's uri reads "null")
     if getattr(args, "executor", "pool") == "pool":
         from benchmark.runner.reproduce import execute_units
 
@@ -285,7 +287,7 @@ def execute_units_ray(
             if root not in digests:
                 digests[root] = _manifest_digest(root)
         bar.status("starting Ray" if is_local_address(address) else f"connecting to {address}")
-        owned = _connect(ray, address, num_cpus)
+        owned = connect_ray(address, num_cpus)
         pending: dict[object, tuple[object, UnitTask, float]] = {}
         try:
             _check_nodes(ray, cpus_per_unit, gpus_per_unit, fatal=owned and address is None)
@@ -328,21 +330,32 @@ def _manifest_digest(root: str) -> str:
         raise UsageError(f"dataset {Path(root).absolute()} not readable: {err}") from err
 
 
-def _connect(ray, address: str | None, num_cpus: int | None) -> bool:
-    """Start or join Ray; True if this call did (and so shuts it down), False if the caller's
-    Ray is used."""
+def connect_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
+    """Start a local Ray (``address`` None or "local"; ``num_cpus`` default ``os.cpu_count()``)
+    or join the cluster at ``address``. True if this call did (the caller shuts it down with
+    ``ray.shutdown()``), False if a Ray was already initialised in this process."""
     import logging
 
+    ray = import_ray()
     if ray.is_initialized():
         return False
     common = {"logging_level": logging.WARNING, "log_to_driver": True}
     if address is None or address == "local":
-        ray.init(
-            address="local",  # never join a cluster RAY_ADDRESS points at by accident
-            num_cpus=num_cpus or os.cpu_count() or 1,
-            include_dashboard=False,
-            **common,
-        )
+        for attempt in (1, 2):
+            try:
+                ray.init(
+                    address="local",  # never join a cluster RAY_ADDRESS points at by accident
+                    num_cpus=num_cpus or os.cpu_count() or 1,
+                    include_dashboard=False,
+                    **common,
+                )
+                break
+            except Exception as err:  # Ray gives its raylet a fixed 30 s to register
+                ray.shutdown()  # what did start of this attempt
+                if attempt == 2:
+                    raise RuntimeError(f"could not start a local Ray (twice): {err}") from err
+                print(f"warning: starting a local Ray failed ({err}); trying once more",
+                      file=sys.stderr)  # fmt: skip
     else:
         try:
             ray.init(address=address, **common)

@@ -1,0 +1,341 @@
+"""``reproduce --executor ray`` (benchmark/runner/ray_executor.py): the same numbers as the process
+pool, a killed worker retried or reported, the dataset check on the node, the tracking guard and
+the message without ray. A local Ray with 2 CPUs stands in for a cluster."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import platform
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from benchmark.cli import main
+from benchmark.errors import UsageError
+from benchmark.runner import reproduce as reproduce_module
+from benchmark.runner.ray_executor import (
+    INSTALL_LINE,
+    add_executor_arguments,
+    check_dataset_on_node,
+    check_executor,
+    check_ray_tracking,
+    connect_ray,
+    execute_units_ray,
+    import_ray,
+    is_local_address,
+    is_node_local_uri,
+    ray_unit,
+)
+
+HAVE_RAY = importlib.util.find_spec("ray") is not None
+needs_ray = pytest.mark.skipif(
+    not HAVE_RAY, reason='ray is not installed (pip install -e ".[ray]")'
+)
+TABLE = "table3"  # three units: Pd/Re-Net, Re-Net-T and the UAV-only control
+# Columns that are measurements of time or where the files are, not results.
+TIME_SUFFIXES = ("seconds", "_s", "_ms")
+NOT_NUMBERS = {"run_id", "training_run_id", "model_uri", "started", "ended"}
+
+
+def has_executor_flag() -> bool:
+    parser = argparse.ArgumentParser()
+    reproduce_module.add_arguments(parser)
+    return any("--executor" in action.option_strings for action in parser._actions)
+
+
+def reproduce(tmp: Path, dataset: Path, *extra: str) -> int:
+    return main([
+        "reproduce", "--profile", "smoke", "--only", TABLE, "--data", str(dataset),
+        "--out", str(tmp / "reports"), "--workdir", str(tmp / "runs"), "--tracker", "local",
+        "--quiet", "--no-models", "--jobs", "2", *extra,
+    ])  # fmt: skip
+
+
+def run_in(tmp: Path, dataset: Path, *extra: str) -> int:
+    previous = os.getcwd()
+    os.chdir(tmp)  # the tracking store lives in the working directory
+    try:
+        return reproduce(tmp, dataset, *extra)
+    finally:
+        os.chdir(previous)
+
+
+@pytest.fixture(scope="module")
+def pool_run(tmp_path_factory, smoke_dataset):
+    tmp = tmp_path_factory.mktemp("pool")
+    return tmp, run_in(tmp, smoke_dataset)
+
+
+@pytest.fixture(scope="module")
+def ray_run(tmp_path_factory, smoke_dataset):
+    """The same reproduction through a local Ray (2 CPUs) that the executor starts and stops:
+    ``--executor ray`` once reproduce has the flag, else its pool swapped for the executor."""
+    tmp = tmp_path_factory.mktemp("ray")
+    if has_executor_flag():
+        return tmp, run_in(tmp, smoke_dataset, "--executor", "ray")
+
+    def through_ray(todo, jobs, on_done, quiet):
+        execute_units_ray(todo, on_done, quiet, num_cpus=jobs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(reproduce_module, "execute_units", through_ray)
+        return tmp, run_in(tmp, smoke_dataset)
+
+
+def numbers(tmp: Path) -> pd.DataFrame:
+    frame = pd.read_csv(tmp / "reports" / "results.csv")
+    keep = [c for c in frame.columns if not c.endswith(TIME_SUFFIXES) and c not in NOT_NUMBERS]
+    keys = ["table", "label", "split", "satellite", "seed"]
+    return frame[keep].sort_values(keys).reset_index(drop=True)
+
+
+@needs_ray
+class TestReproduceThroughRay:
+    def test_results_csv_numbers_equal_the_process_pool(self, pool_run, ray_run):
+        (pool_tmp, pool_code), (ray_tmp, ray_code) = pool_run, ray_run
+        assert pool_code == 0 and ray_code == 0
+        pool, ray = numbers(pool_tmp), numbers(ray_tmp)
+        assert len(pool) > 0 and "dphi_deg" in pool.columns
+        assert pool["dphi_deg"].notna().any()
+        pd.testing.assert_frame_equal(pool, ray)  # every number, to the last bit
+
+    def test_same_unit_files_and_one_finished_training_run_per_unit(self, pool_run, ray_run):
+        pool_units = {p.name for p in (pool_run[0] / "runs" / "units").iterdir()}
+        ray_units = {p.name for p in (ray_run[0] / "runs" / "units").iterdir()}
+        assert pool_units == ray_units and len(ray_units) == 3
+        for key in ray_units:
+            names = {p.name for p in (ray_run[0] / "runs" / "units" / key / "eval").iterdir()}
+            pool_names = {p.name for p in (pool_run[0] / "runs" / "units" / key / "eval").iterdir()}
+            assert names == pool_names
+            assert (ray_run[0] / "runs" / "units" / key / "train" / "checkpoint.pt").is_file()
+        # Logged live by the Ray workers into the driver's store (they work in its directory)
+        training = ray_run[0] / "tracking-local" / "uavbench-smoke_training"
+        runs = [json.loads(p.read_text()) for p in training.glob("*/run.json")]
+        assert len(runs) == 3 and {r["status"] for r in runs} == {"FINISHED"}
+
+    def test_reproduce_has_the_executor_flag(self):
+        if not has_executor_flag():
+            pytest.skip("needs integration: reproduce.add_arguments has no --executor yet")
+        parser = argparse.ArgumentParser()
+        reproduce_module.add_arguments(parser)
+        args = parser.parse_args(["--executor", "ray", "--gpus-per-unit", "0.5"])
+        assert args.executor == "ray" and args.gpus_per_unit == 0.5
+
+
+# ----------------------------------------------------------------------------- failures on workers
+@pytest.fixture(scope="module")
+def shared_ray():
+    """One local Ray (2 CPUs) for the failure tests; the executor uses a Ray it finds running."""
+    if not HAVE_RAY:
+        pytest.skip("ray is not installed")
+    import ray
+
+    assert connect_ray(None, num_cpus=2)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def planned(smoke_dataset):
+    """The table's units, planned as ``reproduce`` plans them (no tracking)."""
+    from benchmark.data import list_splits
+    from benchmark.runner.plan import plan_units
+    from benchmark.runner.profiles import get_repro_profile
+    from benchmark.runner.specs import load_specs
+    from benchmark.tracking import manifest_sha256
+
+    specs = load_specs(None, [TABLE])
+    profile = get_repro_profile("smoke")
+    manifest = manifest_sha256(smoke_dataset)
+    return plan_units(specs, profile, [0], smoke_dataset, list_splits(smoke_dataset), manifest)
+
+
+def make_todo(units, workdir: Path):
+    from benchmark.runner.execute import UnitTask
+
+    return [(u, UnitTask(u.key, u.cfg, u.eval_splits, workdir / "units" / u.key)) for u in units]
+
+
+def killed_once(victim: str, markers: Path):
+    """A task function that SIGKILLs its own worker process 2 s into the unit ``victim`` on the
+    first attempt (a marker file records every attempt), and runs the others as they are."""
+
+    def task(task, digest, cwd):  # a closure: Ray ships it by value to the workers
+        import signal
+        import threading
+
+        if task.key == victim:
+            attempt = len(list(markers.glob("attempt-*"))) + 1
+            (markers / f"attempt-{attempt}").write_text(str(os.getpid()))
+            if attempt == 1:  # mid-training: the smoke units train for about 20 s here
+                threading.Timer(2.0, os.kill, (os.getpid(), signal.SIGKILL)).start()
+        return ray_unit(task, digest, cwd)
+
+    return task
+
+
+def run_todo(todo, **kwargs) -> dict:
+    results = {}
+    execute_units_ray(todo, lambda unit, result: results.__setitem__(unit.key, result), True,
+                      **kwargs)  # fmt: skip
+    return results
+
+
+@needs_ray
+class TestWorkerKilled:
+    def test_retried_and_gives_the_pool_numbers(self, shared_ray, planned, pool_run, tmp_path):
+        victim, other = planned[0], planned[2]  # Pd/Re-Net (killed) and the UAV-only control
+        markers = tmp_path / "markers"
+        markers.mkdir()
+        todo = make_todo([victim, other], tmp_path / "runs")
+        results = run_todo(todo, max_retries=1, task_fn=killed_once(victim.key, markers))
+        assert len(list(markers.glob("attempt-*"))) == 2  # killed once, run again
+        pids = {p.read_text() for p in markers.glob("attempt-*")}
+        assert len(pids) == 2  # a fresh worker process for the retry
+        assert results[victim.key].ok and results[other.key].ok, results
+        # The retried unit's numbers are those of the unit in the process pool's reproduction.
+        pool = pd.read_csv(pool_run[0] / "reports" / "results.csv")
+        row = pool[(pool.unit == victim.key) & (pool.split == "standard/test")
+                   & (pool.satellite == "true")].iloc[0]  # fmt: skip
+        assert results[victim.key].metrics["standard/test"]["dphi_deg"] == row["dphi_deg"]
+
+    def test_without_retries_reported_failed_and_the_others_finish(
+        self, shared_ray, planned, tmp_path
+    ):
+        victim, other = planned[0], planned[2]
+        markers = tmp_path / "markers"
+        markers.mkdir()
+        todo = make_todo([victim, other], tmp_path / "runs")
+        results = run_todo(todo, max_retries=0, task_fn=killed_once(victim.key, markers))
+        assert len(list(markers.glob("attempt-*"))) == 1
+        failed = results[victim.key]
+        assert not failed.ok and failed.error.startswith("worker died on each of 1 attempt(s)")
+        assert "--max-retries 0" in failed.error and failed.metrics == {}
+        assert results[other.key].ok and results[other.key].metrics["standard/test"]
+
+
+# ----------------------------------------------------------------------------- the data on the node
+class TestDatasetCheckOnNode:
+    def test_the_same_dataset_passes(self, smoke_dataset):
+        from benchmark.tracking import manifest_sha256
+
+        assert check_dataset_on_node(smoke_dataset, manifest_sha256(smoke_dataset)) == ""
+
+    def test_missing_directory_names_path_host_and_shared_file_system(self, tmp_path):
+        message = check_dataset_on_node(tmp_path / "nowhere", "0" * 64)
+        assert message.startswith(f"dataset {tmp_path / 'nowhere'} not readable on node ")
+        assert platform.node() in message and "shared file system" in message
+
+    def test_another_dataset_at_the_path_is_refused(self, smoke_dataset):
+        message = check_dataset_on_node(smoke_dataset, "0" * 64)
+        assert "is not the driver's" in message and "expected 0000000000000000" in message
+
+    @needs_ray
+    def test_on_a_worker_the_unit_fails_with_the_reason(self, shared_ray, planned, tmp_path):
+        """A node that sees other data at the path (here: one task is told another digest) fails
+        that unit, untrained, and the other unit finishes."""
+        import dataclasses
+
+        victim = planned[2]  # the UAV-only control: the cheapest unit
+        twin = dataclasses.replace(victim, key="twin")  # the same model under another key
+
+        def other_node(task, digest, cwd):
+            return ray_unit(task, "f" * 64 if task.key == victim.key else digest, cwd)
+
+        results = run_todo(make_todo([victim, twin], tmp_path / "runs"), task_fn=other_node)
+        error = results[victim.key].error
+        assert not results[victim.key].ok and "is not the driver's" in error
+        assert f"on node {platform.node()}" in error and "shared file system" in error
+        assert not (tmp_path / "runs" / "units" / victim.key).exists()  # nothing trained
+        assert results["twin"].ok and results["twin"].metrics["standard/test"]
+
+
+# ----------------------------------------------------------------------------- guards
+class TestTrackingGuard:
+    @pytest.mark.parametrize(
+        "uri", ["sqlite:///mlflow.db", "sqlite:////abs/mlflow.db", "file:///tmp/mlruns", "mlruns",
+                "/abs/tracking-local"],
+    )  # fmt: skip
+    def test_file_store_with_a_cluster_is_refused_saying_why_and_the_fix(self, uri):
+        with pytest.raises(UsageError) as err:
+            check_ray_tracking("10.0.0.5:6379", uri)
+        text = str(err.value)
+        assert uri in text and "10.0.0.5:6379" in text
+        assert "lost" in text and "node" in text  # why
+        assert "--tracking-uri http://" in text and "mlflow server" in text  # the fix
+
+    @pytest.mark.parametrize("address", [None, "local", "127.0.0.1:6379", "localhost",
+                                         "ray://127.0.0.1:10001", "[::1]:6379"])  # fmt: skip
+    def test_local_ray_may_use_the_sqlite_file(self, address):
+        assert is_local_address(address)
+        check_ray_tracking(address, "sqlite:///mlflow.db")  # no error
+
+    @pytest.mark.parametrize("uri", ["http://head:5000", "https://mlflow.example.org", None, ""])
+    def test_a_server_or_nothing_tracked_passes_with_a_cluster(self, uri):
+        check_ray_tracking("ray://10.0.0.5:10001", uri)
+
+    def test_classification(self):
+        assert not is_local_address("auto") and not is_local_address("head.cluster:6379")
+        assert is_node_local_uri("sqlite:///x.db") and is_node_local_uri("relative/dir")
+        assert not is_node_local_uri("postgresql://db/mlflow")
+
+    def test_ray_only_flags_need_the_ray_executor(self):
+        parser = argparse.ArgumentParser()
+        add_executor_arguments(parser)
+        args = parser.parse_args(["--ray-address", "10.0.0.5:6379"])
+        with pytest.raises(UsageError, match="--ray-address only apply to --executor ray"):
+            check_executor(args)
+
+    @needs_ray
+    def test_check_executor_resolves_the_default_store(self, monkeypatch):
+        parser = argparse.ArgumentParser()
+        add_executor_arguments(parser)
+        args = parser.parse_args(["--executor", "ray", "--ray-address", "10.0.0.5:6379"])
+        args.tracker, args.tracking_uri = "mlflow", None
+        monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+        with pytest.raises(UsageError, match=r"sqlite:///mlflow\.db"):
+            check_executor(args)
+        args.tracker = "null"
+        check_executor(args)  # nothing tracked: allowed
+        args.gpus_per_unit = -1.0
+        with pytest.raises(UsageError, match="--gpus-per-unit must be >= 0"):
+            check_executor(args)
+
+    @pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")
+    def test_cli_exits_2_before_any_work(self, tmp_path, capsys):
+        code = main([
+            "reproduce", "--profile", "smoke", "--executor", "ray", "--ray-address",
+            "10.0.0.5:6379", "--tracking-uri", "sqlite:///mlflow.db", "--data",
+            str(tmp_path / "never-rendered"), "--workdir", str(tmp_path / "runs"),
+        ])  # fmt: skip
+        assert code == 2
+        assert "--tracking-uri http://" in capsys.readouterr().err
+        assert not (tmp_path / "never-rendered").exists()
+
+
+class TestWithoutRay:
+    @pytest.fixture
+    def no_ray(self, monkeypatch):
+        monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
+
+    def test_import_names_the_install_line(self, no_ray):
+        with pytest.raises(UsageError) as err:
+            import_ray()
+        assert INSTALL_LINE in str(err.value) and "--executor ray" in str(err.value)
+
+    def test_executor_refuses_before_doing_anything(self, no_ray):
+        with pytest.raises(UsageError, match=r"pip install -e \"\.\[ray\]\""):
+            execute_units_ray([], lambda *_: None, True)
+
+    @pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")
+    def test_cli_exits_2_with_the_install_line(self, no_ray, tmp_path, capsys):
+        code = main([
+            "reproduce", "--profile", "smoke", "--executor", "ray", "--data",
+            str(tmp_path / "never-rendered"), "--workdir", str(tmp_path / "runs"),
+        ])  # fmt: skip
+        assert code == 2 and INSTALL_LINE in capsys.readouterr().err
