@@ -286,14 +286,17 @@ def markdown_table(
             cells += [cell_text(swap, m, gone) for m in spec.swap_metrics]
             lines.append("| " + " | ".join(cells) + " |")
     if spec.swap_metrics:
-        lines += ["", swap_probe_table(spec, summary)]
+        lines += ["", swap_probe_table(spec, summary, failed)]
     if spec.note:
         lines += ["", spec.note.strip()]
     return "\n".join(lines) + "\n"
 
 
-def swap_probe_table(spec: TableSpec, summary: pd.DataFrame) -> str:
-    """Per trained row: the paired per-frame effect of swapping the satellite image."""
+def swap_probe_table(
+    spec: TableSpec, summary: pd.DataFrame, failed: frozenset[str] = frozenset()
+) -> str:
+    """Per trained row: the paired per-frame effect of swapping the satellite image (rows of
+    the labels in ``failed`` read ``failed``)."""
     lines = [
         "Satellite-swap probe: each pair's satellite image replaced by another place's (another "
         "centre of the same city; for `generalized/test` another city; for `towns/*` another "
@@ -311,9 +314,11 @@ def swap_probe_table(spec: TableSpec, summary: pd.DataFrame) -> str:
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
             cells = [f"`{split}`", label]
+            gone = "failed" if label in failed else "not run"
             for e, _ in SWAP_EFFECTS:
-                cells += [cell_text(row, f"{e}_deg"), cell_text(swap, f"{e}_deg"), _effect(swap, e)]
-            cells.append(uses_satellite(swap) or "not run")
+                cells += [cell_text(row, f"{e}_deg", gone), cell_text(swap, f"{e}_deg", gone)]
+                cells.append(_effect(swap, e) if swap is not None else gone)
+            cells.append(uses_satellite(swap) or gone)
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

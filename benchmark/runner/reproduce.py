@@ -243,7 +243,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
-        f"tracking: {tracker.uri or args.tracker}"
+        f"logging to {tracker.uri or args.tracker}"
     )
     # Journalled now and as each unit finishes: a killed invocation still shows what it trained.
     keys = [u.key for u in units]
@@ -291,10 +291,12 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     )
     if failures:
         print(f"{len(failures)} training run(s) failed:\n  " + "\n  ".join(failures))
-    # >>> H1 (issue 14 item 3): replace this line by the tracker's own end-of-run summary (where
-    # the runs went; how many exist only in the local fallback, and `uavbench sync`) once
-    # benchmark/tracking has it; until then browse_hint reports the fallback it can see.
-    print(browse_hint(args.tracker, tracker))
+    # Where the runs really went (counted at the end, not assumed at the start): the store, or
+    # the local fallback and the `uavbench sync` that sends them; then how to browse them.
+    print(tracker.summary())
+    hint = browse_hint(args.tracker, tracker)
+    if hint:
+        print(hint)
     return 1 if failures else 0
 
 
@@ -314,13 +316,10 @@ def _write_reports(specs, units, results, profile, paths, logbook, invocations) 
 
 
 def browse_hint(kind: str, tracker) -> str:
-    """The last line of a reproduction: how to look at what it logged."""
-    if getattr(tracker, "using_fallback", False):
-        return f"MLflow was unreachable: the runs are files under {tracker.fallback_dir}"
-    if kind == "mlflow" and tracker.uri.startswith(("http://", "https://")):
+    """How to look at what a reproduction logged to MLflow (``""`` for the other backends and
+    for a fallback: ``tracker.summary()``, printed before it, says where those runs are)."""
+    if kind != "mlflow" or getattr(tracker, "using_fallback", False):
+        return ""
+    if tracker.uri.startswith(("http://", "https://")):
         return f"browse the runs: {tracker.uri} (or uavbench ui --tracking-uri {tracker.uri})"
-    if kind == "mlflow":
-        return f"browse the runs: uavbench ui --tracking-uri {tracker.uri}"
-    if kind == "local":
-        return f"the runs are files under {tracker.uri} (run.json, metrics.csv per run)"
-    return "nothing was tracked (--tracker null)"
+    return f"browse the runs: uavbench ui --tracking-uri {tracker.uri}"

@@ -227,6 +227,12 @@ class TestReproduceFailures:
         assert "FAILED" in out and "non-finite" in out.lower()
         statuses = [r["status"] for r in run_statuses(tmp_path)]
         assert "FAILED" in statuses and "FINISHED" not in statuses
+        # The reports are written all the same, the failed rows shown as failed (issue 14).
+        table3 = (tmp_path / "reports" / "table3.md").read_text()
+        assert "## Failed training runs" in table3 and "non-finite" in table3.lower()
+        assert "| Pd/Re-Net | failed |" in table3
+        readme = (tmp_path / "reports" / "README.md").read_text()
+        assert "3 row(s) failed to train" in readme and "| failed | " in readme
 
     def test_unknown_table_exits_2(self, tmp_path, smoke_dataset, capsys):
         assert reproduce(tmp_path, smoke_dataset, "--only", "table42") == 2
