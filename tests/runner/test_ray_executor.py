@@ -9,6 +9,7 @@ import importlib.util
 import json
 import os
 import platform
+import re
 import sys
 from pathlib import Path
 
@@ -217,6 +218,60 @@ class TestWorkerKilled:
         assert not failed.ok and failed.error.startswith("worker died on each of 1 attempt(s)")
         assert "--max-retries 0" in failed.error and failed.metrics == {}
         assert results[other.key].ok and results[other.key].metrics["standard/test"]
+
+
+@needs_ray
+@pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")
+class TestCtrlC:
+    def test_one_message_runs_killed_local_ray_stopped(self, tmp_path, smoke_dataset):
+        """SIGINT to the process group (a terminal's Ctrl-C) while a Ray worker trains: exit 130,
+        one message and no traceback, no run left RUNNING, no process of the local Ray left."""
+        import signal
+        import subprocess
+        import time
+
+        import psutil
+
+        argv = [
+            sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke", "--only",
+            TABLE, "--executor", "ray", "--jobs", "2", "--tracker", "local", "--quiet",
+            "--data", str(smoke_dataset), "--workdir", str(tmp_path / "runs"),
+            "--out", str(tmp_path / "reports"),
+        ]  # fmt: skip
+        root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "PYTHONPATH": root}
+        proc = subprocess.Popen(
+            argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            text=True, start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )  # fmt: skip
+        training = tmp_path / "tracking-local" / "uavbench-smoke_training"
+        deadline = time.monotonic() + 300
+        try:
+            while time.monotonic() < deadline and proc.poll() is None:
+                if any(json.loads(p.read_text())["status"] == "RUNNING"
+                       for p in training.glob("*/run.json")):  # fmt: skip
+                    break
+                time.sleep(0.05)
+            assert proc.poll() is None, "the reproduction ended before a training run opened"
+            os.killpg(proc.pid, signal.SIGINT)
+            out, _ = proc.communicate(timeout=120)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert proc.returncode == 130, out
+        assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
+        assert out.count("interrupted: finished runs are kept") == 1, out
+        statuses = [json.loads(p.read_text())["status"] for p in training.glob("*/run.json")]
+        assert "RUNNING" not in statuses and "KILLED" in statuses, statuses
+        time.sleep(2)  # ray.shutdown() has signalled its processes; give them a moment
+        # A local Ray's session directory ends in the driver's pid; its processes name it.
+        session = re.compile(rf"session_[0-9_-]+_{proc.pid}(/|$)")
+        left = [
+            p.info["cmdline"] for p in psutil.process_iter(["cmdline"])
+            if any(session.search(arg) for arg in p.info["cmdline"] or [])
+        ]  # fmt: skip
+        assert not left, left
 
 
 # ----------------------------------------------------------------------------- the data on the node
