@@ -290,7 +290,8 @@ def execute_units_ray(
         owned = connect_ray(address, num_cpus)
         pending: dict[object, tuple[object, UnitTask, float]] = {}
         try:
-            _check_nodes(ray, cpus_per_unit, gpus_per_unit, fatal=owned and address is None)
+            local = address is None or address == "local"
+            _check_nodes(ray, cpus_per_unit, gpus_per_unit, fatal=owned and local)
             remote = ray.remote(
                 num_cpus=cpus_per_unit,
                 num_gpus=gpus_per_unit,
