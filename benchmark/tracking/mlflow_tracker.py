@@ -82,6 +82,16 @@ def _is_connection_error(err: Exception) -> bool:
     return any(s in text for s in ("Connection refused", "Max retries", "timed out", "Timeout"))
 
 
+def _client(uri: str) -> Any:
+    """An MlflowClient on ``uri``; a database store is opened (schema created) here."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    if not uri.startswith(("http://", "https://")):
+        client.search_experiments(max_results=1)
+    return client
+
+
 class TrackingFallbackWarning(UserWarning):
     """MLflow could not be used; results go to a local directory instead. Its message is the
     block printed on stderr; catch it with ``pytest.warns`` / ``warnings.catch_warnings``."""
@@ -127,13 +137,8 @@ class MlflowTracker(SummaryMixin, LineageMixin, Tracker):
                 self._switch_to_fallback(f"tracking server {self.uri} is unreachable ({reason})")
                 return
         try:
-            from mlflow.tracking import MlflowClient
-
-            self._client = MlflowClient(tracking_uri=self.uri)
-            if not self._is_http:  # creates/migrates the sqlite db: once, under its lock
-                open_sqlite_store_once(
-                    self.uri, lambda: self._client.search_experiments(max_results=1)
-                )
+            # MlflowClient() opens the store, which creates/migrates a sqlite db: under its lock.
+            self._client = open_sqlite_store_once(self.uri, lambda: _client(self.uri))
         except Exception as err:  # any store error: fall back, never abort the work
             self._failure = "could not be opened"
             self._switch_to_fallback(f"MLflow store {self.uri} cannot be opened ({err!r})")

@@ -96,18 +96,25 @@ def open_target(target: str) -> tuple[str, Any]:
     uri = normalize_tracking_uri(target, "--to")
     if uri is None:
         raise SyncError("--to is empty: give the MLflow server URL or a sqlite store")
+    return uri, _open_client(uri)
+
+
+def _open_client(uri: str) -> Any:
     if uri.startswith(("http://", "https://")):
         ok, reason = server_is_healthy(uri, timeout=10.0)
         if not ok:
             raise SyncError(f"--to {uri} is unreachable ({reason}); start the server, then rerun")
     from mlflow.tracking import MlflowClient
 
-    client = MlflowClient(tracking_uri=uri)
+    def open_store() -> Any:
+        client = MlflowClient(tracking_uri=uri)  # opens (creates, migrates) a database store
+        client.search_experiments(max_results=1)
+        return client
+
     try:
-        open_sqlite_store_once(uri, lambda: client.search_experiments(max_results=1))
+        return open_sqlite_store_once(uri, open_store)
     except Exception as err:
         raise SyncError(f"--to {uri} cannot be opened: {err}") from None
-    return uri, client
 
 
 def sync_runs(
@@ -119,13 +126,16 @@ def sync_runs(
     """
     from benchmark.locks import LockBusyError, work_lock
 
+    uri = normalize_tracking_uri(target, "--to")  # a bad value is refused before anything else
+    if uri is None:
+        raise SyncError("--to is empty: give the MLflow server URL or a sqlite store")
     source = Path(source)
     if not source.is_dir():
         raise SyncError(f"--from {source}: no such directory (nothing was kept locally there)")
     runs = read_local_runs(source)
     if not runs:
         raise SyncError(f"--from {source}: no runs in it (expected <experiment>/<run id>/run.json)")
-    uri, client = open_target(target)
+    client = _open_client(uri)
     try:
         with work_lock(source / ".sync.lock", what="uavbench sync"):
             return _Copier(source.resolve(), uri, client, say).run(runs)

@@ -181,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         from mlflow.tracking import MlflowClient
 
         open_sqlite_store_once(uri, lambda: MlflowClient(uri).search_experiments(max_results=1))
+        # (MlflowClient() itself opens the store: it is built inside the locked call.)
     alias = None
     if args.screenshots is not None:  # reached as ALIAS_HOST: no assistant panel in the pictures
         from benchmark.tracking.screenshots import ALIAS_HOST, alias_env

@@ -130,7 +130,8 @@ def uri_key(uri: str) -> str:
 
 
 def open_sqlite_store_once(uri: str, open_store: Callable[[], T]) -> T:
-    """``open_store()`` (the first MLflow call on ``uri``, which creates or migrates the schema),
+    """``open_store()`` (the first MLflow call on ``uri``, which creates or migrates the schema;
+    note that ``MlflowClient(uri)`` itself opens the store, so build the client inside it),
     under the lock file ``<db>.lock`` when ``uri`` is a sqlite database; plainly otherwise.
 
     The database's directory is created if missing. A filesystem that cannot lock, or a lock
