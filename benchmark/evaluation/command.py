@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
             )
     out = args.out or args.checkpoint.parent / "predictions"
     try:
-        _evaluate_splits(args, model, ckpt, root, splits, out)
+        bad = _evaluate_splits(args, model, ckpt, root, splits, out)
     except DatasetError as err:
         raise UsageError(f"{err} (`uavbench verify {root}` checks every file)") from None
     except OSError as err:
@@ -93,17 +93,22 @@ def run(args: argparse.Namespace) -> int:
         if message is None:
             raise
         raise UsageError(message) from None
+    if bad:  # a diverged model: a failure (exit 1), not a user error
+        print(f"uavbench evaluate: {bad}; the checkpoint's model diverged (retrain it with a "
+              "lower optim.lr)", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 
 def _evaluate_splits(
     args: argparse.Namespace, model: Any, ckpt: dict, root: Path, splits: list[str], out: Path
-) -> None:
+) -> str | None:
+    """Evaluate and write every split; the non-finite metrics found (``"split: keys"``) or None."""
     from benchmark.data import PairDataset, atomic_write_bytes
-    from benchmark.evaluation.evaluate import evaluate
+    from benchmark.evaluation.evaluate import evaluate, non_finite_metrics
 
     shared = bool(ckpt["config"]["model"].get("shared_satellite", True))
-    results = {}
+    results, bad = {}, []
     suffix = "" if args.satellite == "true" else "__swap"
     for split in splits:
         dataset = PairDataset(root, split, verify=args.verify, satellite=args.satellite)
@@ -117,6 +122,8 @@ def _evaluate_splits(
             desc=f"eval {split}",
         )
         results[split] = summary
+        if non_finite_metrics(summary):
+            bad.append(f"{split}: non-finite " + ", ".join(non_finite_metrics(summary)))
         keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
         print(
             f"{split} ({args.satellite} satellite): n={int(summary['n'])} "
@@ -125,3 +132,4 @@ def _evaluate_splits(
     metrics = out / f"metrics{suffix}.json"
     atomic_write_bytes(metrics, (json.dumps(results, indent=1, sort_keys=True) + "\n").encode())
     print(f"predictions and metrics{suffix}.json in {out}", file=sys.stderr)
+    return "; ".join(bad) or None

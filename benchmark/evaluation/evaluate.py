@@ -13,6 +13,7 @@ Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,7 +23,13 @@ import pandas as pd
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
-from benchmark.evaluation.metrics import predictions_frame, summarize, write_predictions_csv
+from benchmark.evaluation.metrics import (
+    ACCURACY_THRESHOLDS_DEG,
+    ERROR_COLUMNS,
+    predictions_frame,
+    summarize,
+    write_predictions_csv,
+)
 from benchmark.progress import Progress
 
 
@@ -177,3 +184,18 @@ def evaluate(
     summary = summarize(frame)
     summary.update({f"loss_{k}": v for k, v in pred.loss.items()})
     return summary, frame
+
+
+def finite_keys(summary: Mapping[str, float]) -> list[str]:
+    """Keys of an :func:`evaluate` summary that are finite for every model with finite outputs:
+    mean and median errors, accuracies and loss terms. (``loglik`` may be -inf for a very sharp
+    density, ``spearman_unc_err`` is NaN for a constant uncertainty: neither means divergence.)"""
+    wanted = [*ERROR_COLUMNS, *(f"median_{c}" for c in ERROR_COLUMNS)]
+    wanted += [f"acc{t:g}" for t in ACCURACY_THRESHOLDS_DEG]
+    wanted += [k for k in summary if k.startswith("loss_")]
+    return [k for k in wanted if k in summary]
+
+
+def non_finite_metrics(summary: Mapping[str, float]) -> list[str]:
+    """The :func:`finite_keys` of ``summary`` whose value is NaN or inf (a diverged model)."""
+    return [k for k in finite_keys(summary) if not math.isfinite(float(summary[k]))]

@@ -14,9 +14,12 @@ Training and evaluation are ``benchmark.training.pipeline.train_and_evaluate``, 
 with the true and the swapped satellite image, ``history.json``, ``config.yaml``), and the run's
 key and tags are ``benchmark.training.identity``'s, a reproduce unit's. The flattened config
 becomes the run's params; per-epoch metrics are logged in batches; the evaluation CSVs, the config
-and the history are artifacts. A non-finite loss ends the run FAILED (exit code 1); Ctrl-C ends it
-KILLED, and the same command resumes from the last epoch's checkpoint and the evaluations already
-written.
+and the history are artifacts. Divergence (a non-finite training loss at any step, weight,
+validation or evaluation number: ``benchmark.training.loop.DivergenceError``) ends the run FAILED
+with the reason (exit code 1, one line); a full disk or a refused permission while writing the
+checkpoint or the outputs is one line naming the path and the fix (exit 2), the previous checkpoint
+intact. Ctrl-C ends the run KILLED, and the same command resumes from the last epoch's checkpoint
+and the evaluations already written.
 """
 
 from __future__ import annotations
@@ -121,8 +124,8 @@ def run(args: argparse.Namespace) -> int:
     }
     variant = "plain" if cfg.model.variant == "/" else cfg.model.variant
     name = f"{cfg.model.attitude}/{variant}/seed{cfg.seed}"
-    from benchmark.data import DatasetError
-    from benchmark.training.loop import CheckpointMismatchError, NonFiniteLossError
+    from benchmark.data import DatasetError, os_error_message
+    from benchmark.training.loop import CheckpointMismatchError, DivergenceError
 
     tracker.describe_experiment(args.experiment, EXPERIMENT_TEXT)
     m = cfg.model
@@ -138,12 +141,19 @@ def run(args: argparse.Namespace) -> int:
             tracked.log_params(flatten(cfg, drop_none=True))
             tracked.log_input(DatasetRef(root.name, manifest, str(root), cfg.data.train_split))
             summaries = _train_and_evaluate(cfg, out, eval_splits, tracked, quiet=args.quiet)
-    except NonFiniteLossError as err:
-        print(f"uavbench train: {err}", file=sys.stderr)
-        print(f"the run is marked FAILED in {tracker.uri}", file=sys.stderr)
+    except DivergenceError as err:  # a failure of the run (exit 1), recorded as its reason
+        tracked_in = "" if args.no_track else f"; the run is marked FAILED in {tracker.uri}"
+        print(f"uavbench train: {err}{tracked_in}", file=sys.stderr)
         return 1
     except (ConfigError, DatasetError, CheckpointMismatchError) as err:
         raise UsageError(str(err)) from None
+    except OSError as err:  # disk full or no permission writing the checkpoint or the outputs
+        if err.filename is None:  # a bare write error (e.g. from a CSV writer): name the outputs
+            err = OSError(err.errno, err.strerror, str(out))
+        message = os_error_message(err)
+        if message is None:
+            raise
+        raise UsageError(message) from None
     for split, summary in summaries.items():
         keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
         cells = ", ".join(f"{k}={summary[k]:.3f}" for k in keys if k in summary)

@@ -36,7 +36,7 @@ from benchmark.config import save_yaml
 from benchmark.data.swap import SATELLITE_MODES
 from benchmark.training.build import run_training
 from benchmark.training.config import TrainConfig
-from benchmark.training.loop import EpochCallback, TrainResult
+from benchmark.training.loop import EpochCallback, TrainResult, check_finite
 
 SWAP_SUFFIX = "/swap"
 EVAL_BATCH = 64  # pairs per evaluation batch (eval mode: per-sample results, any size would do)
@@ -122,7 +122,7 @@ def _evaluate_split(
     import pandas as pd
 
     from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import evaluate
+    from benchmark.evaluation.evaluate import evaluate, finite_keys
     from benchmark.evaluation.paired import swap_effect
 
     csv_path, json_path = eval_paths(out_dir, eval_key(split, satellite))
@@ -138,6 +138,10 @@ def _evaluate_split(
         progress=progress,
         desc=f"eval {eval_key(split, satellite)}",
     )
+    # A diverged model (finite weights, overflowing outputs) fails here, before its summary is
+    # written, so a rerun evaluates again instead of reading back non-finite numbers.
+    check_finite("evaluation metric", f"evaluation of {eval_key(split, satellite)}", summary,
+                 cfg.optim.lr, keys=finite_keys(summary))  # fmt: skip
     if satellite == "swap":
         # Both frames as written (10 significant digits): identical predictions give a zero
         # difference, not the rounding error of one of them.
