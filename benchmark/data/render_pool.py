@@ -6,6 +6,13 @@ render any shard and the bytes do not depend on the number of workers. A task re
 of the bytes it rendered (computed in memory, before writing) and whether a file already at the
 shard's path held exactly those bytes (``"same"``), other bytes (``"replaced"``) or none
 (``"new"``): a shard found on disk is checked by rendering it again, never by trusting it.
+
+The pool is a ``concurrent.futures.ProcessPoolExecutor`` of spawned workers: a worker that dies
+(killed, out of memory, a crash in native code) breaks the pool, and the render stops with one
+:class:`RenderWorkerError` naming the worker and its signal instead of waiting forever for a result
+that will not come (``multiprocessing.Pool`` replaces the dead worker and waits). A worker whose
+start-up (the city factory) raises reports that error with its first task. Shards finished before
+are journalled by the caller, so rerunning the same command continues.
 """
 
 from __future__ import annotations
@@ -14,8 +21,11 @@ import dataclasses
 import hashlib
 import multiprocessing as mp
 import os
+import signal
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.data.camera_effects import apply_camera_effects
-from benchmark.data.format import atomic_write_bytes, npy_bytes, shard_name
+from benchmark.data.format import DatasetError, atomic_write_bytes, npy_bytes, shard_name
 from benchmark.data.profiles import Profile
 
 
@@ -41,6 +51,12 @@ class RenderContext:
 
 
 _CTX: RenderContext | None = None
+_INIT_ERROR: str | None = None  # why this worker's start-up failed (reported by its tasks)
+
+
+class RenderWorkerError(DatasetError):
+    """A render worker died or could not start: the dataset is incomplete (finished shards are
+    journalled and kept; rerunning the same command renders the rest)."""
 
 
 def _single_thread() -> None:
@@ -61,9 +77,14 @@ def _worker_init(
     uav: pd.DataFrame,
     sat: pd.DataFrame,
 ) -> None:
-    global _CTX
+    global _CTX, _INIT_ERROR
     _single_thread()  # before the factory imports numba (it reads NUMBA_NUM_THREADS once)
-    _CTX = RenderContext(root, profile, seed, city_factory(), uav, sat)
+    try:
+        _CTX = RenderContext(root, profile, seed, city_factory(), uav, sat)
+    except (
+        Exception
+    ) as err:  # sent back with the first task (a raising initializer breaks the pool)
+        _INIT_ERROR = f"{type(err).__name__}: {err}"
 
 
 def render_uav_rows(ctx: RenderContext, rows: pd.DataFrame) -> np.ndarray:
@@ -141,6 +162,8 @@ class ShardResult:
 
 
 def _run_task(task: tuple[str, int]) -> ShardResult:
+    if _INIT_ERROR is not None:
+        raise RenderWorkerError(f"render worker {os.getpid()} could not start: {_INIT_ERROR}")
     ctx = _CTX
     assert ctx is not None, "worker context not set"
     kind, k = task
@@ -180,28 +203,70 @@ class RenderPool:
         self.ctx = ctx
         self.workers = workers if city_factory is not None else 1
         self._factory = city_factory
-        self._pool: Any = None
+        self._pool: ProcessPoolExecutor | None = None
+        self._procs: dict[int, Any] = {}  # pid -> Process, kept to name a dead worker
 
     def __enter__(self) -> RenderPool:
         if self.workers > 1:
             c = self.ctx
             initargs = (c.root, c.profile, c.seed, self._factory, c.uav, c.sat)
-            self._pool = mp.get_context("spawn").Pool(
-                self.workers, initializer=_worker_init, initargs=initargs
+            self._pool = ProcessPoolExecutor(
+                self.workers,
+                mp_context=mp.get_context("spawn"),
+                initializer=_worker_init,
+                initargs=initargs,
             )
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
-            self._pool = None
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            # Workers still rendering (an error or Ctrl-C in the caller) are stopped, not awaited.
+            for proc in list(self._processes(pool).values()):
+                if proc.is_alive():
+                    proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+
+    @staticmethod
+    def _processes(pool: ProcessPoolExecutor) -> dict[int, Any]:
+        return dict(getattr(pool, "_processes", None) or {})  # CPython's pid -> Process map
+
+    def _dead_workers(self) -> str:
+        """``"pid 123 killed by SIGKILL, ..."`` for the workers that ended abnormally."""
+        found = []
+        for pid, proc in sorted(self._procs.items()):
+            proc.join(timeout=1.0)  # the pool may not have reaped it yet
+            code = proc.exitcode
+            if code is None or code == 0:
+                continue
+            if code < 0:
+                try:
+                    found.append(f"pid {pid} killed by {signal.Signals(-code).name}")
+                except ValueError:
+                    found.append(f"pid {pid} killed by signal {-code}")
+            else:
+                found.append(f"pid {pid} exited with code {code}")
+        return ", ".join(found) or "a worker ended abnormally"
 
     def imap(self, tasks: list[tuple[str, int]]) -> Iterator[ShardResult]:
-        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields a ShardResult as each ends."""
+        """Render and write ``tasks`` (``("uav"|"sat", k)``); yields a ShardResult as each ends.
+        A worker that dies raises :class:`RenderWorkerError` (never a hang)."""
         global _CTX
         if self._pool is not None:
-            yield from self._pool.imap_unordered(_run_task, tasks)
+            futures = [self._pool.submit(_run_task, t) for t in tasks]
+            self._procs.update(self._processes(self._pool))
+            try:
+                for future in as_completed(futures):
+                    self._procs.update(self._processes(self._pool))
+                    yield future.result()
+            except BrokenProcessPool as err:
+                dead = self._dead_workers()
+                oom = "; the out-of-memory killer sends SIGKILL" if "SIGKILL" in dead else ""
+                raise RenderWorkerError(
+                    f"a render worker process died ({dead}{oom}) while rendering into "
+                    f"{self.ctx.root}; rerun the same command (finished shards are kept), with "
+                    "fewer --workers if memory is short"
+                ) from err
             return
         _CTX = self.ctx
         try:
