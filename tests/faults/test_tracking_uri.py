@@ -7,7 +7,6 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -92,11 +91,13 @@ def _env() -> dict[str, str]:
 
 
 OPENER = """
-import json, sys, time, warnings
+import json, pathlib, sys, time, warnings
 from benchmark.tracking import MlflowTracker, TrackingFallbackWarning
-uri, start, name = sys.argv[1], float(sys.argv[2]), sys.argv[3]
-while time.time() < start:  # both processes open the fresh store at the same moment
-    time.sleep(0.005)
+import mlflow.tracking  # imported before the barrier: the opens, not the imports, must overlap
+uri, barrier, name = sys.argv[1], pathlib.Path(sys.argv[2]), sys.argv[3]
+(barrier / name).touch()
+while len(list(barrier.iterdir())) < 2:  # both processes open the fresh store at once
+    time.sleep(0.002)
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     tracker = MlflowTracker(uri, fallback_dir=sys.argv[4])
@@ -110,17 +111,26 @@ print(json.dumps({"fallback": tracker.using_fallback,
 
 def test_two_processes_on_a_fresh_store_both_use_mlflow(tmp_path):
     """Without the lock, MLflow's migration raced (`duplicate column name: step`) and one process
-    fell back to files. Two rounds, each on a fresh store, both processes started together."""
+    fell back to files (2 of 3 tries here). Two rounds, each on a fresh store; both processes
+    import first, meet at a barrier, then open the store together."""
     import json
 
     for attempt in range(2):
         db = tmp_path / f"fresh{attempt}" / "mlflow.db"
         uri = f"sqlite:///{db}"
-        # The start moment leaves room for both interpreters to import mlflow on a busy machine.
-        start = time.time() + 20
+        barrier = tmp_path / f"ready{attempt}"
+        barrier.mkdir()
         procs = [
             subprocess.Popen(
-                [sys.executable, "-c", OPENER, uri, str(start), f"p{i}", str(tmp_path / f"fb{i}")],
+                [
+                    sys.executable,
+                    "-c",
+                    OPENER,
+                    uri,
+                    str(barrier),
+                    f"p{i}",
+                    str(tmp_path / f"fb{i}"),
+                ],
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,
