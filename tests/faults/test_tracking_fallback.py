@@ -64,7 +64,7 @@ def test_fallback_is_loud_then_sync_sends_identical_runs(tmp_path, monkeypatch, 
     # 2. Server back: the rerun reuses the local runs and says loudly they are only local.
     server = MlflowServer(
         f"sqlite:///{tmp_path / 'server.db'}", tmp_path / "art", port=port,
-        log_path=tmp_path / "server.log",
+        log_path=tmp_path / "server.log", startup_timeout=600,  # ~8 s on a quiet machine
     )  # fmt: skip
     with server as srv:
         with warnings.catch_warnings():
