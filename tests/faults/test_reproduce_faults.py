@@ -82,18 +82,22 @@ class TestOneWriterPerWorkdir:
         one trains, the other waits (saying so once), then finds every unit in the store."""
         cmd = [*CLI, *argv(smoke_dataset, tmp_path, "--tracker", "mlflow", "--jobs", "1",
                             "--no-models")]  # fmt: skip
-        procs = [
-            subprocess.Popen(
-                cmd,
-                cwd=tmp_path,
-                env=ENV,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.STDOUT,
-                text=True,
-            )
-            for _ in range(2)
-        ]
-        outs = [p.communicate(timeout=900)[0] for p in procs]
+        # Output to files, not pipes: the waiting process must never block the working one.
+        logs = [tmp_path / f"out{i}.txt" for i in range(2)]
+        procs = []
+        for log in logs:
+            with log.open("w") as fh:
+                procs.append(subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=fh,
+                                              stderr=subprocess.STDOUT))  # fmt: skip
+        try:
+            for p in procs:
+                p.wait(timeout=3600)  # a loaded 2-core machine; the heading-cue audit renders
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait()
+        outs = [log.read_text() for log in logs]
         assert [p.returncode for p in procs] == [0, 0], outs
         waited = [o for o in outs if "waiting for" in o]
         assert len(waited) == 1 and waited[0].count("waiting for") == 1, outs
