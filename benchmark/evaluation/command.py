@@ -12,7 +12,8 @@ The dataset's files are checked against its manifest's sha256 by default (``--ve
 hashed once per file and cached, later opens cost a stat; ``benchmark.data.integrity``), whatever
 the checkpoint was trained with. Errors end in one line (exit 2): a missing, truncated or corrupted
 dataset file (named, with ``uavbench verify`` as the way to a full report), disk full or no
-permission for ``--out`` (the path and the fix).
+permission for ``--out`` (the path and the fix). ``--device`` / ``--precision`` as in
+``uavbench train`` (``benchmark.models.device``): the checkpoint loads on any device.
 """
 
 from __future__ import annotations
@@ -50,6 +51,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="sha256",
         help="dataset file check: sha256 (default; hashed once, cached), size, full (always hash)",
     )
+    parser.add_argument(
+        "--device",
+        default="auto",
+        help="auto (CUDA, else MPS, else CPU), cpu, cuda, cuda:N or mps (default auto)",
+    )
+    parser.add_argument(
+        "--precision",
+        choices=("auto", "fp32", "bf16", "fp16"),
+        default="auto",
+        help="autocast precision; auto = bf16 on CUDA devices that support it, else fp32",
+    )
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -63,10 +75,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
     from benchmark.data import DatasetError, list_splits, os_error_message
     from benchmark.models.checkpoint import load_checkpoint, load_trained_model
+    from benchmark.models.device import resolve_device, resolve_precision
 
     try:
+        device = resolve_device(args.device)
+        args.precision = resolve_precision(args.precision, device)
+    except ValueError as err:
+        raise UsageError(f"--device/--precision: {err}") from None
+    try:
         ckpt = load_checkpoint(args.checkpoint)
-        model = load_trained_model(args.checkpoint)
+        model = load_trained_model(args.checkpoint, device)
     except ValueError as err:
         raise UsageError(str(err)) from None
     data_cfg = ckpt["config"]["data"]
@@ -120,6 +138,7 @@ def _evaluate_splits(
             shared_satellite=shared,
             progress=not args.quiet,
             desc=f"eval {split}",
+            precision=args.precision,
         )
         results[split] = summary
         if non_finite_metrics(summary):

@@ -30,6 +30,7 @@ from benchmark.evaluation.metrics import (
     summarize,
     write_predictions_csv,
 )
+from benchmark.models.device import autocast, outputs_to_float, to_device
 from benchmark.progress import Progress
 
 
@@ -49,9 +50,18 @@ class Predictions:
     loss: dict[str, float]
 
 
-def make_loader(dataset: Dataset, batch_size: int, num_workers: int = 0) -> DataLoader:
-    """Sequential loader (evaluation order = dataset order, so outputs are reproducible)."""
-    return DataLoader(dataset, batch_size=batch_size, shuffle=False, num_workers=num_workers)
+def make_loader(
+    dataset: Dataset, batch_size: int, num_workers: int = 0, pin_memory: bool = False
+) -> DataLoader:
+    """Sequential loader (evaluation order = dataset order, so outputs are reproducible);
+    ``pin_memory`` for a CUDA device (faster, asynchronous copies)."""
+    return DataLoader(
+        dataset,
+        batch_size=batch_size,
+        shuffle=False,
+        num_workers=num_workers,
+        pin_memory=pin_memory,
+    )
 
 
 @torch.no_grad()
@@ -63,12 +73,20 @@ def predict(
     shared_satellite: bool = True,
     progress: bool = False,
     desc: str = "eval",
+    precision: str = "fp32",
+    num_workers: int = 0,
 ) -> Predictions:
     """Predict every item of ``dataset`` (items as ``PairDataset`` gives them) in eval mode.
 
-    The model's train/eval mode is restored afterwards.
+    Batches go to the model's device; the forward pass runs under autocast for ``precision``
+    ``"bf16"``/``"fp16"`` (resolved, not ``"auto"``), decoding, losses and densities in float32
+    on its outputs; results come back to the CPU in float64. The model's train/eval mode is
+    restored afterwards.
     """
-    loader = dataset if isinstance(dataset, DataLoader) else make_loader(dataset, batch_size)
+    device = next(model.parameters()).device
+    if not isinstance(dataset, DataLoader):
+        dataset = make_loader(dataset, batch_size, num_workers, device.type == "cuda")
+    loader = dataset
     was_training = model.training
     model.eval()
     head = model.attitude_head
@@ -83,23 +101,28 @@ def predict(
     try:
         with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
             for batch in loader:
+                batch = to_device(batch, device)  # the same dict on the CPU
                 R_gt, T_gt = batch["R"], batch["T"]
                 sat_ids = batch["sat_id"] if shared_satellite else None
-                out = model(batch["uav"], batch["sat"], sat_ids)
+                with autocast(device, precision):
+                    out = model(batch["uav"], batch["sat"], sat_ids)
+                if precision != "fp32":
+                    out = outputs_to_float(out)
                 R_hat, T_hat = model.decode(out)
                 n = R_gt.shape[0]
                 for key, value in model.loss(out, R_gt, T_gt).items():
                     loss_sums[key] = loss_sums.get(key, 0.0) + float(value) * n
                 count += n
-                parts["index"].append(batch["index"])
-                parts["R_hat"].append(R_hat.double())
-                parts["R_gt"].append(R_gt.double())
-                parts["T_hat"].append(T_hat.double())
-                parts["T_gt"].append(T_gt.double())
+                parts["index"].append(batch["index"].cpu())
+                parts["R_hat"].append(R_hat.double().cpu())
+                parts["R_gt"].append(R_gt.double().cpu())
+                parts["T_hat"].append(T_hat.double().cpu())
+                parts["T_gt"].append(T_gt.double().cpu())
                 if with_log_prob:
-                    parts["log_likelihood"].append(head.log_prob(out.attitude, R_gt).double())
+                    ll = head.log_prob(out.attitude, R_gt)
+                    parts["log_likelihood"].append(ll.double().cpu())
                 if with_uncertainty:
-                    parts["uncertainty"].append(head.uncertainty(out.attitude).double())
+                    parts["uncertainty"].append(head.uncertainty(out.attitude).double().cpu())
                 bar.update(1)
     finally:
         model.train(was_training)
@@ -163,11 +186,14 @@ def evaluate(
     extra: Mapping[str, Sequence[Any]] | None = None,
     progress: bool = False,
     desc: str = "eval",
+    precision: str = "fp32",
+    num_workers: int = 0,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Predict ``dataset``, write the per-sample CSV to ``out_csv`` (if given) and return
     ``(summary, frame)``: the :func:`~benchmark.evaluation.metrics.summarize` metrics (plus the
     mean losses as ``loss_<term>``) and the per-sample table. ``extra`` columns default to
-    :func:`pair_columns` of the dataset."""
+    :func:`pair_columns` of the dataset. The model runs on its device in ``precision``
+    (:func:`predict`)."""
     pred = predict(
         model,
         dataset,
@@ -175,6 +201,8 @@ def evaluate(
         shared_satellite=shared_satellite,
         progress=progress,
         desc=desc,
+        precision=precision,
+        num_workers=num_workers,
     )
     if extra is None:
         extra = pair_columns(dataset)

@@ -23,11 +23,13 @@ CHECKPOINT_FORMAT = 2  # bump when the checkpoint's keys change
 READABLE_FORMATS = (1, 2)  # 1: model config with *_kwargs field names (read by ModelConfig)
 
 
-def load_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint dict at ``path``; a truncated or foreign file raises ValueError naming it."""
+def load_checkpoint(path: str | Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """The checkpoint dict at ``path``, its tensors on ``map_location`` (the CPU by default:
+    a checkpoint written on a GPU loads on a machine without one); a truncated or foreign file
+    raises ValueError naming it."""
     path = Path(path)
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+        ckpt = torch.load(path, map_location=map_location, weights_only=False)
     except Exception as err:  # truncated / foreign file: say which file
         raise ValueError(f"cannot read checkpoint {path}: {err}") from err
     if not isinstance(ckpt, dict) or ckpt.get("format") not in READABLE_FORMATS:
@@ -39,8 +41,11 @@ def load_checkpoint(path: str | Path) -> dict[str, Any]:
     return ckpt
 
 
-def load_trained_model(checkpoint: str | Path) -> torch.nn.Module:
-    """Rebuild the ``PoseModel`` saved in a checkpoint (eval mode)."""
+def load_trained_model(
+    checkpoint: str | Path, device: str | torch.device | None = None
+) -> torch.nn.Module:
+    """Rebuild the ``PoseModel`` saved in a checkpoint (eval mode), on ``device`` (default the
+    CPU). The weights are read onto the CPU whatever device wrote them, then moved."""
     from benchmark.models.pair import ModelConfig, build_model
 
     ckpt = load_checkpoint(checkpoint)
@@ -55,4 +60,6 @@ def load_trained_model(checkpoint: str | Path) -> torch.nn.Module:
         ) from err
     model = build_model(config)
     model.load_state_dict(ckpt["model"])
+    if device is not None:
+        model.to(device)
     return model.eval()

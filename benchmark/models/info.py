@@ -11,8 +11,10 @@ the dense layers alone.
 
 Size is float32 parameters (4 bytes each) in MB = 10^6 bytes (MiB in brackets). Latency is the
 median wall time of one pair (batch 1, eval mode, no grad) over ``--repeats`` timed runs after
-``--warmup`` untimed ones, with ``--threads`` torch threads. Head and encoder options are set as
-in ``uavbench train``: ``--set attitude_options.hidden=512`` (``benchmark.models.ModelConfig``).
+``--warmup`` untimed ones, with ``--threads`` torch threads, on the CPU in fp32 unless
+``--device`` / ``--precision`` say otherwise (``benchmark.models.device``). Head and encoder
+options are set as in ``uavbench train``: ``--set attitude_options.hidden=512``
+(``benchmark.models.ModelConfig``).
 """
 
 from __future__ import annotations
@@ -58,6 +60,9 @@ class ModelInfo:
     latency_ms: float
     latency_repeats: int
     threads: int
+    device: str = "cpu"  # where the latency was measured
+    precision: str = "fp32"
+    accelerator: str = ""  # the GPU's name or the CPU model
 
 
 def count_parameters(model: nn.Module) -> int:
@@ -81,17 +86,38 @@ def count_flops(model: PoseModel, input_size: int, training: bool = False) -> tu
 
 
 def measure_latency(
-    model: PoseModel, input_size: int, repeats: int = 10, warmup: int = 3
+    model: PoseModel,
+    input_size: int,
+    repeats: int = 10,
+    warmup: int = 3,
+    device: torch.device | str = "cpu",
+    precision: str = "fp32",
 ) -> list[float]:
-    """Wall times (seconds) of ``repeats`` batch-1 forward passes in eval mode."""
-    model.eval()
-    uav = torch.rand(1, 3, input_size, input_size)
-    sat = torch.rand(1, 3, input_size, input_size)
+    """Wall times (seconds) of ``repeats`` batch-1 forward passes plus decoding in eval mode on
+    ``device`` (the model is moved there) under ``precision``'s autocast (resolved: fp32, bf16 or
+    fp16). On CUDA each pass is synchronised before its clock stops (kernels run asynchronously)."""
+    from benchmark.models.device import autocast, outputs_to_float
+
+    device = torch.device(device)
+    model.to(device).eval()
+    uav = torch.rand(1, 3, input_size, input_size).to(device)
+    sat = torch.rand(1, 3, input_size, input_size).to(device)
+
+    def sync() -> None:
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+
     times = []
     with torch.inference_mode():
         for i in range(warmup + repeats):
+            sync()
             start = time.perf_counter()
-            model.decode(model(uav, sat))
+            with autocast(device, precision):
+                out = model(uav, sat)
+            if precision != "fp32":
+                out = outputs_to_float(out)
+            model.decode(out)
+            sync()
             if i >= warmup:
                 times.append(time.perf_counter() - start)
     return times
@@ -107,9 +133,17 @@ def model_info(
     repeats: int = 10,
     warmup: int = 3,
     options: Mapping[str, Mapping[str, Any]] | None = None,
+    device: str = "cpu",
+    precision: str = "fp32",
 ) -> ModelInfo:
     """Measure one model; ``options`` maps ``attitude_options`` / ``translation_options`` /
-    ``encoder_options`` to the options of that head or encoder (``ModelConfig``)."""
+    ``encoder_options`` to the options of that head or encoder (``ModelConfig``). FLOPs are
+    counted on the CPU; the latency is measured on ``device`` in ``precision``
+    (``benchmark.models.device`` names; ``auto`` resolved). Defaults: the CPU in fp32 (Table 6)."""
+    from benchmark.models.device import accelerator_name, resolve_device, resolve_precision
+
+    where = resolve_device(device)
+    precision = resolve_precision(precision, where)
     model = create_model(
         encoder=encoder,
         variant=variant,
@@ -122,7 +156,7 @@ def model_info(
     n_params = count_parameters(model)
     flops, dense = count_flops(model, input_size, training=False)
     flops_train, dense_train = count_flops(model, input_size, training=True)
-    times = measure_latency(model, input_size, repeats, warmup)
+    times = measure_latency(model, input_size, repeats, warmup, where, precision)
     return ModelInfo(
         head=head,
         translation=translation,
@@ -140,6 +174,9 @@ def model_info(
         latency_ms=1e3 * statistics.median(times),
         latency_repeats=repeats,
         threads=torch.get_num_threads(),
+        device=str(where),
+        precision=precision,
+        accelerator=accelerator_name(where),
     )
 
 
@@ -153,12 +190,20 @@ def format_info(info: ModelInfo) -> str:
         f"(dense layers {info.mflops_dense_inference:.2f}), "
         f"{info.mflops_training_forward:.1f} training forward "
         f"(dense {info.mflops_dense_training_forward:.2f}); FLOPs = 2 x multiply-adds",
-        f"latency      {info.latency_ms:.1f} ms per pair (batch 1, CPU, {info.threads} thread(s), "
+        f"latency      {info.latency_ms:.1f} ms per pair (batch 1, {_where(info)}, "
         f"median of {info.latency_repeats})",
         "paper Table 6: "
         + "; ".join(f"{k} {mb:.2f} MB / {mf:.2f} MFLOPs" for k, (mb, mf) in PAPER_TABLE6.items()),
     ]
     return "\n".join(lines)
+
+
+def _where(info: ModelInfo) -> str:
+    if info.device == "cpu":
+        where = f"CPU, {info.threads} thread(s)"
+    else:
+        where = f"{info.device} ({info.accelerator})"
+    return where if info.precision == "fp32" else f"{where}, {info.precision} autocast"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -171,6 +216,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeats", type=int, default=10, help="timed runs (default 10)")
     parser.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument(
+        "--device", default="cpu", help="latency on: cpu (default, Table 6), auto, cuda[:N], mps"
+    )
+    parser.add_argument(
+        "--precision",
+        choices=("auto", "fp32", "bf16", "fp16"),
+        default="fp32",
+        help="autocast precision of the timed passes (default fp32)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object instead")
     parser.add_argument(
         "--set",
@@ -220,6 +274,8 @@ def run(args: argparse.Namespace) -> int:
             repeats=args.repeats,
             warmup=args.warmup,
             options=options,
+            device=args.device,
+            precision=args.precision,
         )
     except ValueError as err:  # bad configuration: unknown head/encoder/variant, size, width
         raise UsageError(str(err)) from None

@@ -17,10 +17,18 @@ from benchmark.training.config import (
     TrainConfig,
     load_train_config,
 )
-from benchmark.training.identity import MODEL_KEY_TAG, portable_config, run_key, run_tags
+from benchmark.training.identity import (
+    MODEL_KEY_TAG,
+    device_tags,
+    numbers_hash,
+    portable_config,
+    run_key,
+    run_tags,
+)
 from benchmark.training.loop import (
     CHECKPOINT,
     CheckpointMismatchError,
+    DivergenceError,
     NonFiniteLossError,
     TrainResult,
     derive_seed,
@@ -41,6 +49,7 @@ __all__ = [
     "MODEL_KEY_TAG",
     "CheckpointMismatchError",
     "DataConfig",
+    "DivergenceError",
     "ModelConfig",
     "NonFiniteLossError",
     "OptimConfig",
@@ -48,6 +57,7 @@ __all__ = [
     "TrainEvalResult",
     "TrainResult",
     "derive_seed",
+    "device_tags",
     "eval_key",
     "eval_keys",
     "image_size_of",
@@ -56,6 +66,7 @@ __all__ = [
     "load_trained_model",
     "make_optimizer",
     "model_factory",
+    "numbers_hash",
     "open_datasets",
     "portable_config",
     "run_key",

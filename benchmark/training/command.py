@@ -80,6 +80,7 @@ def run(args: argparse.Namespace) -> int:
         )
     eval_splits = args.eval_splits or ["standard/test"]
     from benchmark.data import list_splits
+    from benchmark.models.device import resolve_device
     from benchmark.tracking import (
         RUN_KEY_TAG,
         DatasetRef,
@@ -88,6 +89,10 @@ def run(args: argparse.Namespace) -> int:
         manifest_sha256,
     )
 
+    try:
+        resolve_device(cfg.device)
+    except ValueError as err:  # e.g. device=cuda on a machine (or a torch build) without CUDA
+        raise UsageError(str(err)) from None
     try:
         manifest = manifest_sha256(cfg.data.root)
     except FileNotFoundError as err:
@@ -197,6 +202,7 @@ def _log_model(cfg, done, tracked) -> None:
     example = pack_pair(
         torch.stack([i["uav"] for i in items]), torch.stack([i["sat"] for i in items])
     )
-    uri = tracked.log_model(PosePredictor(done.trained.model.eval()), example.numpy())
+    model = done.trained.model.eval().to("cpu")  # logged and served on the CPU, as trained
+    uri = tracked.log_model(PosePredictor(model), example.numpy())
     if uri:
         tracked.set_tags({"model_uri": uri})

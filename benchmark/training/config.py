@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import ClassVar, Literal
 
 from benchmark.config import ConfigError, apply_overrides, load_yaml
+from benchmark.models.device import check_device_name, check_precision_name
 from benchmark.models.model_config import ModelConfig
 
 
@@ -93,6 +94,12 @@ class TrainConfig:
     seed: int = 0
     threads: int | None = None  # torch.set_num_threads; None leaves torch's default
     val_every: int = 1  # validate every N epochs (and always after the last); 0: never
+    # Where and in what precision to train, validate and evaluate (benchmark.models.device):
+    # "auto" = CUDA, else MPS, else CPU; or "cpu", "cuda", "cuda:N", "mps". Precision "fp32",
+    # "bf16", "fp16" (autocast; fp16 with a gradient scaler) or "auto" (bf16 on CUDA with bf16
+    # support, else fp32). The device is not part of a run's identity, fp32 is not either.
+    device: str = "auto"
+    precision: str = "auto"
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -101,6 +108,8 @@ class TrainConfig:
             raise ValueError(f"threads must be >= 1 or None, got {self.threads}")
         if self.val_every < 0:
             raise ValueError(f"val_every must be >= 0, got {self.val_every}")
+        check_device_name(self.device)
+        check_precision_name(self.precision)
 
 
 def load_train_config(path: str | Path | None = None, overrides: list[str] = ()) -> TrainConfig:

@@ -4,7 +4,9 @@ A run's key hashes what decides its numbers and nothing about the machine:
 
 - the *portable* train config (:func:`portable_config`: the data directory and the torch thread
   count blanked; the model's head options are already canonical, so an option set to the head's
-  default hashes like an unset one, ``benchmark.models.model_config``),
+  default hashes like an unset one, ``benchmark.models.model_config``), hashed by
+  :func:`numbers_hash`: without the device, with the precision only when it is not fp32 (keys of
+  fp32 runs are the keys stored before devices existed),
 - the dataset's content (the sha256 of its ``manifest.json``, not its path),
 - the ``version`` of the two heads (a head whose maths changed is trained again).
 
@@ -19,10 +21,40 @@ import dataclasses
 import hashlib
 import json
 
-from benchmark.config import config_hash
 from benchmark.training.config import TrainConfig
 
 MODEL_KEY_TAG = "model_key"  # the tag holding run_key(cfg, manifest) on every tracked run
+
+
+def effective_precision(cfg: TrainConfig) -> str:
+    """``cfg.precision`` resolved on ``cfg.device`` of this machine: fp32, bf16 or fp16."""
+    from benchmark.models.device import resolve_device, resolve_precision
+
+    try:
+        device = resolve_device(cfg.device)
+    except ValueError:  # a device this machine lacks: its precision as asked ("auto" -> fp32)
+        device = None
+    if device is None:
+        return "fp32" if cfg.precision == "auto" else cfg.precision
+    return resolve_precision(cfg.precision, device)
+
+
+def numbers_hash(cfg: TrainConfig) -> str:
+    """:func:`benchmark.config.config_hash` of ``cfg`` as it was before devices (issue 11): the
+    ``device`` left out (any device computes the same model), the ``precision`` left out when it
+    is fp32 and written resolved (``bf16``/``fp16``, never ``auto``) otherwise. Hashes and run keys
+    of fp32 runs are therefore the ones stored before ``device``/``precision`` existed, and a
+    checkpoint resumes on another device."""
+    from benchmark.config import to_dict
+
+    data = to_dict(cfg)
+    del data["device"], data["precision"]
+    precision = effective_precision(cfg)
+    if precision != "fp32":
+        data["precision"] = precision
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    payload = f"{type(cfg).__module__}.{type(cfg).__qualname__}:{text}"  # as config_hash
+    return hashlib.sha256(payload.encode("utf-8")).hexdigest()[:16]
 
 
 def portable_config(cfg: TrainConfig) -> TrainConfig:
@@ -39,20 +71,20 @@ def run_key(cfg: TrainConfig, dataset_manifest: str) -> str:
     from benchmark.models.registry import head_versions
 
     versions = head_versions(cfg.model.attitude, cfg.model.translation)
-    text = json.dumps([config_hash(portable_config(cfg)), dataset_manifest, versions])
+    text = json.dumps([numbers_hash(portable_config(cfg)), dataset_manifest, versions])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def run_tags(cfg: TrainConfig, dataset_manifest: str) -> dict[str, str]:
     """The tags describing the trained model of ``cfg`` (strings; the same for a ``train`` run
     and a reproduce unit): model key, heads and their options and versions, encoder, seed,
-    dataset."""
+    dataset, and where it ran (:func:`device_tags`)."""
     from benchmark.models.registry import head_versions
 
     m = cfg.model
     return {
         MODEL_KEY_TAG: run_key(cfg, dataset_manifest),
-        "config_hash": config_hash(portable_config(cfg)),
+        "config_hash": numbers_hash(portable_config(cfg)),
         "head": m.attitude,
         "translation_head": m.translation,
         "head_options": json.dumps(
@@ -65,4 +97,19 @@ def run_tags(cfg: TrainConfig, dataset_manifest: str) -> dict[str, str]:
         "train_split": cfg.data.train_split,
         "seed": str(cfg.seed),
         "dataset_manifest_sha256": dataset_manifest,
+        **device_tags(cfg),
+    }
+
+
+def device_tags(cfg: TrainConfig) -> dict[str, str]:
+    """Where the run computes, resolved on this machine: ``device`` (``cpu``, ``cuda:0``, ...),
+    ``precision`` (``fp32``, ``bf16``, ``fp16``) and ``accelerator`` (the GPU's name or the CPU
+    model). Tags only: none of them is part of :func:`run_key` (fp32 precision included)."""
+    from benchmark.models.device import accelerator_name, resolve_device, resolve_precision
+
+    device = resolve_device(cfg.device)
+    return {
+        "device": str(device),
+        "precision": resolve_precision(cfg.precision, device),
+        "accelerator": accelerator_name(device),
     }

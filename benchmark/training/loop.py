@@ -21,9 +21,10 @@ from __future__ import annotations
 
 import io
 import math
+import os
 import random
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,70 +33,45 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
-from benchmark.config import config_hash, to_dict
+from benchmark.config import to_dict
 from benchmark.models.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
+from benchmark.models.device import (
+    autocast,
+    grad_scaler,
+    outputs_to_float,
+    resolve_device,
+    resolve_precision,
+    to_device,
+)
 from benchmark.progress import Progress
 from benchmark.training.config import TrainConfig
+from benchmark.training.divergence import (
+    DivergenceError,
+    NonFiniteLossError,
+    check_finite,
+    non_finite_term,
+    non_finite_weights,
+)
+from benchmark.training.identity import numbers_hash
 
 CHECKPOINT = "checkpoint.pt"
 EpochCallback = Callable[[int, dict[str, float]], None]
-
-
-class DivergenceError(RuntimeError):
-    """Training diverged: a training loss (any step), a weight, a validation loss or metric, or
-    an evaluation metric became NaN or inf. The run fails (the caller marks it FAILED with this
-    message as its reason); the checkpoint of the last finished epoch, written before, is kept.
-
-    ``where`` says when (``"epoch 1, step 2"``, ``"validation after epoch 3"``, ...), ``term``
-    which loss term or metric went non-finite first, ``values`` every term at that moment."""
-
-    def __init__(
-        self, what: str, where: str, term: str, values: Mapping[str, float], lr: float | None
-    ) -> None:
-        self.what, self.where, self.term = what, where, term
-        self.values = dict(values)
-        shown = ", ".join(f"{k}={v:.6g}" for k, v in self.values.items())
-        now = f" (now {lr:g})" if lr is not None else ""
-        super().__init__(
-            f"diverged: non-finite {what} at {where}: {term}={self.values.get(term, math.nan):g}"
-            f" ({shown}); lower optim.lr{now} or set optim.grad_clip. The checkpoint of the last"
-            " finished epoch (if any) is kept"
-        )
-
-
-NonFiniteLossError = DivergenceError  # its name before issue 14 (still exported)
-
-
-def non_finite_term(values: Mapping[str, float], keys: Iterable[str] | None = None) -> str | None:
-    """The first of ``keys`` (default: all) whose value in ``values`` is NaN or inf, naming a
-    component before the ``total`` it adds up to; None when all are finite."""
-    keys = list(values) if keys is None else [k for k in keys if k in values]
-    bad = [k for k in keys if not math.isfinite(float(values[k]))]
-    parts = [k for k in bad if not k.endswith("total")]
-    return (parts or bad or [None])[0]
-
-
-def check_finite(
-    what: str, where: str, values: Mapping[str, float], lr: float | None,
-    keys: Iterable[str] | None = None,
-) -> None:  # fmt: skip
-    """Raise :class:`DivergenceError` if one of ``keys`` of ``values`` is not finite."""
-    term = non_finite_term(values, keys)
-    if term is not None:
-        checked = [k for k in (values if keys is None else keys) if k in values]
-        if len(checked) > 6:  # a long summary: show only what went non-finite
-            checked = [k for k in checked if not math.isfinite(float(values[k]))]
-        raise DivergenceError(what, where, term, {k: float(values[k]) for k in checked}, lr)
-
-
-def non_finite_weights(model: torch.nn.Module) -> list[str]:
-    """Names of the floating-point parameters and buffers of ``model`` holding a NaN or inf (one
-    ``isfinite`` pass over the weights: about a millisecond per million weights on a CPU)."""
-    return [
-        name
-        for name, t in model.state_dict().items()
-        if t.is_floating_point() and not bool(torch.isfinite(t).all())
-    ]
+__all__ = [  # the divergence checks are re-exported: benchmark.training.loop.DivergenceError
+    "CHECKPOINT",
+    "CheckpointMismatchError",
+    "DivergenceError",
+    "NonFiniteLossError",
+    "TrainResult",
+    "check_finite",
+    "derive_seed",
+    "epoch_permutation",
+    "loader_workers",
+    "make_optimizer",
+    "non_finite_term",
+    "non_finite_weights",
+    "train",
+    "translation_labels",
+]
 
 
 class CheckpointMismatchError(ValueError):
@@ -207,11 +183,17 @@ def train(
         torch.set_num_threads(cfg.threads)
     out_dir = Path(out_dir)
     ckpt_path = out_dir / CHECKPOINT
-    chash = config_hash(cfg)
+    # The device is not part of the hash (a checkpoint resumes anywhere), fp32 not either: the
+    # hashes of checkpoints written before devices existed still match (identity.numbers_hash).
+    chash = numbers_hash(cfg)
+    device = resolve_device(cfg.device)
+    precision = resolve_precision(cfg.precision, device)
     torch.manual_seed(derive_seed(cfg.seed, 0))
-    model = model_factory()
+    model = model_factory()  # built and initialised on the CPU: the same weights on any device
     model.translation_head.fit_statistics(translation_labels(train_set))
+    model.to(device)  # the same module, in place (a no-op on the CPU)
     optimizer = make_optimizer(cfg, model)
+    scaler = grad_scaler(device, precision)  # fp16 only; disabled otherwise
     history: list[dict[str, float]] = []
     start_epoch = 0
     if ckpt_path.exists():
@@ -229,7 +211,9 @@ def train(
             )
         model.load_state_dict(ckpt["model"])
         if ckpt["optimizer"] is not None:  # None in the final checkpoint of a finished run
-            optimizer.load_state_dict(ckpt["optimizer"])
+            optimizer.load_state_dict(ckpt["optimizer"])  # moved to the parameters' device
+        if ckpt.get("scaler"):
+            scaler.load_state_dict(ckpt["scaler"])
         _set_rng_state(ckpt["rng"])
         history = list(ckpt["history"])
         start_epoch = int(ckpt["epoch"])
@@ -248,7 +232,9 @@ def train(
         enabled=progress,
     ) as bar:
         for epoch in range(start_epoch, epochs):
-            record = _train_one_epoch(cfg, model, optimizer, train_set, epoch, bar)
+            record = _train_one_epoch(
+                cfg, model, optimizer, train_set, epoch, bar, (device, precision, scaler)
+            )
             last = epoch + 1 == epochs
             lr = float(record["lr"])
             # The last step's update is checked by no later loss: look at the weights (one pass)
@@ -263,6 +249,8 @@ def train(
                     val_set,
                     batch_size=max(cfg.optim.batch_size, 32),
                     shared_satellite=cfg.model.shared_satellite,
+                    precision=precision,
+                    num_workers=loader_workers(cfg, device),
                 )
                 val = _val_metrics(pred)
                 check_finite("validation loss or metric", f"validation after epoch {epoch + 1}",
@@ -282,6 +270,7 @@ def train(
                     "optimizer": None if last else optimizer.state_dict(),
                     "rng": _rng_state(),
                     "history": history,
+                    "scaler": scaler.state_dict() if scaler.is_enabled() and not last else None,
                 },
                 ckpt_path,
             )
@@ -295,6 +284,15 @@ def _model_config_dict(model: torch.nn.Module) -> dict[str, Any] | None:
     return config.to_dict() if config is not None and hasattr(config, "to_dict") else None
 
 
+def loader_workers(cfg: TrainConfig, device: torch.device) -> int:
+    """DataLoader worker processes: ``data.num_workers``; on an accelerator 0 means
+    ``min(4, CPUs - 1)``, so decoding the next batches overlaps the device's step (the items and
+    their order do not depend on the workers: same numbers)."""
+    if cfg.data.num_workers or device.type == "cpu":
+        return cfg.data.num_workers
+    return max(0, min(4, (os.cpu_count() or 1) - 1))
+
+
 def _train_one_epoch(
     cfg: TrainConfig,
     model: torch.nn.Module,
@@ -302,7 +300,11 @@ def _train_one_epoch(
     train_set: Dataset,
     epoch: int,
     bar: Progress,
+    where: tuple[torch.device, str, torch.amp.GradScaler],
 ) -> dict[str, float]:
+    """One epoch. ``where`` = (device, resolved precision, grad scaler). The forward pass runs
+    under autocast (bf16/fp16), the losses in float32 on its outputs cast back to float32."""
+    device, precision, scaler = where
     torch.manual_seed(derive_seed(cfg.seed, epoch, 2))  # dropout etc.: a function of (seed, epoch)
     lr = _lr_at(cfg, epoch)
     for group in optimizer.param_groups:
@@ -311,15 +313,20 @@ def _train_one_epoch(
         train_set,
         batch_size=cfg.optim.batch_size,
         sampler=epoch_permutation(len(train_set), cfg.seed, epoch),
-        num_workers=cfg.data.num_workers,
+        num_workers=loader_workers(cfg, device),
+        pin_memory=device.type == "cuda",
         generator=torch.Generator().manual_seed(derive_seed(cfg.seed, epoch, 3)),
     )
     model.train()
     sums: dict[str, float] = {}
     count, start = 0, time.perf_counter()
     for step, batch in enumerate(loader):
+        batch = to_device(batch, device)  # the same dict on the CPU
         sat_ids = batch["sat_id"] if cfg.model.shared_satellite else None
-        out = model(batch["uav"], batch["sat"], sat_ids)
+        with autocast(device, precision):
+            out = model(batch["uav"], batch["sat"], sat_ids)
+        if precision != "fp32":
+            out = outputs_to_float(out)
         losses = model.loss(out, batch["R"], batch["T"])
         total = losses["total"]
         # One isfinite on the scalar already computed, before backward: a single-element
@@ -328,10 +335,18 @@ def _train_one_epoch(
             values = {k: float(v.detach()) for k, v in losses.items()}
             check_finite("training loss", f"epoch {epoch + 1}, step {step + 1}", values, lr)
         optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        if cfg.optim.grad_clip is not None:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
-        optimizer.step()
+        if scaler.is_enabled():  # fp16: scaled loss; a step with inf gradients is skipped
+            scaler.scale(total).backward()
+            if cfg.optim.grad_clip is not None:
+                scaler.unscale_(optimizer)
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+            scaler.step(optimizer)
+            scaler.update()
+        else:
+            total.backward()
+            if cfg.optim.grad_clip is not None:
+                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+            optimizer.step()
         b = batch["R"].shape[0]
         for key, value in losses.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach()) * b

@@ -19,7 +19,8 @@ Layout of ``out_dir``::
 
 Running it again costs nothing once its files are complete, so an interrupted run resumes where it
 stopped: mid-training from the last epoch's checkpoint, after training from the evaluations already
-written. Evaluation datasets are opened with ``cfg.data.verify`` and batches of ``eval_batch``.
+written. Evaluation datasets are opened with ``cfg.data.verify`` and batches of ``eval_batch``;
+the model evaluates on ``cfg.device`` in ``cfg.precision`` (``benchmark.models.device``).
 """
 
 from __future__ import annotations
@@ -34,9 +35,10 @@ from torch.utils.data import Dataset
 
 from benchmark.config import save_yaml
 from benchmark.data.swap import SATELLITE_MODES
+from benchmark.models.device import resolve_device, resolve_precision
 from benchmark.training.build import run_training
 from benchmark.training.config import TrainConfig
-from benchmark.training.loop import EpochCallback, TrainResult, check_finite
+from benchmark.training.loop import EpochCallback, TrainResult, check_finite, loader_workers
 
 SWAP_SUFFIX = "/swap"
 EVAL_BATCH = 64  # pairs per evaluation batch (eval mode: per-sample results, any size would do)
@@ -129,6 +131,7 @@ def _evaluate_split(
     if json_path.is_file() and csv_path.is_file():
         return json.loads(json_path.read_text()), csv_path
     dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify, satellite=satellite)
+    device = resolve_device(cfg.device)
     summary, _ = evaluate(
         model,
         dataset,
@@ -137,6 +140,8 @@ def _evaluate_split(
         shared_satellite=cfg.model.shared_satellite,
         progress=progress,
         desc=f"eval {eval_key(split, satellite)}",
+        precision=resolve_precision(cfg.precision, device),
+        num_workers=loader_workers(cfg, device),
     )
     # A diverged model (finite weights, overflowing outputs) fails here, before its summary is
     # written, so a rerun evaluates again instead of reading back non-finite numbers.
