@@ -29,6 +29,7 @@ def test_a_db_path_becomes_a_sqlite_store(tmp_path, monkeypatch, capsys, name):
     with tracker.start_run("t", "r") as run:
         run.log_metrics({"loss": 1.0}, 0)
     assert db.is_file() and not (tmp_path / "tracking-fallback").exists()
+    assert tracker.summary() == f"tracking: sqlite:///{db} (1 run logged during this invocation)"
     from mlflow.tracking import MlflowClient
 
     (stored,) = MlflowClient(tracker.uri).search_runs(
