@@ -28,7 +28,7 @@ ALLOWED: dict[str, set[str]] = {
     "baselines": {"geometry", "models"},
     "analysis": {"geometry", "data", "errors"},  # heading_cue reads datasets (PairDataset)
     "evaluation": {"geometry", "data", "models", "progress", "errors"},
-    "tracking": {"errors"},
+    "tracking": {"errors", "locks"},
     "training": {
         *("geometry", "data", "models", "evaluation", "config", "progress", "errors"),
         "tracking",  # command.py only (see TRACKING_CLIENTS)
