@@ -83,7 +83,8 @@ def predict(
     on its outputs; results come back to the CPU in float64. The model's train/eval mode is
     restored afterwards.
     """
-    device = next(model.parameters()).device
+    weight = next(iter(model.parameters()), None)  # a parameter-free model runs on the CPU
+    device = weight.device if weight is not None else torch.device("cpu")
     if not isinstance(dataset, DataLoader):
         dataset = make_loader(dataset, batch_size, num_workers, device.type == "cuda")
     loader = dataset

@@ -12,6 +12,13 @@ the config (the final checkpoint omits the optimiser state, which nothing needs 
 history is replayed to ``on_epoch_end`` first, so a tracker attached to a resumed run still gets
 every epoch.
 
+Devices (``cfg.device``, ``cfg.precision``; ``benchmark.models.device``): the model is built and
+initialised on the CPU, then moved; batches follow it; the forward pass runs under autocast for
+bf16/fp16, the losses in float32; fp16 scales the loss (``GradScaler``, its state checkpointed).
+On the CPU in fp32 nothing is moved or cast: the numbers are the ones from before devices.
+Divergence (``benchmark.training.divergence``): a non-finite loss at any step, non-finite weights
+or validation numbers after an epoch raise ``DivergenceError`` before that epoch's checkpoint.
+
 Heads are used only through the contract (``PoseModel.loss`` / ``decode`` and, for the
 translation statistics, ``TranslationHead.fit_statistics``). This module never imports tracking:
 the caller passes ``on_epoch_end(epoch, metrics)``.
