@@ -163,18 +163,28 @@ def make_todo(units, workdir: Path):
 
 
 def killed_once(victim: str, markers: Path):
-    """A task function that SIGKILLs its own worker process 2 s into the unit ``victim`` on the
-    first attempt (a marker file records every attempt), and runs the others as they are."""
+    """A task function that SIGKILLs its own worker process mid-unit (when the first training
+    epoch of the unit ``victim`` ends, before its evaluation) on the first attempt, and runs
+    everything else as it is. A marker file records each attempt of ``victim``."""
 
     def task(task, digest, cwd):  # a closure: Ray ships it by value to the workers
-        import signal
-        import threading
-
         if task.key == victim:
             attempt = len(list(markers.glob("attempt-*"))) + 1
             (markers / f"attempt-{attempt}").write_text(str(os.getpid()))
-            if attempt == 1:  # mid-training: the smoke units train for about 20 s here
-                threading.Timer(2.0, os.kill, (os.getpid(), signal.SIGKILL)).start()
+            if attempt == 1:
+                import signal
+
+                import benchmark.runner.execute as execute
+
+                train_and_evaluate = execute.train_and_evaluate
+
+                def dying(*args, **kwargs):  # this process dies in it: no need to restore
+                    def on_epoch_end(epoch, record):
+                        os.kill(os.getpid(), signal.SIGKILL)
+
+                    return train_and_evaluate(*args, **{**kwargs, "on_epoch_end": on_epoch_end})
+
+                execute.train_and_evaluate = dying
         return ray_unit(task, digest, cwd)
 
     return task
@@ -199,11 +209,13 @@ class TestWorkerKilled:
         pids = {p.read_text() for p in markers.glob("attempt-*")}
         assert len(pids) == 2  # a fresh worker process for the retry
         assert results[victim.key].ok and results[other.key].ok, results
-        # The retried unit's numbers are those of the unit in the process pool's reproduction.
-        pool = pd.read_csv(pool_run[0] / "reports" / "results.csv")
-        row = pool[(pool.unit == victim.key) & (pool.split == "standard/test")
-                   & (pool.satellite == "true")].iloc[0]  # fmt: skip
-        assert results[victim.key].metrics["standard/test"]["dphi_deg"] == row["dphi_deg"]
+        # The retried unit's numbers are those the process pool's reproduction computed for it.
+        for split in ("standard/test", "standard/val"):
+            name = split.replace("/", "__") + ".json"
+            pool = json.loads((pool_run[0] / "runs" / "units" / victim.key / "eval" / name)
+                              .read_text())  # fmt: skip
+            got = results[victim.key].metrics[split]
+            assert got["dphi_deg"] == pool["dphi_deg"] and got["dE_m"] == pool["dE_m"], split
 
     def test_without_retries_reported_failed_and_the_others_finish(
         self, shared_ray, planned, tmp_path
