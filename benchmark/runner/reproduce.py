@@ -34,7 +34,10 @@ HELP = "reproduce the paper's tables and figures: simulate, train, evaluate, tra
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", choices=sorted(PROFILES), default="quick")
     parser.add_argument(
-        "--only", default="", help="comma-separated tables/figures, e.g. table1,fig7 (default: all)"
+        "--only",
+        default="",
+        help="comma-separated tables/figures (table1,fig7) or groups: paper (the paper's tables "
+        "and figures), extras (extended, leakage, towns); default: all",
     )
     parser.add_argument(
         "--seeds",

@@ -186,8 +186,28 @@ class TestLoadSpec:
         assert job.variant.satellite_input == "blank"
 
     def test_unknown_table_in_only(self):
-        with pytest.raises(SpecError, match="unknown table"):
+        with pytest.raises(SpecError, match=r"unknown table.*groups"):
             load_specs(only=["table99"])
+
+
+class TestGroups:
+    """``--only paper`` / ``--only extras``: the paper's tables and figures, and the rest."""
+
+    def test_paper_group_is_the_papers_tables_and_figures(self):
+        names = [s.name for s in load_specs(only=["paper"])]
+        assert names == [f"fig{i}" for i in (5, 6, 7, 9)] + [f"table{i}" for i in range(1, 7)]
+
+    def test_groups_partition_all_specs(self):
+        paper = {s.name for s in load_specs(only=["paper"])}
+        extras = {s.name for s in load_specs(only=["extras"])}
+        assert {"extended", "leakage", "towns"} <= extras
+        assert not paper & extras
+        assert paper | extras == {s.name for s in load_specs()}
+
+    def test_names_and_groups_mix_each_spec_once_in_given_order(self):
+        names = [s.name for s in load_specs(only=["towns", "extras", "table1"])]
+        assert names[0] == "towns" and names[-1] == "table1"
+        assert len(names) == len(set(names))
 
 
 SWEEP = """# Paper Fig. 7: a test sweep.
