@@ -136,6 +136,15 @@ class TestConfig:
         with pytest.raises(ValueError, match=r"device='cuda:1': no CUDA device here"):
             resolve_device("cuda:1")
 
+    @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+    def test_train_command_refuses_cuda_in_one_line(self, tmp_path, capsys):
+        from benchmark.cli import main
+
+        args = ["train", "--no-track", "--set", f"data.root={tmp_path}", "--set", "device=cuda"]
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "device='cuda': no CUDA device here" in err
+
     def test_loader_workers_and_pinning_only_on_accelerators(self):
         cfg = tiny_config()
         assert loader_workers(cfg, torch.device("cpu")) == 0
