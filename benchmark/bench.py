@@ -18,13 +18,17 @@ TARGETS: dict[str, str] = {
     "train": "benchmark.training.bench:main",
     "model": "benchmark.models.bench_model:main",
     "verify": "benchmark.data.bench_verify:main",
+    "ceiling": "benchmark.models.bench_ceiling:main",
+    "accelerator": "benchmark.bench_accelerator:main",
 }
 
 TARGET_HELP: dict[str, str] = {
     "simulate": "pairs/s at 96 and 224 px with all workers, and the time to build a city",
-    "train": "training pairs/s (quick and paper model) and the ratio to a plain reference loop",
+    "train": "training pairs/s fp32/bf16 (quick, paper model), x plain loop, % of conv ceiling",
     "model": "speed-ups of the shared-satellite encoding and channels_last, side by side",
     "verify": "cost of opening a dataset: size check, first sha256, cached sha256, side by side",
+    "ceiling": "convolution throughput ceiling (GFLOP/s, fp32/bf16) of the device",
+    "accelerator": "one-command accelerator check: smoke reproduction, train fp32/bf16, latency",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

@@ -245,14 +245,14 @@ def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -
         share = f"{100 * r.ceiling_share:8.0f}%" if r.ceiling_share is not None else f"{'-':>9s}"
         rows.append(
             f"{name:7s} {size:4d} {width:5.2f} {r.loop:11s} {r.pairs_per_s:8.2f} {vs_plain} "
-            f"{vs_fp32} {r.step_gflop:9.1f} {r.gflops:8.1f} {share}"
+            f"{vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} {share}"
         )
     return rows
 
 
 HEADER = (
     f"{'model':7s} {'px':>4s} {'width':>5s} {'loop':11s} {'pairs/s':>8s} {'x plain':>8s} "
-    f"{'x fp32':>8s} {'GFLOP/st':>9s} {'GFLOP/s':>8s} {'%ceiling':>9s}"
+    f"{'x fp32':>8s} {'GFLOP/step':>10s} {'GFLOP/s':>8s} {'%ceiling':>9s}"
 )
 
 

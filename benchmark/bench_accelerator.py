@@ -1,0 +1,204 @@
+"""``uavbench bench accelerator``: does this machine's accelerator run the benchmark, and how fast.
+
+One command, one line per figure, on a machine with nothing but the repository, its install
+command (``pip install -e .``) and a torch build for the device (CUDA, MPS or the CPU):
+
+1. a smoke reproduction (``uavbench reproduce --profile smoke --only table3``) in a temporary
+   directory with its own dataset, work dir, reports and sqlite MLflow store. Training units use
+   ``TrainConfig``'s defaults, ``device=auto`` and ``precision=auto`` (CUDA in bf16 where
+   supported, else MPS, else the CPU in fp32); the line reports the device, precision and
+   accelerator that the runs' MLflow tags record, so it shows where the units really ran;
+2. ``bench train`` at the paper's size (224 px, width 1.0, batch 20 over 4 satellite images): our
+   training loop in fp32 and bf16 (where supported) on ``--device``, pairs/s, bf16/fp32, and the
+   share of the measured convolution ceiling (``benchmark.models.bench_ceiling``);
+3. inference latency per pair (batch 1, eval mode, as ``uavbench model-info`` measures it).
+
+``--fast`` shrinks 2 and 3 to tiny sizes (tests; the reproduction is the smoke profile's anyway);
+``--data DIR`` reuses a smoke dataset instead of rendering one. Exit 0 when everything ran, 1 when
+the reproduction failed (its log's last lines are printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import torch
+
+HELP = "one-command check of an accelerator: smoke reproduction, train fp32 vs bf16, latency"
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="uavbench bench accelerator", description=__doc__)
+    p.formatter_class = argparse.RawDescriptionHelpFormatter
+    p.add_argument(
+        "--device", default="auto", help="auto, cpu, cuda, cuda:N or mps (bench/latency)"
+    )
+    p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
+                   "where supported)")  # fmt: skip
+    p.add_argument("--table", default="table3", help="the table the smoke reproduction makes")
+    p.add_argument("--data", type=Path, default=None, help="an existing smoke dataset to reuse")
+    p.add_argument("--keep", type=Path, default=None, help="keep the reproduction's files here")
+    p.add_argument("--no-reproduce", action="store_true", help="skip the smoke reproduction")
+    p.add_argument("--steps", type=int, default=3, help="timed training steps per loop")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
+    p.add_argument("--fast", action="store_true", help="tiny bench and latency sizes (tests)")
+    return p
+
+
+def run_reproduction(args: argparse.Namespace, root: Path) -> tuple[bool, list[str]]:
+    """Run the smoke reproduction under ``root``; ``(ok, lines)``."""
+    data = args.data if args.data is not None else root / "data"
+    argv = [
+        *(sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke"),
+        *("--only", args.table, "--jobs", "1", "--quiet", "--tracker", "mlflow"),
+        *("--data", str(data), "--workdir", str(root / "runs"), "--out", str(root / "reports")),
+        *("--tracking-uri", f"sqlite:///{root / 'mlflow.db'}"),
+    ]
+    # This checkout's code, whatever is installed; one thread per process as the runner's units.
+    package_root = str(Path(__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": package_root, "UAVBENCH_CACHE": str(root / "cache")}
+    env.pop("MLFLOW_TRACKING_URI", None)
+    log = root / "reproduce.log"
+    start = time.perf_counter()
+    with log.open("w") as out:
+        code = subprocess.run(
+            argv, cwd=root, env=env, stdout=out, stderr=subprocess.STDOUT
+        ).returncode
+    seconds = time.perf_counter() - start
+    if code != 0:
+        tail = log.read_text().splitlines()[-15:]
+        return False, [
+            f"smoke reproduction ({args.table}): FAILED, exit {code} after {seconds:.0f} s; "
+            f"last lines of {log}:",
+            *(f"  {line}" for line in tail),
+        ]
+    where = run_devices(f"sqlite:///{root / 'mlflow.db'}")
+    report = root / "reports" / f"{args.table}.md"
+    return True, [
+        f"smoke reproduction ({args.table}): ok in {seconds:.0f} s; training runs on {where}; "
+        f"report {report if args.keep else report.name}"
+    ]
+
+
+def run_devices(uri: str) -> str:
+    """``device, precision (accelerator)`` of the training runs in the store ``uri`` (their
+    MLflow tags; several values joined by ' / ')."""
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(tracking_uri=uri)
+    seen: dict[str, int] = {}
+    for exp in client.search_experiments():
+        for run in client.search_runs([exp.experiment_id], max_results=1000):
+            tags = run.data.tags
+            if "device" in tags:
+                key = f"{tags['device']}, {tags.get('precision', '?')} ({tags.get('accelerator')})"
+                seen[key] = seen.get(key, 0) + 1
+    if not seen:
+        return "(no run recorded its device)"
+    return " / ".join(f"{k} x{n}" for k, n in seen.items())
+
+
+def bench_lines(args: argparse.Namespace, device: torch.device, precisions: list[str]) -> list[str]:
+    """``bench train`` at 224 px, width 1.0 (``--fast``: 48 px, width 0.25, batch 4) in each
+    precision, and the conv ceiling; one line each."""
+    from benchmark.training import bench
+
+    size, width, batch, sats = (48, 0.25, 4, 2) if args.fast else (224, 1.0, 20, 4)
+    train_args = bench.parser().parse_args(
+        [
+            *("--batch-size", str(batch), "--distinct-sat", str(sats)),
+            *("--steps", str(args.steps), "--warmup", "1", "--no-plain"),
+            *(["--ceiling-batch", "2"] if args.fast else []),
+        ]
+    )
+    results, ceilings = bench.measure(size, width, train_args, device, precisions)
+    by = {r.precision: r for r in results}
+    lines = []
+    for r in results:
+        ratio = (
+            f", {r.pairs_per_s / by['fp32'].pairs_per_s:.2f}x fp32"
+            if r.precision != "fp32" and "fp32" in by
+            else ""
+        )
+        share = f", {100 * r.ceiling_share:.0f}% of its conv ceiling" if r.ceiling_share else ""
+        lines.append(
+            f"train {size} px width {width:g} batch {batch} {r.precision}: {r.pairs_per_s:.2f} "
+            f"pairs/s ({r.gflops:.0f} GFLOP/s{share}{ratio})"
+        )
+    for precision, gflops in ceilings.items():
+        lines.append(f"conv ceiling {precision}: {gflops:.0f} GFLOP/s")
+    if "fp32" in by:
+        pairs = 15e6  # the paper profile: 26 runs x 24,000 pairs x 30 epochs ~ 15 million steps
+        best = max(results, key=lambda r: r.pairs_per_s)
+        lines.append(
+            f"paper profile estimate: {pairs / best.pairs_per_s / 3600:.1f} h of training at "
+            f"{best.pairs_per_s:.2f} pairs/s ({best.precision}, 15 million pair-steps, one "
+            "process)" + (" [--fast: tiny model, not the paper's]" if args.fast else "")
+        )
+    return lines
+
+
+def latency_lines(
+    args: argparse.Namespace, device: torch.device, precisions: list[str]
+) -> list[str]:
+    """Median inference latency per pair (batch 1, eval, decoding included) per precision."""
+    import statistics
+
+    from benchmark.models import create_model
+    from benchmark.models.info import measure_latency
+
+    size, width, repeats = (48, 0.25, 2) if args.fast else (224, 1.0, 10)
+    lines = []
+    for precision in precisions:
+        torch.manual_seed(0)
+        model = create_model(width=width, input_size=size)
+        times = measure_latency(model, size, repeats, 2, device, precision)
+        lines.append(
+            f"inference latency {size} px width {width:g} {precision}: "
+            f"{1e3 * statistics.median(times):.1f} ms/pair (batch 1, median of {repeats})"
+        )
+    return lines
+
+
+def main(argv: list[str]) -> int:
+    from benchmark.errors import UsageError
+    from benchmark.models.device import accelerator_name
+    from benchmark.training.bench import load_text, resolve
+
+    args = parser().parse_args(argv)
+    if args.steps < 1:
+        raise UsageError("--steps must be >= 1")
+    if args.data is not None and not args.data.is_dir():
+        raise UsageError(f"--data {args.data}: not a directory (a smoke dataset expected)")
+    device, precisions, notes = resolve(args)
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    cuda = torch.version.cuda or "no"
+    print(
+        f"accelerator check: {device} ({accelerator_name(device)}); torch {torch.__version__}, "
+        f"CUDA build {cuda}, {torch.get_num_threads()} torch threads; {load_text()}",
+        flush=True,
+    )
+    for note in notes:
+        print(note)
+    ok = True
+    if not args.no_reproduce:
+        root = args.keep or Path(tempfile.mkdtemp(prefix="uavbench-accel-"))
+        root.mkdir(parents=True, exist_ok=True)
+        try:
+            ok, lines = run_reproduction(args, root)
+        finally:
+            if args.keep is None:
+                shutil.rmtree(root, ignore_errors=True)
+        print("\n".join(lines), flush=True)
+    for line in [*bench_lines(args, device, precisions), *latency_lines(args, device, precisions)]:
+        print(line, flush=True)
+    print(f"end: {load_text()}")
+    return 0 if ok else 1

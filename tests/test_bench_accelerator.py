@@ -1,0 +1,60 @@
+"""``uavbench bench accelerator`` end to end on the CPU at tiny sizes (``--fast``); speeds are not
+asserted, only that every figure gets its line and the reproduction's device is reported."""
+
+from __future__ import annotations
+
+import re
+
+import pytest
+
+from benchmark.bench import TARGET_HELP, TARGETS
+from benchmark.bench_accelerator import main
+from benchmark.errors import UsageError
+
+FAST = ["--fast", "--device", "cpu", "--precision", "fp32,bf16", "--steps", "1", "--threads", "1"]
+
+
+def test_registered_as_bench_targets():
+    assert TARGETS["accelerator"] == "benchmark.bench_accelerator:main"
+    assert TARGETS["ceiling"] == "benchmark.models.bench_ceiling:main"
+    assert set(TARGETS) == set(TARGET_HELP)
+
+
+def test_bench_and_latency_lines_without_reproduction(capsys):
+    assert main([*FAST, "--no-reproduce"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("accelerator check: cpu (")
+    assert "smoke reproduction" not in out
+    for precision in ("fp32", "bf16"):
+        assert re.search(rf"^train 48 px width 0.25 batch 4 {precision}: [\d.]+ pairs/s", out, re.M)
+        assert re.search(rf"^conv ceiling {precision}: \d+ GFLOP/s$", out, re.M)
+        assert re.search(rf"^inference latency 48 px width 0.25 {precision}: [\d.]+ ms/pair", out,
+                         re.M)  # fmt: skip
+    assert re.search(r"^train .* bf16: .*, [\d.]+x fp32\)$", out, re.M)
+    assert "paper profile estimate" in out and "[--fast" in out
+
+
+def test_failed_reproduction_exits_1_with_its_log(tmp_path, capsys):
+    (tmp_path / "data").mkdir()
+    argv = [*FAST, "--precision", "fp32", "--table", "table42", "--data", str(tmp_path / "data")]
+    assert main([*argv, "--keep", str(tmp_path / "keep")]) == 1
+    out = capsys.readouterr().out
+    assert re.search(r"^smoke reproduction \(table42\): FAILED, exit \d+", out, re.M), out
+    assert (tmp_path / "keep" / "reproduce.log").is_file()
+    assert "train 48 px" in out  # the other figures still run
+
+
+@pytest.mark.parametrize("argv", [["--steps", "0"], ["--data", "/nonexistent"], ["--device", "x"]])
+def test_bad_arguments(argv):
+    with pytest.raises(UsageError):
+        main(argv)
+
+
+@pytest.mark.slow
+def test_smoke_reproduction_reports_the_runs_device(smoke_dataset, capsys):
+    assert main([*FAST, "--precision", "fp32", "--data", str(smoke_dataset)]) == 0
+    out = capsys.readouterr().out
+    line = re.search(r"^smoke reproduction \(table3\): ok in \d+ s; training runs on (.*);", out,
+                     re.M)  # fmt: skip
+    assert line is not None, out
+    assert line.group(1).startswith("cpu, fp32 (") and line.group(1).endswith(" x3"), out
