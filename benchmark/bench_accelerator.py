@@ -82,27 +82,33 @@ def run_reproduction(args: argparse.Namespace, root: Path) -> tuple[bool, list[s
     where = run_devices(f"sqlite:///{root / 'mlflow.db'}")
     report = root / "reports" / f"{args.table}.md"
     return True, [
-        f"smoke reproduction ({args.table}): ok in {seconds:.0f} s; training runs on {where}; "
+        f"smoke reproduction ({args.table}): ok in {seconds:.0f} s; trained models on {where}; "
         f"report {report if args.keep else report.name}"
     ]
 
 
 def run_devices(uri: str) -> str:
-    """``device, precision (accelerator)`` of the training runs in the store ``uri`` (their
-    MLflow tags; several values joined by ' / ')."""
+    """``device, precision (accelerator) xN`` of the trained models in the store ``uri``: their
+    MLflow tags, one count per distinct ``model_key`` (a table's row run repeats its unit's
+    tags); several values are joined by ' / '."""
     from mlflow.tracking import MlflowClient
 
     client = MlflowClient(tracking_uri=uri)
-    seen: dict[str, int] = {}
+    models: dict[str, str] = {}
     for exp in client.search_experiments():
         for run in client.search_runs([exp.experiment_id], max_results=1000):
             tags = run.data.tags
             if "device" in tags:
-                key = f"{tags['device']}, {tags.get('precision', '?')} ({tags.get('accelerator')})"
-                seen[key] = seen.get(key, 0) + 1
-    if not seen:
+                precision, name = tags.get("precision", "?"), tags.get("accelerator", "?")
+                models[tags.get("model_key", run.info.run_id)] = (
+                    f"{tags['device']}, {precision} ({name})"
+                )
+    if not models:
         return "(no run recorded its device)"
-    return " / ".join(f"{k} x{n}" for k, n in seen.items())
+    counts: dict[str, int] = {}
+    for where in models.values():
+        counts[where] = counts.get(where, 0) + 1
+    return " / ".join(f"{k} x{n}" for k, n in counts.items())
 
 
 def bench_lines(args: argparse.Namespace, device: torch.device, precisions: list[str]) -> list[str]:

@@ -54,7 +54,7 @@ def test_bad_arguments(argv):
 def test_smoke_reproduction_reports_the_runs_device(smoke_dataset, capsys):
     assert main([*FAST, "--precision", "fp32", "--data", str(smoke_dataset)]) == 0
     out = capsys.readouterr().out
-    line = re.search(r"^smoke reproduction \(table3\): ok in \d+ s; training runs on (.*);", out,
+    line = re.search(r"^smoke reproduction \(table3\): ok in \d+ s; trained models on (.*);", out,
                      re.M)  # fmt: skip
     assert line is not None, out
     assert line.group(1).startswith("cpu, fp32 (") and line.group(1).endswith(" x3"), out
