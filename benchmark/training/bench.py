@@ -67,6 +67,8 @@ def parser() -> argparse.ArgumentParser:
                    "where the device supports bf16, else fp32 and the reason)")  # fmt: skip
     p.add_argument("--no-plain", action="store_true", help="skip the plain reference loop")
     p.add_argument("--no-ceiling", action="store_true", help="skip the convolution ceiling")
+    p.add_argument("--profile", type=int, default=0, metavar="N", help="after timing, profile "
+                   "one step of each of our loops and print its N top ops (self time)")  # fmt: skip
     p.add_argument("--ceiling-batch", type=int, default=None, help="images per ceiling "
                    "convolution (default 24: 20 pairs over 4 satellite images)")  # fmt: skip
     return p
@@ -196,7 +198,26 @@ def measure(
         results.append(
             LoopResult(name, precision, args.batch_size / seconds, flops[name] / 1e9, gflops, share)
         )
+    if getattr(args, "profile", 0):
+        for name, (_, step) in loops.items():
+            if name.startswith("ours"):
+                print(f"profile of one step, {size} px width {width:g}, {name}:")
+                print(profile_step(step, args.profile))
     return results, ceilings
+
+
+def profile_step(step: Callable[[], float], rows: int) -> str:
+    """``torch.profiler``'s table of one call of ``step``: the ``rows`` ops of most self time
+    (on CUDA the device's time too)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    activities = [ProfilerActivity.CPU]
+    if torch.cuda.is_available():
+        activities.append(ProfilerActivity.CUDA)
+    with profile(activities=activities) as prof:
+        step()
+    key = "self_cuda_time_total" if len(activities) > 1 else "self_cpu_time_total"
+    return prof.key_averages().table(sort_by=key, row_limit=rows)
 
 
 def check_args(args: argparse.Namespace) -> list[str]:
@@ -212,6 +233,8 @@ def check_args(args: argparse.Namespace) -> list[str]:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 1")
     if args.warmup < 0:
         raise UsageError("--warmup must be >= 0")
+    if args.profile < 0:
+        raise UsageError("--profile must be >= 0 (rows of the op table)")
     if args.ceiling_batch is not None and args.ceiling_batch < 1:
         raise UsageError("--ceiling-batch must be >= 1")
     if args.distinct_sat > args.batch_size:

@@ -72,9 +72,16 @@ class TestBenchTrain:
         assert main([*TINY, "--no-ceiling", "--no-plain"]) == 0
         assert set(rows(capsys.readouterr().out)) == {"ours fp32", "ours bf16"}
 
+    def test_profile_prints_the_top_ops(self, capsys):
+        argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-ceiling", "--profile", "3"]
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        assert "profile of one step, 32 px width 0.1, ours fp32:" in out and "Self CPU" in out
+
     @pytest.mark.parametrize(
         "argv",
         [
+            ["--profile", "-1"],
             ["--models", "huge"],
             ["--distinct-sat", "30"],
             ["--steps", "0"],
