@@ -20,6 +20,7 @@ TARGETS: dict[str, str] = {
     "verify": "benchmark.data.bench_verify:main",
     "ceiling": "benchmark.models.bench_ceiling:main",
     "accelerator": "benchmark.bench_accelerator:main",
+    "ray": "benchmark.runner.bench_ray:main",
 }
 
 TARGET_HELP: dict[str, str] = {
@@ -29,6 +30,7 @@ TARGET_HELP: dict[str, str] = {
     "verify": "cost of opening a dataset: size check, first sha256, cached sha256, side by side",
     "ceiling": "convolution throughput ceiling (GFLOP/s, fp32/bf16) of the device",
     "accelerator": "one-command accelerator check: smoke reproduction, train fp32/bf16, latency",
+    "ray": "smoke reproduction through the process pool and a local Ray: wall times, ratio",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

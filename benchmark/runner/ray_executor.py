@@ -1,6 +1,6 @@
 """``uavbench reproduce --executor ray``: each training unit a Ray task, locally or on a cluster.
 
-The contract is :func:`benchmark.runner.reproduce.execute_units`'s: ``todo`` holds
+The contract is :func:`benchmark.runner.pool.execute_units`'s: ``todo`` holds
 ``(Unit, UnitTask)`` pairs, ``on_done(unit, UnitResult)`` runs in this (driver) process in order of
 completion, and the worker writes the same ``units/<key>/`` files through the same
 :func:`benchmark.runner.execute.run_unit` (one torch thread, as ``worker_init`` sets up), so the
@@ -131,7 +131,7 @@ def run_executor(
     if getattr(args, "tracker", "mlflow") == "null":
         tracking_uri = None  # nothing is logged (the null tracker's uri reads "null")
     if getattr(args, "executor", "pool") == "pool":
-        from benchmark.runner.reproduce import execute_units
+        from benchmark.runner.pool import execute_units
 
         execute_units(todo, args.jobs, on_done, quiet)
         return

@@ -10,22 +10,20 @@ figures, the raw CSV and a claim-by-claim summary under ``--out``.
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
-import multiprocessing
 import platform
-import signal
 import sys
 import time
 from pathlib import Path
 
 from benchmark.errors import UsageError
 from benchmark.locks import LockBusyError, work_lock
-from benchmark.progress import Progress, format_duration
-from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
+from benchmark.progress import format_duration
+from benchmark.runner.execute import UnitResult, UnitTask
 from benchmark.runner.invocations import LOCK, owner_tags, relevant_invocations, start_invocation
 from benchmark.runner.logbook import Logbook, write_config
 from benchmark.runner.plan import Unit, plan_units
 from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
+from benchmark.runner.ray_executor import add_executor_arguments, check_executor, run_executor
 from benchmark.runner.specs import SpecError, load_specs
 
 HELP = "reproduce the paper's tables and figures: simulate, train, evaluate, track, report"
@@ -64,6 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "the checkpoints stay in --workdir)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_executor_arguments(parser)
     parser.add_argument(
         "--no-wait",
         action="store_true",
@@ -90,51 +89,6 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
         raise UsageError(f"{out}: {err}") from err
     if stats["state"] != "complete":
         print(f"dataset {out}: {stats['state']} (rendering took {stats.get('render_s', 0):.0f} s)")
-
-
-def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: bool) -> None:
-    """Run tasks inline (``jobs == 1``) or in a spawn pool; ``on_done(unit, result)`` in order of
-    completion, in this process.
-
-    Ctrl-C: pool workers ignore SIGINT (``execute.worker_init``); this process stops them
-    (SIGTERM) and re-raises, so the user sees one message, not a traceback per worker."""
-    with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
-        if jobs == 1 or len(todo) <= 1:
-            for unit, task in todo:
-                bar.update(0, postfix=f"running {unit.title}")
-                on_done(unit, run_unit(task))
-                bar.update(1, postfix=f"done {unit.title}")
-            return
-        ctx = multiprocessing.get_context("spawn")
-        pool = cf.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=worker_init)
-        try:
-            # Workers are spawned by submit; started with SIGINT ignored (kept across exec, and
-            # then Python installs no KeyboardInterrupt handler) they cannot print a traceback
-            # even while still importing, before worker_init runs.
-            previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-            try:
-                futures = {pool.submit(run_unit, task): unit for unit, task in todo}
-            finally:
-                signal.signal(signal.SIGINT, previous)
-            for future in cf.as_completed(futures):
-                unit = futures[future]
-                on_done(unit, future.result())
-                bar.update(1, postfix=f"done {unit.title}")
-        except BaseException:
-            _stop_pool(pool)
-            raise
-        pool.shutdown(wait=True)
-
-
-def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
-    """Cancel what has not started and terminate the workers (they may be mid-training)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    for process in processes:
-        process.join(timeout=10)
 
 
 def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) -> UsageError:
@@ -178,6 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--seeds must be >= 1, got {args.seeds}")
     if args.jobs < 1:
         raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
+    check_executor(args)
     only = [name.strip() for name in args.only.split(",") if name.strip()]
     try:
         specs = load_specs(args.specs, only or None)
@@ -267,7 +222,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
 
     status = RunStatus.FINISHED
     try:
-        execute_units(todo, args.jobs, on_done, args.quiet)
+        run_executor(args, todo, on_done, args.quiet, tracker.uri)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
         written = _write_reports(
