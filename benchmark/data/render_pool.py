@@ -233,20 +233,25 @@ class RenderPool:
 
     def _dead_workers(self) -> str:
         """``"pid 123 killed by SIGKILL, ..."`` for the workers that ended abnormally."""
-        found = []
-        for pid, proc in sorted(self._procs.items()):
-            proc.join(timeout=1.0)  # the pool may not have reaped it yet
-            code = proc.exitcode
-            if code is None or code == 0:
-                continue
-            if code < 0:
-                try:
-                    found.append(f"pid {pid} killed by {signal.Signals(-code).name}")
-                except ValueError:
-                    found.append(f"pid {pid} killed by signal {-code}")
-            else:
-                found.append(f"pid {pid} exited with code {code}")
-        return ", ".join(found) or "a worker ended abnormally"
+        # The pool's manager thread notices the death before the dead process is reaped; on a
+        # loaded machine that can take seconds, so poll (returns at once when an exit code is in).
+        deadline = time.monotonic() + 10.0
+        while True:
+            found = []
+            for pid, proc in sorted(self._procs.items()):
+                proc.join(timeout=0.2)
+                code = proc.exitcode
+                if code is None or code == 0:
+                    continue
+                if code < 0:
+                    try:
+                        found.append(f"pid {pid} killed by {signal.Signals(-code).name}")
+                    except ValueError:
+                        found.append(f"pid {pid} killed by signal {-code}")
+                else:
+                    found.append(f"pid {pid} exited with code {code}")
+            if found or time.monotonic() > deadline:
+                return ", ".join(found) or "a worker ended abnormally"
 
     def imap(self, tasks: list[tuple[str, int]]) -> Iterator[ShardResult]:
         """Render and write ``tasks`` (``("uav"|"sat", k)``); yields a ShardResult as each ends.
