@@ -77,6 +77,7 @@ def reproduce_once(args: argparse.Namespace, executor: str, data: Path, where: P
 
 
 def main(argv: list[str]) -> int:
+    from benchmark.runner.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
     from benchmark.runner.profiles import get_repro_profile
     from benchmark.runner.ray_executor import import_ray
     from benchmark.runner.reproduce import prepare_dataset
@@ -88,9 +89,11 @@ def main(argv: list[str]) -> int:
         data = root / "data"
         profile = get_repro_profile(args.profile)
         print(f"bench ray: {args.profile} --only {args.only}, --jobs {args.jobs}, "
-              f"{args.repeats} repeat(s), {os.cpu_count()} cores; rendering the dataset (untimed)",
+              f"{args.repeats} repeat(s), {os.cpu_count()} cores; rendering the datasets (untimed)",
               flush=True)  # fmt: skip
         prepare_dataset(profile, data, 0, args.jobs, quiet=True)
+        # The heading-cue audit's extra datasets too: else the first timed run renders them.
+        cue_dataset_roots(data, CUE_EXTRA_SEEDS, quiet=True)
         walls: dict[str, list[float]] = {"pool": [], "ray": []}
         for repeat in range(args.repeats):
             for executor in ("pool", "ray"):
