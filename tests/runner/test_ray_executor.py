@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
 from benchmark.errors import UsageError
@@ -238,39 +239,15 @@ class TestCtrlC:
     def test_one_message_runs_killed_local_ray_stopped(self, tmp_path, smoke_dataset):
         """SIGINT to the process group (a terminal's Ctrl-C) while a Ray worker trains: exit 130,
         one message and no traceback, no run left RUNNING, no process of the local Ray left."""
-        import signal
-        import subprocess
         import time
 
         import psutil
 
-        argv = [
-            sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke", "--only",
-            TABLE, "--executor", "ray", "--jobs", "2", "--tracker", "local", "--quiet",
-            "--data", str(smoke_dataset), "--workdir", str(tmp_path / "runs"),
-            "--out", str(tmp_path / "reports"),
-        ]  # fmt: skip
-        root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "PYTHONPATH": root}
-        proc = subprocess.Popen(
-            argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, start_new_session=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        proc, out = ctrl_c_while_training(
+            tmp_path, smoke_dataset, "--only", TABLE, "--executor", "ray",
+            open_timeout_s=300, exit_timeout_s=120,
         )  # fmt: skip
         training = tmp_path / "tracking-local" / "uavbench-smoke_training"
-        deadline = time.monotonic() + 300
-        try:
-            while time.monotonic() < deadline and proc.poll() is None:
-                if any(json.loads(p.read_text())["status"] == "RUNNING"
-                       for p in training.glob("*/run.json")):  # fmt: skip
-                    break
-                time.sleep(0.05)
-            assert proc.poll() is None, "the reproduction ended before a training run opened"
-            os.killpg(proc.pid, signal.SIGINT)
-            out, _ = proc.communicate(timeout=120)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
         assert proc.returncode == 130, out
         assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
         assert out.count("interrupted: finished runs are kept") == 1, out

@@ -6,10 +6,10 @@ import dataclasses
 import json
 import os
 import re
-from pathlib import Path
 
 import pandas as pd
 import pytest
+from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
 from benchmark.runner import profiles as profiles_module
@@ -246,45 +246,15 @@ class TestReproduceInterrupted:
     ):
         """Ctrl-C as a terminal sends it (SIGINT to the whole process group) while a worker has
         a training run open: one clean message, no traceback, exit 130, no run left RUNNING."""
-        import signal
-        import subprocess
-        import sys
-        import time
-
-        argv = [
-            sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke", "--only",
-            "table3", "--jobs", "2", "--tracker", "local", "--quiet", "--data", str(smoke_dataset),
-            "--workdir", str(tmp_path / "runs"), "--out", str(tmp_path / "reports"),
-        ]  # fmt: skip
-        root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
-        env = {**os.environ, "OMP_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "PYTHONPATH": root}
-        # A process started with SIGINT ignored (a background job of a non-interactive shell, as
-        # `nohup bash .ci/run &`) passes that on, and Python then installs no KeyboardInterrupt
-        # handler: restore the default, as a terminal's foreground job has it.
-        proc = subprocess.Popen(
-            argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-            text=True, start_new_session=True,
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )  # fmt: skip
-        training = tmp_path / "tracking-local" / "uavbench-smoke_training"
-        deadline = time.monotonic() + 120
-        try:
-            while time.monotonic() < deadline and proc.poll() is None:
-                if any(json.loads(p.read_text())["status"] == "RUNNING"
-                       for p in training.glob("*/run.json")):  # fmt: skip
-                    break
-                time.sleep(0.05)
-            assert proc.poll() is None, "the reproduction ended before a training run opened"
-            os.killpg(proc.pid, signal.SIGINT)
-            out, _ = proc.communicate(timeout=60)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
+        proc, out = ctrl_c_while_training(
+            tmp_path, smoke_dataset, "--only", "table3", open_timeout_s=120, exit_timeout_s=60
+        )
         assert proc.returncode == 130, out
         assert "Traceback" not in out and "KeyboardInterrupt" not in out, out
         assert out.count("interrupted: finished runs are kept") == 1, out
         statuses = [r["status"] for r in run_statuses(tmp_path)]
         assert "RUNNING" not in statuses and "KILLED" in statuses, statuses
+        training = tmp_path / "tracking-local" / "uavbench-smoke_training"
 
         # The same command again continues the killed training runs (same run, start kept):
         # one run per unit, every one FINISHED.
