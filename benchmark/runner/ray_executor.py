@@ -39,6 +39,7 @@ from urllib.parse import urlsplit
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
 from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
+from benchmark.runner.pool import execute_units
 
 INSTALL_LINE = 'pip install -e ".[ray]"'
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
@@ -131,8 +132,6 @@ def run_executor(
     if getattr(args, "tracker", "mlflow") == "null":
         tracking_uri = None  # nothing is logged (the null tracker's uri reads "null")
     if getattr(args, "executor", "pool") == "pool":
-        from benchmark.runner.pool import execute_units
-
         execute_units(todo, args.jobs, on_done, quiet)
         return
     check_ray_tracking(args.ray_address, tracking_uri)
