@@ -7,6 +7,7 @@ from typing import ClassVar
 
 import pytest
 import torch
+from cross_isa import LOOP_OVERRIDES, LOOP_R_ATOL, LOOP_T_ATOL_M, loop_numbers
 from tiny_pairs import TinyPairs, tiny_config
 
 from benchmark.config import ConfigError
@@ -220,8 +221,17 @@ class TestUavOnlyControl:
 class TestSameNumbersAsBeforeIssue13:
     """Reference outputs computed with the code before the one-model-config change (train config
     with ``ModelSection`` + ``LossConfig``; pd_net_e's kappa 5 was ``loss.kappa=5``): the same
-    model, seed and data give the same weights, so the refactor changed no number. Tolerances
-    allow other CPUs' kernels; on the machine that made them the weights were bit-identical."""
+    model, seed and data give the same weights, so the refactor changed no number. On the machine
+    that made them (an AVX2 AMD EPYC) the weights were bit-identical.
+
+    Other CPUs run other kernels, and two epochs of Adam amplify their last-bit differences (a
+    near-zero gradient's sign decides a whole lr step). So each case checks (1) bit-level
+    determinism on this machine, two runs compared exactly, and (2) the stored outputs within a
+    tolerance measured by ``tests/training/cross_isa.py`` on the recording machine with oneDNN's
+    AVX/SSE4.1 kernels and ATen's non-vectorised ones forced: decoded R entries moved by up to
+    2.35e-3 (issue 20's AVX-512 EPYC: 1.7e-3), T by up to 0.34 m (|T| up to 67 m). Tolerances:
+    1e-2 on R (4x) and 1.5 m on T (4.5x); a different model or a changed loss moves them by
+    tenths and metres."""
 
     REFERENCE: ClassVar[dict[tuple[str, ...], tuple[list[float], list[float]]]] = {
         (): ([0.04028970, 0.61434412, -0.78800905, -0.98977947], [-0.91525054, -19.34836006]),
@@ -240,12 +250,13 @@ class TestSameNumbersAsBeforeIssue13:
     }
 
     @pytest.mark.parametrize("overrides", list(REFERENCE))
-    def test_outputs_match_the_stored_reference(self, overrides, tiny_data, tmp_path):
-        cfg = tiny_config(*overrides, "optim.name=adam")
-        model = run(cfg, tiny_data, tmp_path / "o").model.eval()
-        val = tiny_data[1]
-        with torch.no_grad():
-            R, T = model.decode(model(val.uav[:3], val.sat[val.sat_id[:3]]))
+    def test_outputs_match_the_stored_reference(self, overrides, tmp_path):
+        assert tuple(overrides) in {tuple(o) for o in LOOP_OVERRIDES}  # what cross_isa measures
+        R, T, model = loop_numbers(tmp_path / "a", overrides)
+        R_again, T_again, model_again = loop_numbers(tmp_path / "b", overrides)
+        assert (R, T) == (R_again, T_again) and same_state(model, model_again)  # bit-level
         want_R, want_T = self.REFERENCE[overrides]
-        torch.testing.assert_close(R.flatten()[:4], torch.tensor(want_R), rtol=0, atol=1e-4)
-        torch.testing.assert_close(T.flatten()[:2], torch.tensor(want_T), rtol=1e-4, atol=1e-3)
+        torch.testing.assert_close(torch.tensor(R), torch.tensor(want_R), rtol=0, atol=LOOP_R_ATOL)
+        torch.testing.assert_close(
+            torch.tensor(T), torch.tensor(want_T), rtol=0, atol=LOOP_T_ATOL_M
+        )
