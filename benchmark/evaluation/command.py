@@ -75,11 +75,16 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
     from benchmark.data import DatasetError, list_splits, os_error_message
     from benchmark.models.checkpoint import load_checkpoint, load_trained_model
-    from benchmark.models.device import resolve_device, resolve_precision
+    from benchmark.models.device import (
+        check_precision_supported,
+        resolve_device,
+        resolve_precision,
+    )
 
     try:
         device = resolve_device(args.device)
         args.precision = resolve_precision(args.precision, device)
+        check_precision_supported(args.precision, device)  # bf16: native on a CPU, or the env
     except ValueError as err:
         raise UsageError(f"--device/--precision: {err}") from None
     try:

@@ -4,8 +4,17 @@
 ``"cpu"``, ``"cuda"``, ``"cuda:N"``, ``"mps"``. ``precision``: ``"fp32"``; ``"bf16"`` or
 ``"fp16"`` (mixed precision: ``torch.autocast`` runs the convolutions and matrix products in 16
 bits, the weights, optimiser state and losses stay float32; fp16 also needs a gradient scaler, see
-:func:`grad_scaler`); ``"auto"``: bf16 on a CUDA device that supports it, fp32 otherwise (on a
-CPU fp32 keeps today's numbers; bf16 there is an explicit choice).
+:func:`grad_scaler`); ``"auto"``: bf16 on a CUDA device that supports it, fp32 otherwise. On a CPU
+``auto`` is always fp32, even one with native bf16: the default numbers must not depend on the
+CPU's instruction sets, and bf16 there is an explicit choice.
+
+bf16 on a CPU runs only where the CPU has native bf16 (``avx512_bf16`` or ``amx_bf16``; the
+levels are defined once in :mod:`benchmark.models.precision_support`): elsewhere
+:func:`check_precision_supported` refuses it in one line naming what is missing, unless
+``UAVBENCH_ALLOW_SLOW_BF16=1`` accepts the emulation. An environment variable, not a precision
+name such as ``bf16-emulated``: the arithmetic and the trained model are the same bf16 autocast
+(same run key, tag ``precision=bf16``, a checkpoint resumes on a native machine); only whether
+this machine may run it slowly differs, which is a property of the machine, not of the run.
 
 Nothing here changes what runs on the CPU in fp32: :func:`autocast` is then a no-op context and
 tensors already on the CPU are not copied.
@@ -20,6 +29,8 @@ from contextlib import AbstractContextManager
 from pathlib import Path
 
 import torch
+
+from benchmark.config import ConfigError
 
 DEVICE_CHOICES = "'auto', 'cpu', 'cuda', 'cuda:N' or 'mps'"
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
@@ -65,15 +76,44 @@ def resolve_device(name: str = "auto") -> torch.device:
     return device
 
 
+class PrecisionUnsupportedError(ConfigError):
+    """A precision this machine cannot run (well): the message is one line naming what it lacks
+    and how to proceed anyway. A ``ConfigError`` (so a ``ValueError``): the commands print it as
+    a usage error (exit 2)."""
+
+
 def resolve_precision(name: str, device: torch.device) -> str:
     """``"fp32"``, ``"bf16"`` or ``"fp16"`` for ``name`` on ``device`` (``"auto"``: bf16 on a
-    CUDA device with bf16 support, fp32 otherwise)."""
+    CUDA device with bf16 support, fp32 otherwise, on every CPU). Pure name resolution: whether
+    the machine runs it well is :func:`check_precision_supported`."""
     check_precision_name(name)
     if name != "auto":
         return name
     if device.type == "cuda" and torch.cuda.is_bf16_supported():
         return "bf16"
     return "fp32"
+
+
+def check_precision_supported(precision: str, device: torch.device) -> None:
+    """:class:`PrecisionUnsupportedError` when ``precision`` (resolved: fp32/bf16/fp16) is bf16
+    on a CPU without native bf16 (``avx512_bf16``/``amx_bf16``) and ``UAVBENCH_ALLOW_SLOW_BF16``
+    is not 1; also bf16 on a CUDA/MPS device without bf16 support. Nothing else is checked (fp32
+    runs anywhere; fp16 on a CPU is left as it was)."""
+    if precision != "bf16":
+        return
+    from benchmark.models import precision_support as support
+
+    reason = support.bf16_unsupported_reason(device, native=True)
+    if reason is None:
+        return
+    if device.type == "cpu":
+        if support.slow_bf16_allowed():
+            return
+        raise PrecisionUnsupportedError(
+            f"precision=bf16: {reason}; use precision=fp32 (or auto), or set "
+            f"{support.ALLOW_SLOW_BF16_ENV}=1 to emulate bf16 slowly"
+        )
+    raise PrecisionUnsupportedError(f"precision=bf16: {reason}; use precision=fp32 or auto")
 
 
 def autocast(device: torch.device, precision: str) -> AbstractContextManager[object]:

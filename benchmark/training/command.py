@@ -80,7 +80,11 @@ def run(args: argparse.Namespace) -> int:
         )
     eval_splits = args.eval_splits or ["standard/test"]
     from benchmark.data import list_splits
-    from benchmark.models.device import resolve_device
+    from benchmark.models.device import (
+        check_precision_supported,
+        resolve_device,
+        resolve_precision,
+    )
     from benchmark.tracking import (
         RUN_KEY_TAG,
         DatasetRef,
@@ -90,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
     )
 
     try:
-        resolve_device(cfg.device)
+        device = resolve_device(cfg.device)
+        # bf16 on a CPU without native bf16 (models/precision_support.py), before any work
+        check_precision_supported(resolve_precision(cfg.precision, device), device)
     except ValueError as err:  # e.g. device=cuda on a machine (or a torch build) without CUDA
         raise UsageError(str(err)) from None
     try:

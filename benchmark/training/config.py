@@ -97,7 +97,11 @@ class TrainConfig:
     # Where and in what precision to train, validate and evaluate (benchmark.models.device):
     # "auto" = CUDA, else MPS, else CPU; or "cpu", "cuda", "cuda:N", "mps". Precision "fp32",
     # "bf16", "fp16" (autocast; fp16 with a gradient scaler) or "auto" (bf16 on CUDA with bf16
-    # support, else fp32). The device is not part of a run's identity, fp32 is not either.
+    # support, else fp32; always fp32 on a CPU). The device is not part of a run's identity,
+    # fp32 is not either. Only the names are checked here, so a config stays valid on any
+    # machine (a bf16 config planned on a laptop for a GPU); whether this machine runs it is
+    # checked where it runs (models/device.py: check_precision_supported, bf16 on a CPU needs
+    # avx512_bf16/amx_bf16 or UAVBENCH_ALLOW_SLOW_BF16=1).
     device: str = "auto"
     precision: str = "auto"
 

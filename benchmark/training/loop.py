@@ -44,6 +44,7 @@ from benchmark.config import to_dict
 from benchmark.models.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from benchmark.models.device import (
     autocast,
+    check_precision_supported,
     grad_scaler,
     outputs_to_float,
     resolve_device,
@@ -195,6 +196,7 @@ def train(
     chash = numbers_hash(cfg)
     device = resolve_device(cfg.device)
     precision = resolve_precision(cfg.precision, device)
+    check_precision_supported(precision, device)  # bf16 needs native bf16 on a CPU (or the env)
     torch.manual_seed(derive_seed(cfg.seed, 0))
     model = model_factory()  # built and initialised on the CPU: the same weights on any device
     model.translation_head.fit_statistics(translation_labels(train_set))

@@ -5,7 +5,16 @@ The stored numbers below were computed at commit 1fe0c26 (the last one before ``
 on ``TinyPairs(6, seed=1)``, one torch thread, then ``evaluate(model, val, batch_size=4)``; the
 script printed every number with ``json.dumps`` (shortest round-trip repr). After the change the
 same script gave byte-identical output (weights sha256 included) on the machine that recorded
-them; the test allows 1e-6 relative for other CPUs' kernels.
+them (an AVX2 AMD EPYC).
+
+Bit-identity holds on one machine only: other CPUs run other oneDNN/ATen kernels (AVX-512, AMX)
+that sum in another order (issue 20: an AVX-512 EPYC gave val_median_dphi_deg 147.52030 for the
+stored 147.52108). So :class:`TestCpuDefaultsUnchanged` checks (1) bit-level determinism on this
+machine, two runs in the test compared exactly, and (2) the stored numbers within a tolerance
+measured by ``tests/training/cross_isa.py`` (constants and measurement there): forcing oneDNN's
+AVX/SSE4.1 kernels and ATen's non-vectorised ones on the recording machine moved the last epoch's
+numbers by at most 7.2e-6 relative (AVX-512: 5.3e-6) and the evaluation's by 4.0e-5 (loglik, near
+0, by 1.9e-6 absolute); the tolerances are 5e-5 and 3e-4 (+1e-5 absolute), a margin of 5-7x.
 """
 
 from __future__ import annotations
@@ -16,6 +25,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from cross_isa import DEVICES_EVAL_ABS, DEVICES_EVAL_REL, DEVICES_LAST_REL, devices_numbers
 from tiny_pairs import TinyPairs, tiny_config
 
 from benchmark.config import ConfigError, apply_overrides
@@ -26,6 +36,7 @@ from benchmark.models.device import (
     resolve_device,
     resolve_precision,
 )
+from benchmark.models.precision_support import ALLOW_SLOW_BF16_ENV, cpu_bf16_level
 from benchmark.training import (
     CHECKPOINT,
     TrainConfig,
@@ -60,6 +71,10 @@ BEFORE_EVAL = {
     "median_dphi_deg": 148.53363425311662, "loglik": -0.017403920491536457,
     "spearman_unc_err": -0.48571428571428577, "loss_total": 208.87055460611978,
 }  # fmt: skip
+# The one number known from another instruction set (issue 20, an AMD EPYC with AVX-512 and
+# avx512_bf16, printed to 5 decimals); it centres the check there (the tolerance covers both).
+CAPABILITY = torch.backends.cpu.get_cpu_capability()
+BEFORE_BY_CAPABILITY = {"AVX512": {"val_median_dphi_deg": 147.52030}}
 # run_key(cfg, manifest) and config_hash(cfg) at 1fe0c26 (keys of runs stored before devices).
 BEFORE_KEYS = [
     ((), "f" * 64, "fa4f899d57dd33e8", "b55553c0526b4acc"),
@@ -75,14 +90,26 @@ def run(cfg, out: Path):
 
 
 class TestCpuDefaultsUnchanged:
-    @pytest.mark.parametrize("overrides", [(), ("device=cpu", "precision=fp32")])
-    def test_same_numbers_as_before_devices(self, overrides, tmp_path):
-        torch.set_num_threads(1)
-        res, val = run(tiny_config(*overrides), tmp_path)
-        last = {k: v for k, v in res.history[-1].items() if k in BEFORE_LAST_EPOCH}
-        assert last == pytest.approx(BEFORE_LAST_EPOCH, rel=1e-6, abs=0)
-        summary, _ = evaluate(res.model.eval(), val, batch_size=4)
-        assert {k: summary[k] for k in BEFORE_EVAL} == pytest.approx(BEFORE_EVAL, rel=1e-6)
+    def test_same_numbers_as_before_devices(self, tmp_path):
+        """The default config and an explicit device=cpu precision=fp32 give bit-identical
+        training and evaluation on this machine (determinism, and auto is cpu/fp32 here), and
+        the numbers recorded before devices within the measured cross-CPU tolerance."""
+        runs = {}
+        for name, overrides in (("auto", ()), ("cpu", ("device=cpu", "precision=fp32"))):
+            runs[name] = devices_numbers(tmp_path / name, *overrides)
+        (last, summary, model), (last_cpu, summary_cpu, model_cpu) = runs["auto"], runs["cpu"]
+        assert last == last_cpu and summary == summary_cpu  # exactly: same machine, same kernels
+        state, state_cpu = model.state_dict(), model_cpu.state_dict()
+        assert state.keys() == state_cpu.keys()
+        assert all(torch.equal(state[k], state_cpu[k]) for k in state)
+
+        want_last = {**BEFORE_LAST_EPOCH, **BEFORE_BY_CAPABILITY.get(CAPABILITY, {})}
+        assert {k: last[k] for k in want_last} == pytest.approx(
+            want_last, rel=DEVICES_LAST_REL, abs=0
+        )
+        assert {k: summary[k] for k in BEFORE_EVAL} == pytest.approx(
+            BEFORE_EVAL, rel=DEVICES_EVAL_REL, abs=DEVICES_EVAL_ABS
+        )
 
     def test_auto_is_cpu_fp32_here_without_an_accelerator(self):
         if torch.cuda.is_available() or torch.backends.mps.is_available():
@@ -154,6 +181,13 @@ class TestConfig:
 
 
 class TestBf16OnCpu:
+    @pytest.fixture(autouse=True)
+    def _bf16_allowed_here(self, monkeypatch):
+        """Training in bf16 on a CPU without native bf16 needs the explicit allowance (issue 20,
+        tests/training/test_bf16_cpu.py); these tests exercise the arithmetic on every CPU."""
+        if cpu_bf16_level() != "native":
+            monkeypatch.setenv(ALLOW_SLOW_BF16_ENV, "1")
+
     def test_autocast_runs_in_bf16_losses_in_fp32(self):
         cfg = tiny_config("device=cpu", "precision=bf16")
         torch.manual_seed(0)
