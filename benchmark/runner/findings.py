@@ -6,10 +6,14 @@ says nothing the table does not: verdict counts, which claims hold and which do 
 differences and intervals exactly as the table prints them), which heads use the satellite image
 on which split, which representation wins each test split of the ``extended`` table
 (``benchmark.runner.claims_ranking``), and which heads were left out for not beating the constant
-predictor.
+predictor. After a partial rerun that kept tables from an earlier run, one line per earlier run
+names those tables and the claims that use them: *from an earlier run at <commit>, not
+re-decided* (``benchmark.runner.partial``).
 """
 
 from __future__ import annotations
+
+from collections.abc import Mapping
 
 from benchmark.runner.claims import (
     CONTRADICTED,
@@ -21,8 +25,9 @@ from benchmark.runner.claims import (
     Comparison,
 )
 from benchmark.runner.claims_ranking import ranking_sentence
+from benchmark.runner.partial import EARLIER, short_commit
 
-ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN)
+ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN, EARLIER)
 SENTENCE_KINDS = ("satellite", "ranking")  # claims summarised by a sentence of their own
 
 
@@ -130,14 +135,44 @@ def _exclusions(claims: list[Claim], at_most: int = 8) -> list[str]:
     return [f"{label}: {n} split(s)" for label, n in sorted(per_label.items())]
 
 
-def findings_markdown(claims: list[Claim]) -> str:
+def earlier_lines(claims: list[Claim], earlier: Mapping[str, str]) -> list[str]:
+    """One bullet per earlier run (``earlier``: kept table -> git commit of the run that wrote
+    it): its tables and the claims (numbered as in the claims table) that use them, which are
+    not re-decided."""
+    by_commit: dict[str, list[str]] = {}
+    for table, commit in sorted(earlier.items()):
+        by_commit.setdefault(commit, []).append(table)
+    lines = []
+    for commit, tables in by_commit.items():
+        numbers = [
+            str(i)
+            for i, c in enumerate(claims, 1)
+            if c.verdict == EARLIER and c.facts.get("earlier", ("", ""))[1] == commit
+        ]
+        if len(numbers) == 1:
+            uses = f"claim {numbers[0]} uses them and is not re-decided"
+        elif numbers:
+            uses = f"claims {', '.join(numbers)} use them and are not re-decided"
+        else:
+            uses = "no claim uses them"
+        names = ", ".join(f"`{t}`" for t in tables)
+        lines.append(
+            f"- **from an earlier run at `{short_commit(commit)}`, not re-decided**: {names} "
+            f"(kept as written by that run, see *Partial rerun*); {uses}."
+        )
+    return lines
+
+
+def findings_markdown(claims: list[Claim], earlier: Mapping[str, str] | None = None) -> str:
     """Markdown findings (a counts sentence, then bullets) from the checked claims, numbered as
-    in the claims table (1-based, in order)."""
+    in the claims table (1-based, in order). ``earlier`` (table -> git commit) names the tables
+    kept from an earlier run; claims with the verdict ``EARLIER`` are listed with them."""
     numbered = list(enumerate(claims, 1))
     counts = {v: sum(c.verdict == v for c in claims) for v in ORDER}
     head = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
     lines = [f"Of {len(claims)} claims checked: {head}.", ""]
-    for verdict in ORDER:
+    lines += earlier_lines(claims, earlier or {})
+    for verdict in ORDER[:-1]:  # EARLIER: in the lines above
         group = [
             (i, c)
             for i, c in numbered
@@ -150,6 +185,8 @@ def findings_markdown(claims: list[Claim]) -> str:
         else:
             lines.append(f"- **{verdict}**: " + "; ".join(_claim_summary(i, c) for i, c in group))
     for i, c in numbered:
+        if c.verdict == EARLIER:
+            continue
         sentence = satellite_sentence(i, c) or ranking_sentence(i, c)
         if sentence is not None:
             lines.append(f"- {sentence}")

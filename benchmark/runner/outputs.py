@@ -27,7 +27,17 @@ from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.findings import findings_markdown
 from benchmark.runner.frames import FrameStore
 from benchmark.runner.logbook import Logbook
-from benchmark.runner.partial import earlier_results, in_spec_order, merge_note
+from benchmark.runner.partial import (
+    DEFAULT_STALE,
+    STALE_COLUMN,
+    EarlierTable,
+    MergedFrameStore,
+    MergePlan,
+    in_spec_order,
+    mark_earlier_claims,
+    mark_earlier_files,
+    plan_merge,
+)
 from benchmark.runner.plan import Unit
 from benchmark.runner.profiles import ReproProfile
 from benchmark.runner.provenance_report import (
@@ -142,6 +152,8 @@ def write_reports(
     workdir: Path | None = None,
     quiet: bool = False,
     remeasure_costs: bool = False,
+    stale: str = DEFAULT_STALE,
+    merge: MergePlan | None = None,
 ) -> list[Path]:
     """Write every report file under ``out``; return their paths.
 
@@ -152,11 +164,14 @@ def write_reports(
     only (it says so).
 
     A reproduction of some tables only (``--only``) merges with what an earlier one wrote to
-    ``out``: :func:`earlier_results` keeps the other tables' ``results.csv`` rows (when their
-    units are those this dataset and profile plan and, given ``workdir``, their predictions are
-    still there), the claims are decided again on all of them, and ``README.md`` is regenerated
-    from the merged results. The other tables' Markdown files are left as they were.
-    A progress line (stderr, unless ``quiet``) names the table being written."""
+    ``out`` (``merge``, default :func:`~benchmark.runner.partial.plan_merge` with ``stale``):
+    the other tables whose units are today's and whose predictions are in ``workdir`` are kept,
+    rendered again from their rows and decided again with the re-run ones; the others, from an
+    earlier run, are kept as written and marked in their files, ``results.csv`` (``stale_from``),
+    the README and ``provenance.json``, their claims not re-decided (``stale="keep"``), or
+    removed with their files (``"drop"``). Every file of ``out``, ``results.csv`` and the README
+    then describe the same tables. A progress line (stderr, unless ``quiet``) names the table
+    being written."""
     out.mkdir(parents=True, exist_ok=True)
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
     frame = results_frame(units, results)
@@ -164,10 +179,13 @@ def write_reports(
     val = frame[frame["role"] == "val"] if len(frame) else frame
     val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
     baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
-    kept, kept_specs, kept_units = earlier_results(out, specs, profile, data_root, workdir)
-    everything = pd.concat(
-        [x for x in (frame, pd.DataFrame(baseline_rows), kept) if len(x)] or [frame],
-        ignore_index=True,
+    plan = merge or plan_merge(out, specs, profile, data_root, workdir, mode=stale)
+    kept_specs, kept_units = plan.live, plan.live_units
+    everything = _with_stale_column(
+        pd.concat(
+            [x for x in (frame, pd.DataFrame(baseline_rows), plan.rows()) if len(x)] or [frame],
+            ignore_index=True,
+        )
     )
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
@@ -185,9 +203,12 @@ def write_reports(
         part = everything[everything["table"] == name] if len(everything) else everything
         return summarize(part, metrics, resolve) if len(part) else pd.DataFrame()
 
-    bar = Progress(len(specs) + 1, "report", unit="item", enabled=not quiet)
+    # The kept live tables are rendered again from their rows (a table of costs, which would be
+    # measured again, is kept as it is), so every table file says what results.csv says.
+    rendered = [*specs, *(s for s in kept_specs if s.kind != "cost")]
+    bar = Progress(len(rendered) + 1, "report", unit="item", enabled=not quiet)
     with bar:
-        for spec in specs:
+        for spec in rendered:
             bar.update(0, postfix=f"writing {spec.name}")
             part = everything[everything["table"] == spec.name] if len(everything) else everything
             summary = summaries[spec.name] = summary_of(spec.name)
@@ -211,17 +232,20 @@ def write_reports(
                 )
             md_path.write_text(text + failed_section(spec.name, units, results))
             written += paths
-            if logbook is not None:
+            if logbook is not None and spec in specs:
                 logbook.log_table_outputs(spec.name, paths)
             bar.update(1, postfix=f"wrote {spec.name}")
         for spec in kept_specs:  # the earlier tables: their verdicts count too
             summaries[spec.name] = summary_of(spec.name)
         bar.status("deciding the claims (paired flight x seed bootstrap)")
         findings_md, claims_md, claims = _claims_section(
-            summaries, [*units, *kept_units], data_root, workdir
+            summaries, [*units, *kept_units], data_root, workdir, plan
         )
         bar.update(1, postfix="claims decided")
-    for spec in specs:  # which representation wins, in the ranked table's own section
+    # Kept earlier tables open with a banner naming their run; dropped ones lose their files.
+    touched = mark_earlier_files(out, plan)
+    written += touched if plan.mode == "keep" else []
+    for spec in rendered:  # which representation wins, in the ranked table's own section
         section = ranking_markdown(claims, spec.name)
         if section:
             md = out / f"{spec.name}.md"
@@ -233,12 +257,15 @@ def write_reports(
     record = collect_provenance(
         [*units, *kept_units], {**kept_results, **results}, data_root, workdir
     )
+    if plan.kept:  # where the tables kept from an earlier run come from, and their digests
+        record["earlier_tables"] = {t.name: t.record() for t in plan.kept}
+        record["earlier_units"] = plan.earlier_units
     written += write_provenance(record, out)
     readme = out / "README.md"
     audit = heading_cue_summary(audit_rows)
     listed = in_spec_order([*specs, *kept_specs])
-    text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit)
-    text += merge_note(specs, kept_specs)
+    text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit, plan.kept)
+    text += plan.markdown()
     text += failed_section(None, units, results)
     readme.write_text(text + provenance_summary(record))
     written.append(readme)
@@ -278,19 +305,43 @@ def failed_section(table: str | None, units: list[Unit], results: dict[str, Unit
 
 
 def _claims_section(
-    summaries: dict[str, pd.DataFrame], units: list[Unit], data_root: Path, workdir: Path | None
+    summaries: dict[str, pd.DataFrame],
+    units: list[Unit],
+    data_root: Path,
+    workdir: Path | None,
+    plan: MergePlan | None = None,
 ) -> tuple[str, str, list[Claim]]:
     """The findings (generated from the verdicts, so prose cannot drift from the numbers) and the
     claims table, decided on per-frame errors (``FrameStore`` over ``workdir``). Without a
-    workdir there are no per-frame errors and both say so."""
+    workdir there are no per-frame errors and both say so. A claim that needs a table kept from
+    an earlier run (``plan.kept``) is not decided: it reads
+    :data:`~benchmark.runner.partial.EARLIER` (``MergedFrameStore``)."""
     if workdir is None:
         missing = (
             "Claims not evaluated: verdicts are decided on per-frame errors, and no work "
             "directory with the units' predictions was given."
         )
         return missing, missing, []
-    claims = evaluate_claims(summaries, FrameStore(workdir, data_root, units))
-    return findings_markdown(claims), render_claims(claims), claims
+    kept = plan.kept if plan is not None else []
+    if kept:
+        store = MergedFrameStore(workdir, data_root, units, kept, plan.earlier_specs)
+    else:
+        store = FrameStore(workdir, data_root, units)
+    claims = evaluate_claims(summaries, store)
+    if kept:
+        mark_earlier_claims(claims, plan)
+    earlier = {t.name: t.commit for t in kept}
+    return findings_markdown(claims, earlier), render_claims(claims), claims
+
+
+def _with_stale_column(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with the column ``stale_from`` (``""`` for rows this report decides) right
+    after ``unit``."""
+    frame = frame.copy()
+    frame[STALE_COLUMN] = frame[STALE_COLUMN].fillna("") if STALE_COLUMN in frame else ""
+    columns = [c for c in frame.columns if c != STALE_COLUMN]
+    at = columns.index("unit") + 1 if "unit" in columns else len(columns)
+    return frame[[*columns[:at], STALE_COLUMN, *columns[at:]]]
 
 
 def _input_size(data_root: Path) -> int:
@@ -306,6 +357,7 @@ def _readme(
     claims_md: str,
     runs: list[dict],
     audit: str,
+    earlier: list[EarlierTable] = (),
 ) -> str:
     cpu = platform.processor() or platform.machine()
     lines = [
@@ -352,12 +404,20 @@ def _readme(
         "## Tables and figures",
         "",
     ]
-    lines += [f"- [{s.name}]({s.name}.md): {s.title}" for s in specs]
+    entries = {s.name: f"- [{s.name}]({s.name}.md): {s.title}" for s in specs}
+    for t in earlier:  # kept as written by an earlier run: said on the line itself
+        entries[t.name] = (
+            f"- [{t.name}]({t.name}.md): {t.title} (**from an earlier run {t.at}, not "
+            "re-decided**: see *Partial rerun* below)"
+        )
+    lines += [entries[name] for name in sorted(entries)]
     lines += ["", "Raw numbers: [results.csv](results.csv) (one row per table, model, sweep value, "
               "split, satellite mode and seed; column `satellite`: `true` = each pair's own "
               "satellite image, `swap` = another place's, the satellite-swap probe; the `swap` "
               "rows hold the paired swap effect `swap_dpsi_diff_deg`, `swap_dphi_diff_deg` with "
               "their 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, `swap_*_boot_hi_deg`; "
               "column `satellite_input`: `blank` marks the UAV-only control; column `role`: "
-              "`test`, or `val` for the validation split of the training data)."]  # fmt: skip
+              "`test`, or `val` for the validation split of the training data; column "
+              "`stale_from`: empty for rows this report decides, else the git commit of the "
+              "earlier run a kept table comes from)."]  # fmt: skip
     return "\n".join(lines) + "\n"

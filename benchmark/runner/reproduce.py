@@ -21,6 +21,7 @@ from benchmark.progress import format_duration
 from benchmark.runner.execute import UnitResult, UnitTask
 from benchmark.runner.invocations import LOCK, owner_tags, relevant_invocations, start_invocation
 from benchmark.runner.logbook import Logbook, write_config
+from benchmark.runner.partial import DEFAULT_STALE, STALE_MODES, MergePlan, plan_merge
 from benchmark.runner.plan import Unit, plan_units
 from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
 from benchmark.runner.ray_executor import add_executor_arguments, check_executor, run_executor
@@ -42,6 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="training seeds per variant, on one dataset (default: the profile's, quick 3)",
+    )
+    parser.add_argument(
+        "--stale",
+        choices=STALE_MODES,
+        default=DEFAULT_STALE,
+        help="with --only: what to do with the report's other tables when they come from an "
+        "earlier run (other dataset, profile or code, or predictions gone): keep them as "
+        "written, marked 'from an earlier run at <commit>' and left out of today's claims "
+        "(default), or drop them with their files and README lines",
     )
     parser.add_argument("--out", type=Path, default=None, help="reports dir (reports/<profile>)")
     parser.add_argument(
@@ -167,6 +177,11 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     except ValueError as err:
         raise UsageError(str(err)) from err
 
+    # What happens to the report's other tables, said before any training (and in the README).
+    merge = plan_merge(out, specs, profile, data_root, workdir, dataset_hash, args.stale)
+    if merge.describe():
+        print(merge.describe(), flush=True)
+
     workdir.mkdir(parents=True, exist_ok=True)
     tracker = create_tracker(args.tracker, args.tracking_uri, workdir=Path.cwd())
     provenance = {"git_commit": git_commit() or "unknown", "dataset_manifest": dataset_hash}
@@ -226,7 +241,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
         written = _write_reports(
-            specs, units, results, profile, (data_root, out, workdir), logbook, invocations
+            specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge
         )
     except KeyboardInterrupt:
         status = RunStatus.KILLED
@@ -258,17 +273,21 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     return 1 if failures else 0
 
 
-def _write_reports(specs, units, results, profile, paths, logbook, invocations) -> list[Path]:
-    """``outputs.write_reports``; a dataset damaged while the units ran (their results are kept
-    in the store) is one line with the fix instead of a traceback."""
+def _write_reports(
+    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan
+) -> list[Path]:
+    """``outputs.write_reports`` with the merge planned before training; a dataset damaged
+    while the units ran (their results are kept in the store) is one line with the fix instead
+    of a traceback."""
     from benchmark.data.format import DatasetError
     from benchmark.runner.outputs import write_reports
 
     data_root, out, workdir = paths
     try:
         return write_reports(
-            specs, units, results, profile, data_root, out, logbook, invocations, workdir=workdir
-        )
+            specs, units, results, profile, data_root, out, logbook, invocations,
+            workdir=workdir, merge=merge,
+        )  # fmt: skip
     except DatasetError as err:
         raise _data_error(data_root, profile, 0, err) from None
 
