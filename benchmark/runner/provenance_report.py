@@ -11,6 +11,11 @@ recorded (``checkpoint_file_sha256``, to identify the local file) but ignored by
 :func:`compare_provenance`; the weights are compared through ``model_state_sha256``, a sha256 of
 the model's state dict in a canonical order (see :func:`state_dict_sha256`). Predictions CSVs are
 written with 10 significant digits and fixed line endings, so equal predictions give equal bytes.
+
+A report that keeps tables from an earlier run (``uavbench reproduce --only``, ``--stale keep``,
+``benchmark.runner.partial``) records where they come from: ``earlier_tables`` (per table the git
+commit, dataset manifest, date and reason) and ``earlier_units`` (the earlier report's digests of
+their units), so the digests of every number in the report stay in one record.
 """
 
 from __future__ import annotations
@@ -213,7 +218,33 @@ def provenance_markdown(record: Mapping[str, Any]) -> str:
         )
     if "units_note" in record:
         lines += ["", record["units_note"]]
+    lines += earlier_markdown(record)
     return "\n".join(lines) + "\n"
+
+
+def earlier_markdown(record: Mapping[str, Any]) -> list[str]:
+    """Lines on the tables kept from an earlier run (none when there are none)."""
+    earlier = record.get("earlier_tables") or {}
+    if not earlier:
+        return []
+    lines = [
+        "",
+        "## Tables from an earlier run",
+        "",
+        "Kept as written by an earlier reproduction (not re-run, not re-decided); the digests of "
+        f"their {len(record.get('earlier_units') or {})} unit(s) are those that run recorded "
+        "(`earlier_units` in `provenance.json`).",
+        "",
+        "| table | git commit | dataset manifest sha256 | written | why not re-run |",
+        "|---|---|---|---|---|",
+    ]
+    for name, t in sorted(earlier.items()):
+        lines.append(
+            f"| `{name}` | `{t.get('git_commit', 'unknown')}` | "
+            f"`{t.get('dataset_manifest') or 'unknown'}` | {t.get('written') or 'unknown'} | "
+            f"{t.get('why', '')} |"
+        )
+    return lines
 
 
 def provenance_summary(record: Mapping[str, Any]) -> str:
@@ -225,7 +256,20 @@ def provenance_summary(record: Mapping[str, Any]) -> str:
         f"{len(record['units'])} unit(s) with weight and prediction digests; torch "
         f"{sw.get('torch', '?')} ({sw.get('torch_cpu_capability', '?')} kernels), numpy "
         f"{sw.get('numpy', '?')}, on {record['machine']['cpu_model']}. Every digest: "
-        "[provenance.md](provenance.md), machine-readable [provenance.json](provenance.json).\n"
+        "[provenance.md](provenance.md), machine-readable [provenance.json](provenance.json)"
+        + _earlier_note(record)
+        + ".\n"
+    )
+
+
+def _earlier_note(record: Mapping[str, Any]) -> str:
+    earlier = record.get("earlier_tables") or {}
+    if not earlier:
+        return ""
+    commits = sorted({str(t.get("git_commit", "unknown")) for t in earlier.values()})
+    return (
+        f"; {len(earlier)} table(s) kept from an earlier run (git commit "
+        f"{', '.join(f'`{c}`' for c in commits)}) with that run's digests"
     )
 
 

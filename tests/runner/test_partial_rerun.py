@@ -187,6 +187,14 @@ class TestKeepTheEarlierTables:
         assert "Refresh them with `uavbench reproduce`." in partial  # every table
         record = json.loads((out / "provenance.json").read_text())
         assert record["earlier_tables"]["table2"]["git_commit"] == commit
+        committed_units = json.loads((COMMITTED / "provenance.json").read_text())["units"]
+        stale_units = set(stale["unit"].dropna())
+        assert set(record["earlier_units"]) == stale_units & set(committed_units)
+        assert all(record["earlier_units"][k] == committed_units[k] for k in stale_units)
+        provenance_md = (out / "provenance.md").read_text()
+        assert "## Tables from an earlier run" in provenance_md
+        assert f"| `table2` | `{commit}` |" in provenance_md
+        assert "12 table(s) kept from an earlier run" in section(readme, "Provenance")
         assert_agrees(out)
 
         # A second partial rerun, at another commit in real life: the same report, one banner,
