@@ -11,10 +11,19 @@ read into memory once.
 
 ``satellite="swap"`` is the satellite-swap probe: every pair gets the satellite image of another
 place (rules in ``benchmark.data.swap``) and keeps its labels.
+
+Each item also carries ``context``: the per-sample geometry a pair encoder may use (the UAV
+camera's field of view, the served satellite image's footprint and capture height) and the
+gravity-aided protocol's sensor priors: pitch and roll as an IMU gives them and the height above
+the ground at the centre as an altimeter gives it, the true values plus Gaussian noise of
+:data:`PRIOR_SIGMA` (1 deg, 1 deg, 2 m), drawn once per split from a generator seeded by the
+dataset seed and the split name, so every model sees the same priors for the same item.
 """
 
 from __future__ import annotations
 
+import math
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +37,19 @@ from benchmark.data.integrity import MODES, check_files
 from benchmark.data.swap import SATELLITE_MODES, swap_targets
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major, as written by simulate
+# Noise of the gravity-aided protocol's priors (pitch rad, roll rad, altitude m): a consumer IMU's
+# attitude after fusion is good to about 1 deg, a barometric altimeter to about 2 m over a flight.
+PRIOR_SIGMA = (math.radians(1.0), math.radians(1.0), 2.0)
+CONTEXT_KEYS = ("fov", "sat_footprint_m", "sat_height_m", "prior_attitude", "prior_altitude_m")
+
+
+def prior_noise(seed: int, split: str, n: int) -> np.ndarray:
+    """``(n, 3)`` float64 noise (pitch rad, roll rad, altitude m) of the priors of ``split``'s
+    items, a function of the dataset ``seed`` and the split name only (not of the process, the
+    satellite mode or the order of reading)."""
+    key = zlib.crc32(split.encode("utf-8"))
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, key, 0x5052]))
+    return rng.standard_normal((n, 3)) * np.asarray(PRIOR_SIGMA)
 
 
 def list_splits(root: str | Path) -> list[str]:
@@ -49,7 +71,13 @@ class PairDataset(Dataset):
         model may encode each distinct one once per batch); ``R``: float32 ``(3, 3)``
         ``R_uav^sat`` (paper Eq. 2); ``T``: float32 ``(3,)`` ``[dE, dN, dU]`` metres, UAV minus
         satellite capture point; ``uav_euler``: float32 ``(3,)`` UAV ``(yaw, pitch, roll)``
-        radians; ``index``: int64 ``()`` row of ``poses``.
+        radians; ``index``: int64 ``()`` row of ``poses``; ``context``: a dict of float32
+        tensors, ``fov`` ``()`` the UAV camera's horizontal field of view (rad),
+        ``sat_footprint_m`` ``(2,)`` (E, N) metres covered by the served satellite image at the
+        centre's terrain height, ``sat_height_m`` ``()`` its capture height above that terrain,
+        ``prior_attitude`` ``(2,)`` (pitch, roll) rad and ``prior_altitude_m`` ``()`` the UAV's
+        height above the terrain at the centre (``dU + sat_height_m`` of the true pair), both with
+        the noise of :data:`PRIOR_SIGMA` (:func:`prior_noise`).
 
     ``satellite``: ``"true"`` (each pair's own satellite image) or ``"swap"`` (the image of another
     place, :func:`benchmark.data.swap.swap_targets`; ``sat`` and ``sat_id`` change, labels do not).
@@ -108,7 +136,30 @@ class PairDataset(Dataset):
         self._R = self.poses[R_COLUMNS].to_numpy(np.float32).reshape(-1, 3, 3)
         self._T = self.poses[["dE", "dN", "dU"]].to_numpy(np.float32)
         self._euler = self.poses[["yaw", "pitch", "roll"]].to_numpy(np.float32)
+        self._context = self._make_context()
         self._maps: dict[int, np.ndarray] = {}
+
+    def _make_context(self) -> dict[str, np.ndarray]:
+        """The ``context`` fields of every item as float32 arrays (first axis = item)."""
+        fov = float(self.manifest.get("profile", {}).get("fov_deg", float("nan")))
+        if not (math.isfinite(fov) and 0.0 < fov < 179.0):
+            raise DatasetError(
+                f"{self.root / MANIFEST}: profile.fov_deg must be in (0, 179) degrees, got {fov!r}"
+            )
+        served = self.sat_table.set_index("sat_index").loc[self._sat_index]
+        n = len(self.poses)
+        noise = prior_noise(int(self.manifest.get("seed", 0)), self.split, n)
+        euler = self.poses[["pitch", "roll"]].to_numpy(np.float64)
+        altitude = self.poses["dU"].to_numpy(np.float64) + self.poses["sat_height_m"].to_numpy(
+            np.float64
+        )
+        return {
+            "fov": np.full(n, math.radians(fov), np.float32),
+            "sat_footprint_m": served[["footprint_E_m", "footprint_N_m"]].to_numpy(np.float32),
+            "sat_height_m": served["height_m"].to_numpy(np.float32),
+            "prior_attitude": (euler + noise[:, :2]).astype(np.float32),
+            "prior_altitude_m": (altitude + noise[:, 2]).astype(np.float32),
+        }
 
     def __len__(self) -> int:
         return len(self.poses)
@@ -147,4 +198,5 @@ class PairDataset(Dataset):
             "T": torch.from_numpy(self._T[i].copy()),
             "uav_euler": torch.from_numpy(self._euler[i].copy()),
             "index": torch.tensor(i, dtype=torch.int64),
+            "context": {k: torch.from_numpy(np.array(v[i])) for k, v in self._context.items()},
         }

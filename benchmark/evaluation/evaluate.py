@@ -105,8 +105,10 @@ def predict(
                 batch = to_device(batch, device)  # the same dict on the CPU
                 R_gt, T_gt = batch["R"], batch["T"]
                 sat_ids = batch["sat_id"] if shared_satellite else None
+                # The items' per-sample geometry, passed on unread (pair encoders use it).
+                context = {"context": batch["context"]} if "context" in batch else {}
                 with autocast(device, precision):
-                    out = model(batch["uav"], batch["sat"], sat_ids)
+                    out = model(batch["uav"], batch["sat"], sat_ids, **context)
                 if precision != "fp32":
                     out = outputs_to_float(out)
                 R_hat, T_hat = model.decode(out)

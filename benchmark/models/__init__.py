@@ -28,6 +28,7 @@ from benchmark.models.pair import (
     build_model,
     create_model,
 )
+from benchmark.models.pair_encoder import PairEncoder, PairEncoding
 from benchmark.models.registry import (
     create_encoder,
     create_head,
@@ -47,6 +48,8 @@ __all__ = [
     "Head",
     "LatticeHead",
     "ModelConfig",
+    "PairEncoder",
+    "PairEncoding",
     "PoseModel",
     "PoseOutput",
     "RegressionAttitudeHead",

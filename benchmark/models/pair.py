@@ -17,13 +17,19 @@ constant mid-grey image (0.5 in every channel, before normalisation) in training
 so training and evaluation run unchanged while the satellite branch carries no information. The
 grey image is encoded once per batch (exact with per-sample GroupNorm; with ``norm='batch'`` in
 training mode the batch statistics differ from encoding B grey copies).
+
+Pair encoders (``benchmark.models.pair_encoder``, e.g. the matching encoder): the encoder takes
+both images and the items' ``context`` and returns the heads' features ``(B, F)`` itself (heads
+are built with ``in_features = F``, one level, no auxiliary heads) plus the tensors its own loss
+needs (``PoseOutput.encoder``); ``PoseModel.loss`` adds its weighted term ``enc`` to the total
+and reports its terms under their own keys. Distinct satellite images are encoded once as above.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import torch
@@ -37,6 +43,7 @@ from benchmark.models.model_config import (
     ModelConfig,
     check_satellite_input,
 )
+from benchmark.models.pair_encoder import PairEncoder
 from benchmark.models.registry import create_encoder, create_head
 
 __all__ = [
@@ -58,19 +65,23 @@ BLANK_GREY = 0.5  # the UAV-only control's satellite image, RGB in [0, 1]
 
 @dataclass
 class PoseOutput:
-    """Raw head outputs. ``aux_attitude`` is empty in eval mode and for variants without fusion."""
+    """Raw head outputs. ``aux_attitude`` is empty in eval mode and for variants without fusion;
+    ``encoder`` holds a pair encoder's tensors for its own loss (empty for Siamese encoders)."""
 
     attitude: Raw
     translation: Raw
     aux_attitude: tuple[Raw, ...] = ()
+    encoder: dict[str, Tensor] = field(default_factory=dict)
 
 
 class PoseModel(nn.Module):
     """Siamese encoder + attitude head(s) + translation head.
 
     Args:
-        encoder: an ``Encoder`` whose ``embedding_dims`` has one entry per level, final last.
-        attitude_head: head on the final level (``in_features = 2 * D_final``).
+        encoder: an ``Encoder`` whose ``embedding_dims`` has one entry per level, final last, or
+            a ``PairEncoder`` (one level of ``F`` features for the heads).
+        attitude_head: head on the final level (``in_features = 2 * D_final``; ``F`` for a pair
+            encoder).
         translation_head: head on the final level.
         aux_attitude_heads: one head per auxiliary level (``len(embedding_dims) - 1`` of them).
         aux_weights: ``w_i`` of Algorithm 1, one float for all or one per auxiliary head.
@@ -81,7 +92,7 @@ class PoseModel(nn.Module):
 
     def __init__(
         self,
-        encoder: Encoder,
+        encoder: Encoder | PairEncoder,
         attitude_head: AttitudeHead,
         translation_head: TranslationHead,
         aux_attitude_heads: Sequence[AttitudeHead] = (),
@@ -107,18 +118,20 @@ class PoseModel(nn.Module):
             raise ValueError(f"need {n_aux} aux_weights, got {weights}")
         for w in weights:
             check_option(w, "aux_weight", "PoseModel", inclusive=True)
+        self.pair_encoder = isinstance(encoder, PairEncoder)
+        factor = 1 if self.pair_encoder else 2  # a pair encoder gives the features; else [e, e]
         dims = encoder.embedding_dims
         heads = [*aux_attitude_heads, attitude_head]
         for level, (head, dim) in enumerate(zip(heads, dims, strict=True)):
-            if head.in_features != 2 * dim:
+            if head.in_features != factor * dim:
                 raise ValueError(
                     f"attitude head of level {level} takes {head.in_features} features, the pair "
-                    f"embedding has 2 * {dim}"
+                    f"embedding has {factor} * {dim}"
                 )
-        if translation_head.in_features != 2 * dims[-1]:
+        if translation_head.in_features != factor * dims[-1]:
             raise ValueError(
                 f"translation head takes {translation_head.in_features} features, the pair "
-                f"embedding has 2 * {dims[-1]}"
+                f"embedding has {factor} * {dims[-1]}"
             )
         self.encoder = encoder
         self.attitude_head = attitude_head
@@ -140,10 +153,11 @@ class PoseModel(nn.Module):
         x = (x - self.input_mean.to(x.dtype)) / self.input_std.to(x.dtype)
         return x.contiguous(memory_format=torch.channels_last) if self.channels_last else x
 
-    def encode_pair(
-        self, uav: Tensor, sat: Tensor, sat_ids: Tensor | None = None, with_aux: bool = False
-    ) -> list[Tensor]:
-        """Per-level pair features ``[(B, 2 D_l)]``, final level last."""
+    def _distinct_satellites(
+        self, uav: Tensor, sat: Tensor, sat_ids: Tensor | None
+    ) -> tuple[Tensor, Tensor | None]:
+        """The satellite images to encode ``(M, 3, H, W)`` and, when ``M < B`` may hold, the
+        row of each pair's image among them ``(B,)`` (None: one per pair, in order)."""
         self.encoder.check_input(uav, "uav")
         self.encoder.check_input(sat, "sat")
         if uav.shape != sat.shape:
@@ -176,6 +190,16 @@ class PoseModel(nn.Module):
             if not torch.equal(sat, sat[first[inverse]]):
                 raise ValueError("sat_ids gives the same id to satellite images that differ")
             sat = sat[first]
+        return sat, inverse
+
+    def encode_pair(
+        self, uav: Tensor, sat: Tensor, sat_ids: Tensor | None = None, with_aux: bool = False
+    ) -> list[Tensor]:
+        """Per-level pair features ``[(B, 2 D_l)]``, final level last (Siamese encoders)."""
+        if self.pair_encoder:
+            raise TypeError("encode_pair is the Siamese path; a pair encoder runs in forward")
+        batch = uav.shape[0]
+        sat, inverse = self._distinct_satellites(uav, sat, sat_ids)
         # One encoder call for both images: shared weights, better throughput.
         embeddings = self.encoder(self._normalize(torch.cat([uav, sat])), with_aux=with_aux)
         features = []
@@ -186,8 +210,18 @@ class PoseModel(nn.Module):
             features.append(torch.cat([e_uav, e_sat], dim=1))
         return features
 
-    def forward(self, uav: Tensor, sat: Tensor, sat_ids: Tensor | None = None) -> PoseOutput:
-        """``uav, sat (B, 3, H, W)`` float RGB in [0, 1]; ``sat_ids (B,)`` int64 or None."""
+    def forward(
+        self,
+        uav: Tensor,
+        sat: Tensor,
+        sat_ids: Tensor | None = None,
+        context: Mapping[str, Tensor] | None = None,
+    ) -> PoseOutput:
+        """``uav, sat (B, 3, H, W)`` float RGB in [0, 1]; ``sat_ids (B,)`` int64 or None;
+        ``context``: the items' per-sample geometry (``PairDataset``), read by pair encoders
+        only (a Siamese encoder ignores it)."""
+        if self.pair_encoder:
+            return self._forward_pair_encoder(uav, sat, sat_ids, context)
         with_aux = self.training and len(self.aux_attitude_heads) > 0
         features = self.encode_pair(uav, sat, sat_ids, with_aux=with_aux)
         aux = (
@@ -199,6 +233,23 @@ class PoseModel(nn.Module):
             attitude=self.attitude_head(features[-1]),
             translation=self.translation_head(features[-1]),
             aux_attitude=aux,
+        )
+
+    def _forward_pair_encoder(
+        self,
+        uav: Tensor,
+        sat: Tensor,
+        sat_ids: Tensor | None,
+        context: Mapping[str, Tensor] | None,
+    ) -> PoseOutput:
+        sat, inverse = self._distinct_satellites(uav, sat, sat_ids)
+        if inverse is None:
+            inverse = torch.arange(uav.shape[0], device=uav.device)
+        enc = self.encoder(self._normalize(uav), self._normalize(sat), inverse, context)
+        return PoseOutput(
+            attitude=self.attitude_head(enc.features),
+            translation=self.translation_head(enc.features),
+            encoder=dict(enc.extras),
         )
 
     def loss(self, output: PoseOutput, R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
@@ -216,6 +267,11 @@ class PoseModel(nn.Module):
             terms[f"att_aux{i}"] = head.loss(raw, R_gt)
             att = att + w * terms[f"att_aux{i}"]
         tran = self.translation_head.loss(output.translation, T_gt)
+        if self.pair_encoder and output.encoder:
+            # The pair encoder's own terms (``enc`` = their weighted sum; weight 0 = heads only).
+            enc_terms = self.encoder.loss(output.encoder, R_gt, T_gt)
+            return {"total": att + tran + enc_terms["enc"], "att": att, "tran": tran, **terms,
+                    **enc_terms}  # fmt: skip
         return {"total": att + tran, "att": att, "tran": tran, **terms}
 
     def decode(self, output: PoseOutput) -> tuple[Tensor, Tensor]:
@@ -241,12 +297,16 @@ def build_model(config: ModelConfig, input_size: int | None = None) -> PoseModel
         **config.encoder_options,
     )
     dims = encoder.embedding_dims
+    factor = 1 if isinstance(encoder, PairEncoder) else 2  # pair encoders give the features
     heads = [
-        create_head(config.attitude, "attitude", in_features=2 * d, **config.attitude_options)
+        create_head(config.attitude, "attitude", in_features=factor * d, **config.attitude_options)
         for d in dims
     ]
     translation = create_head(
-        config.translation, "translation", in_features=2 * dims[-1], **config.translation_options
+        config.translation,
+        "translation",
+        in_features=factor * dims[-1],
+        **config.translation_options,
     )
     return PoseModel(
         encoder,

@@ -32,7 +32,7 @@ from benchmark.models.heads import AttitudeHead, Head, TranslationHead
 
 HEAD_ENTRY_POINT_GROUP = "uavbench.heads"
 ENCODER_ENTRY_POINT_GROUP = "uavbench.encoders"
-_BUILTIN_ENCODER_MODULES = ("benchmark.models.googlenet",)
+_BUILTIN_ENCODER_MODULES = ("benchmark.models.googlenet", "benchmark.models.matching")
 
 _HEADS: dict[str, type[Head]] = {}
 _ENCODERS: dict[str, Callable[..., Any]] = {}

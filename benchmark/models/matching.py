@@ -1,0 +1,427 @@
+"""The matching encoder (issue 21): it reads the heading from the pair by matching a bird's-eye
+view of the UAV image against the satellite image at every yaw and position.
+
+After OrienterNet (Sarlin et al., CVPR 2023): neural bird's-eye view, rotated templates,
+exhaustive correlation into a score volume over (yaw, N, E), trained by the NLL of the true pose.
+Written for this benchmark's geometry (``benchmark.models.matching_geometry``); no code copied.
+
+Pipeline, per pair (``B`` pairs, ``C = out_channels``):
+
+1. Two small CNNs (5 convolutions each, GroupNorm, ReLU): the UAV image -> ``(C, S/2, S/2)``
+   (2 x 2 average pooling after the first layer), the satellite image -> ``(C, S/2, S)`` (pooled
+   along rows only, since a 2 x 1 km footprint squashed to a square has 2x finer rows).
+2. A gravity branch on the UAV trunk predicts pitch, roll and the height above the ground
+   (``gravity_dim`` features also go to the heads).
+3. Protocol (option ``protocol``): ``"gravity_aided"`` builds the bird's-eye view from the
+   context's sensor priors (IMU pitch/roll, altimeter height; noise in
+   ``benchmark.data.dataset.PRIOR_SIGMA``); ``"vision_only"`` (the paper's) from the gravity
+   branch's prediction at evaluation, and from the same priors in training (teacher forcing: the
+   matcher learns on near-true geometry while the gravity branch learns to predict it).
+4. Templates: for each of ``n_yaw`` yaws, a disc of radius ``template_m`` of ground cells of
+   ``cell_m`` metres, projected into the UAV image and sampled (one bilinear interpolation per
+   cell); satellite features resampled to the same north-up metric grid; both L2-normalised per
+   cell. The score of (yaw, position) is the template's mean cosine similarity with the grid at
+   that position, times a learned temperature; positions within ``search_m`` (square) of the
+   image centre and inside its footprint are candidates. ``log_softmax`` over all (yaw, N, E)
+   gives the pose volume.
+5. Features for the heads (fixed length, see :attr:`MatchingEncoder.feature_names`): the yaw
+   marginal (times ``n_yaw``, mean 1), its circular mean (cos, sin), the expected position, its
+   spread and the arg-max position (units of ``search_m``), peak log-probability and normalised
+   entropy, the gravity values (predicted, and prior or predicted), the gravity features, and the
+   estimate of ``dU`` from the height (km) and the satellite height (km).
+
+The encoder's own loss (``loss``): ``volume_nll_weight`` x the NLL of the pose volume at the true
+pose (the cross-entropy with the true pose smoothed over neighbouring cells and yaw bins by
+Gaussians of ``smoothing`` cells / bins) + ``gravity_weight`` x the gravity branch's robust
+(smooth L1) error on pitch, roll (per 2 deg) and height (per 5 m). ``volume_nll_weight=0`` leaves
+the matcher to the heads' loss (the paper's protocol of one loss per head).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import torch
+import torch.nn.functional as nnf
+from torch import Tensor, nn
+
+from benchmark.geometry import SAT_R_N, rotmat_to_euler
+from benchmark.models.encoder import parse_variant
+from benchmark.models.matching_ops import bev_templates, correlate, sat_grid
+from benchmark.models.pair_encoder import PairEncoder, PairEncoding
+from benchmark.models.registry import register_encoder
+
+__all__ = ["PROTOCOLS", "MatchingEncoder", "matching"]
+
+PROTOCOLS = ("vision_only", "gravity_aided")
+GRAVITY_SCALE = (math.radians(2.0), math.radians(2.0), 5.0)  # loss units: 2 deg, 2 deg, 5 m
+MASKED = -1.0e4  # log-score of excluded positions (finite: 0 * MASKED stays 0 in the loss)
+ALTITUDE_PRIOR_M = 80.0  # the gravity branch's initial height (quick flights: 70-90 m)
+
+
+def _trunk(channels: int, out_channels: int, pool: tuple[int, int]) -> nn.ModuleDict:
+    def block(cin: int) -> nn.Sequential:
+        return nn.Sequential(
+            nn.Conv2d(cin, channels, 3, padding=1, bias=False),
+            nn.GroupNorm(min(4, channels), channels),
+            nn.ReLU(inplace=True),
+        )
+
+    return nn.ModuleDict(
+        {
+            "stem": block(3),
+            "pool": nn.AvgPool2d(kernel_size=(pool[1], pool[0]), stride=(pool[1], pool[0])),
+            "body": nn.Sequential(block(channels), block(channels), block(channels)),
+            "out": nn.Conv2d(channels, out_channels, 1),
+        }
+    )
+
+
+def _run_trunk(trunk: nn.ModuleDict, x: Tensor) -> tuple[Tensor, Tensor]:
+    hidden = trunk["body"](trunk["pool"](trunk["stem"](x)))
+    return hidden, trunk["out"](hidden)
+
+
+def _context_value(context: Mapping[str, Tensor], key: str, shape: tuple, ref: Tensor) -> Tensor:
+    if key not in context:
+        raise ValueError(
+            f"matching encoder: context has no {key!r} (got {sorted(context)}); pass the items' "
+            "'context' dict of benchmark.data.PairDataset"
+        )
+    value = torch.as_tensor(context[key]).to(device=ref.device, dtype=ref.dtype)
+    if value.shape != shape:
+        raise ValueError(f"matching encoder: context[{key!r}] must have shape {shape}, got "
+                         f"{tuple(value.shape)}")  # fmt: skip
+    return value
+
+
+class MatchingEncoder(PairEncoder):
+    """See the module docstring; options are those of :func:`matching`."""
+
+    def __init__(
+        self,
+        input_size: int,
+        protocol: str = "vision_only",
+        volume_nll_weight: float = 1.0,
+        gravity_weight: float = 1.0,
+        n_yaw: int = 36,
+        cell_m: float = 20.8,
+        search_m: float = 400.0,
+        template_m: float = 333.0,
+        channels: int = 16,
+        out_channels: int = 8,
+        gravity_dim: int = 32,
+        smoothing: float = 0.5,
+        temperature: float = 20.0,
+        correlation: str = "fft",
+        default_fov_deg: float = 60.0,
+        default_footprint_m: tuple[float, float] = (2000.0, 1000.0),
+        default_sat_height_m: float = 1000.0,
+    ) -> None:
+        super().__init__()
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"matching encoder: protocol must be one of {PROTOCOLS}, got "
+                             f"{protocol!r}")  # fmt: skip
+        for name, value in (("volume_nll_weight", volume_nll_weight),
+                            ("gravity_weight", gravity_weight)):  # fmt: skip
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"matching encoder: {name} must be >= 0, got {value!r}")
+        for name, value in (("cell_m", cell_m), ("search_m", search_m),
+                            ("template_m", template_m), ("smoothing", smoothing),
+                            ("temperature", temperature)):  # fmt: skip
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"matching encoder: {name} must be > 0, got {value!r}")
+        if n_yaw < 4 or channels < 1 or out_channels < 1 or gravity_dim < 1:
+            raise ValueError("matching encoder: need n_yaw >= 4 and channels, out_channels, "
+                             f"gravity_dim >= 1; got {n_yaw}, {channels}, {out_channels}, "
+                             f"{gravity_dim}")  # fmt: skip
+        if correlation not in ("fft", "conv"):
+            raise ValueError(f"matching encoder: correlation must be 'fft' or 'conv', got "
+                             f"{correlation!r}")  # fmt: skip
+        if input_size < 16 or input_size % 2:
+            raise ValueError(f"matching encoder: input_size must be even and >= 16, got "
+                             f"{input_size}")  # fmt: skip
+        self.min_input_size = input_size
+        self.input_size = input_size
+        self.protocol = protocol
+        self.volume_nll_weight = float(volume_nll_weight)
+        self.gravity_weight = float(gravity_weight)
+        self.n_yaw = int(n_yaw)
+        self.cell_m = float(cell_m)
+        self.search_cells = max(1, round(search_m / cell_m))
+        self.template_cells = max(1, round(template_m / cell_m))
+        self.smoothing = float(smoothing)
+        self.correlation = correlation
+        self.defaults = {
+            "fov": math.radians(default_fov_deg),
+            "sat_footprint_m": tuple(float(x) for x in default_footprint_m),
+            "sat_height_m": float(default_sat_height_m),
+        }
+        self.uav_stride, self.sat_stride = (2, 2), (1, 2)
+        self.uav_trunk = _trunk(channels, out_channels, self.uav_stride)
+        self.sat_trunk = _trunk(channels, out_channels, self.sat_stride)
+        self.gravity_conv = nn.Sequential(
+            nn.Conv2d(channels, channels, 3, stride=2, padding=1),
+            nn.ReLU(inplace=True),
+            nn.AdaptiveAvgPool2d(6),
+            nn.Flatten(),
+            nn.Linear(36 * channels, 64),
+            nn.ReLU(inplace=True),
+            nn.Linear(64, gravity_dim),
+            nn.ReLU(inplace=True),
+        )
+        self.gravity_out = nn.Linear(gravity_dim, 3)
+        nn.init.zeros_(self.gravity_out.weight)
+        nn.init.zeros_(self.gravity_out.bias)
+        self.log_temperature = nn.Parameter(torch.tensor(math.log(temperature)))
+        yaws = torch.arange(self.n_yaw, dtype=torch.float64) * (2 * math.pi / self.n_yaw)
+        self.register_buffer("yaws", yaws.float(), persistent=False)
+        n = self.search_cells
+        offsets = torch.arange(-n, n + 1, dtype=torch.float32) * self.cell_m
+        self.register_buffer("pos_e", offsets.clone(), persistent=False)  # column x -> dE
+        self.register_buffer("pos_n", offsets.flip(0).clone(), persistent=False)  # row y -> dN
+        self.feature_names = (
+            [f"yaw_p{k}" for k in range(self.n_yaw)]
+            + ["yaw_cos", "yaw_sin", "E_mean", "N_mean", "E_std", "N_std", "E_argmax",
+               "N_argmax", "peak_logp", "entropy", "pitch_pred", "roll_pred", "alt_pred",
+               "pitch_used", "roll_used", "alt_used"]
+            + [f"gravity{k}" for k in range(gravity_dim)]
+            + ["dU_est_km", "sat_height_km"]
+        )  # fmt: skip
+        self.feature_dim = len(self.feature_names)
+
+    # --- geometry inputs -------------------------------------------------------------------
+    def _geometry(self, context: Mapping[str, Tensor] | None, ref: Tensor) -> dict[str, Tensor]:
+        b = ref.shape[0]
+        if context is None:
+            if self.protocol == "gravity_aided":
+                raise ValueError("matching encoder (gravity_aided): no context given; the "
+                                 "protocol needs the items' prior_attitude and "
+                                 "prior_altitude_m")  # fmt: skip
+            d = self.defaults
+            return {
+                "fov": ref.new_full((b,), d["fov"]),
+                "sat_footprint_m": ref.new_tensor(d["sat_footprint_m"]).expand(b, 2),
+                "sat_height_m": ref.new_full((b,), d["sat_height_m"]),
+            }
+        out = {
+            "fov": _context_value(context, "fov", (b,), ref),
+            "sat_footprint_m": _context_value(context, "sat_footprint_m", (b, 2), ref),
+            "sat_height_m": _context_value(context, "sat_height_m", (b,), ref),
+        }
+        if "prior_attitude" in context or self.protocol == "gravity_aided":
+            out["prior_attitude"] = _context_value(context, "prior_attitude", (b, 2), ref)
+            out["prior_altitude_m"] = _context_value(context, "prior_altitude_m", (b,), ref)
+        return out
+
+    def forward(
+        self,
+        uav: Tensor,
+        sat: Tensor,
+        sat_index: Tensor,
+        context: Mapping[str, Tensor] | None = None,
+    ) -> PairEncoding:
+        """``uav (B, 3, S, S)``, ``sat (M, 3, S, S)`` normalised; ``sat_index (B,)`` int64 rows of
+        ``sat``; ``context`` as ``PairDataset`` collates it (``None``: the defaults, vision-only
+        only). Returns the features ``(B, F)`` and, in ``extras``, ``log_volume (B, K, P, P)``
+        (log-probabilities over yaw, row = north first, column = east), ``gravity (B, 3)``
+        (predicted pitch, roll rad, height m) and ``sat_height_m (B,)``."""
+        if uav.shape[-2:] != (self.input_size, self.input_size) or sat.shape[-2:] != uav.shape[-2:]:
+            raise ValueError(f"matching encoder: built for {self.input_size} px images, got uav "
+                             f"{tuple(uav.shape)} and sat {tuple(sat.shape)}")  # fmt: skip
+        geo = self._geometry(context, uav)
+        uav_hidden, uav_feat = _run_trunk(self.uav_trunk, uav)
+        _, sat_feat = _run_trunk(self.sat_trunk, sat)
+        sat_feat = sat_feat[sat_index]
+        g = self.gravity_conv(uav_hidden)
+        raw = self.gravity_out(g)
+        predicted = torch.stack(
+            [raw[:, 0] * 0.3, raw[:, 1] * 0.3, ALTITUDE_PRIOR_M + 10.0 * raw[:, 2]], dim=1
+        )  # pitch, roll rad; height m (scaled so the initial layer sees unit targets)
+        use_prior = "prior_attitude" in geo and (self.protocol == "gravity_aided" or self.training)
+        if use_prior:
+            used = torch.cat([geo["prior_attitude"], geo["prior_altitude_m"][:, None]], dim=1)
+        else:
+            used = predicted
+        # Altitude below 5 m would put the horizon at the image centre and nothing on the ground.
+        log_volume = self.match(
+            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=5.0), geo["fov"],
+            geo["sat_footprint_m"],
+        )  # fmt: skip
+        feats = self._summary(log_volume, predicted, used, g, geo["sat_height_m"])
+        extras = {
+            "log_volume": log_volume,
+            "gravity": predicted,
+            "sat_height_m": geo["sat_height_m"],
+        }
+        return PairEncoding(features=feats, extras=extras)
+
+    def match(
+        self,
+        uav_feat: Tensor,
+        sat_feat: Tensor,
+        pitch: Tensor,
+        roll: Tensor,
+        altitude: Tensor,
+        fov: Tensor,
+        footprint_m: Tensor,
+        uav_stride: tuple[int, int] | None = None,
+        sat_stride: tuple[int, int] | None = None,
+    ) -> Tensor:
+        """The pose volume ``log p (B, K, P, P)`` (yaw, row = north first, column = east) of
+        feature maps ``uav_feat (B, C, h, w)`` and ``sat_feat (B, C, h', w')`` (one satellite map
+        per pair; strides default to the trunks'), for the camera ``pitch, roll`` (rad),
+        ``altitude`` (m above the ground), ``fov`` (rad), all ``(B,)``, and the satellite
+        footprint ``(B, 2)`` metres. Features are L2-normalised per cell here."""
+        size = self.input_size
+        r, n = self.template_cells, self.search_cells
+        templates, mask = bev_templates(
+            nnf.normalize(uav_feat, dim=1), uav_stride or self.uav_stride, size, self.yaws, r,
+            self.cell_m, pitch, roll, altitude, fov,
+        )  # fmt: skip
+        grid = sat_grid(sat_feat, sat_stride or self.sat_stride, size, footprint_m, n + r,
+                        self.cell_m)  # fmt: skip
+        grid = nnf.normalize(grid, dim=1)
+        corr = correlate(grid, templates, self.correlation)  # (B, K, P, P)
+        count = mask.flatten(2).sum(-1).clamp(min=1).to(corr.dtype)  # valid cells per template
+        scores = corr / count[..., None, None] * self.log_temperature.exp()
+        half = 0.5 * footprint_m
+        inside = (self.pos_n.abs()[None, :, None] <= half[:, 1, None, None]) & (
+            self.pos_e.abs()[None, None, :] <= half[:, 0, None, None]
+        )  # (B, P, P)
+        scores = torch.where(inside[:, None], scores, scores.new_tensor(MASKED))
+        return torch.log_softmax(scores.flatten(1), dim=1).view_as(scores)
+
+    def _summary(
+        self, log_volume: Tensor, predicted: Tensor, used: Tensor, g: Tensor, sat_height: Tensor
+    ) -> Tensor:
+        p = log_volume.exp()
+        yaw_p = p.sum(dim=(2, 3))  # (B, K)
+        pos_p = p.sum(dim=1)  # (B, P, P)
+        scale = self.search_cells * self.cell_m
+        pe = pos_p.sum(1)  # (B, P) over columns (east)
+        pn = pos_p.sum(2)  # (B, P) over rows (north)
+        e_mean = (pe * self.pos_e).sum(1)
+        n_mean = (pn * self.pos_n).sum(1)
+        e_std = ((pe * (self.pos_e - e_mean[:, None]).square()).sum(1) + 1e-6).sqrt()
+        n_std = ((pn * (self.pos_n - n_mean[:, None]).square()).sum(1) + 1e-6).sqrt()
+        flat = pos_p.flatten(1).argmax(1)
+        width = pos_p.shape[-1]
+        e_arg, n_arg = self.pos_e[flat % width], self.pos_n[flat // width]
+        peak = log_volume.flatten(1).max(1).values
+        entropy = -(p * log_volume).flatten(1).sum(1) / math.log(log_volume[0].numel())
+        cols = [
+            yaw_p * self.n_yaw,
+            (yaw_p * self.yaws.cos()).sum(1, keepdim=True),
+            (yaw_p * self.yaws.sin()).sum(1, keepdim=True),
+            torch.stack([e_mean, n_mean, e_std, n_std, e_arg, n_arg], 1) / scale,
+            torch.stack([peak / 10.0, entropy], 1),
+            predicted * predicted.new_tensor([1.0, 1.0, 0.01]),
+            used * used.new_tensor([1.0, 1.0, 0.01]),
+            g,
+            torch.stack([(used[:, 2] - sat_height) / 1000.0, sat_height / 1000.0], 1),
+        ]
+        return torch.cat(cols, dim=1)
+
+    # --- the encoder's own loss -------------------------------------------------------------
+    @staticmethod
+    def true_pose(R_gt: Tensor, T_gt: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """``(yaw, pitch, roll)`` rad of the UAV from ``R_uav^sat (B, 3, 3)`` (``R_uav^n =
+        R_uav^sat R_sat^n``, Eq. 2) and ``T (B, 3)`` metres (returned as given)."""
+        R_uav_n = R_gt @ SAT_R_N.to(R_gt)
+        yaw, pitch, roll = rotmat_to_euler(R_uav_n)
+        return yaw, pitch, roll, T_gt
+
+    def volume_nll(self, log_volume: Tensor, yaw: Tensor, east: Tensor, north: Tensor) -> Tensor:
+        """``(B,)`` NLL of the pose ``(yaw rad, east m, north m)`` (UAV minus the satellite
+        image's centre) under ``log_volume (B, K, P, P)``: the cross-entropy with the pose
+        smoothed by Gaussians of ``smoothing`` bins in yaw (wrapped) and ``smoothing`` cells in
+        E and N (normalised in log space, so a pose beyond the searched square puts its mass on
+        the nearest candidates). Cells with ``log p <= MASKED / 2`` are the ones :meth:`match`
+        excluded (off the footprint) and get no target mass."""
+        bin_w = 2 * math.pi / self.n_yaw
+        dyaw = torch.remainder(self.yaws[None] - yaw[:, None] + math.pi, 2 * math.pi) - math.pi
+        sy = self.smoothing * bin_w
+        sp = self.smoothing * self.cell_m
+        log_t = (
+            (-0.5 * (dyaw / sy).square())[:, :, None, None]
+            + (-0.5 * ((self.pos_n[None] - north[:, None]) / sp).square())[:, None, :, None]
+            + (-0.5 * ((self.pos_e[None] - east[:, None]) / sp).square())[:, None, None, :]
+        )
+        log_t = log_t + (log_volume <= MASKED / 2).to(log_t.dtype) * MASKED  # off the footprint
+        target = torch.softmax(log_t.flatten(1), dim=1)
+        return -(target * log_volume.flatten(1)).sum(1)
+
+    def loss(self, extras: Mapping[str, Tensor], R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
+        """``enc = volume_nll_weight * enc_volume + gravity_weight * enc_gravity`` (batch means):
+        ``enc_volume`` the NLL of the true pose (:meth:`volume_nll`), ``enc_gravity`` the
+        smooth-L1 error of the predicted pitch, roll (per 2 deg) and height (per 5 m; height =
+        ``dU + sat_height_m``). Both are always reported; a weight of 0 takes a term out of the
+        gradient."""
+        lv = extras["log_volume"]
+        yaw, pitch, roll, T = self.true_pose(R_gt.to(lv.dtype), T_gt.to(lv.dtype))
+        nll = self.volume_nll(lv, yaw, T[:, 0], T[:, 1]).mean()
+        truth = torch.stack([pitch, roll, T[:, 2] + extras["sat_height_m"]], 1)
+        scale = truth.new_tensor(GRAVITY_SCALE)
+        grav = nnf.smooth_l1_loss(extras["gravity"] / scale, truth / scale, reduction="none")
+        grav = grav.sum(1).mean()
+        enc = self.volume_nll_weight * nll + self.gravity_weight * grav
+        return {"enc": enc, "enc_volume": nll, "enc_gravity": grav}
+
+    def decode_volume(self, log_volume: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """The volume's arg-max ``(yaw rad, east m, north m)``, each ``(B,)``."""
+        p = log_volume.shape[-1]
+        flat = log_volume.flatten(1).argmax(1)
+        return self.yaws[flat // (p * p)], self.pos_e[flat % p], self.pos_n[(flat // p) % p]
+
+
+@register_encoder("matching")
+def matching(
+    variant: str = "/",
+    width: float = 1.0,
+    input_size: int = 96,
+    protocol: str = "vision_only",
+    volume_nll_weight: float = 1.0,
+    gravity_weight: float = 1.0,
+    n_yaw: int = 36,
+    cell_m: float = 20.8,
+    search_m: float = 400.0,
+    template_m: float = 333.0,
+    channels: int = 16,
+    out_channels: int = 8,
+    gravity_dim: int = 32,
+    smoothing: float = 0.5,
+    temperature: float = 20.0,
+    correlation: str = "fft",
+) -> MatchingEncoder:
+    """The matching encoder (module docstring). ``variant`` must be ``"/"``: the encoder has one
+    level (no SE branches, no auxiliary fusion levels). ``width`` is accepted and ignored: the
+    profiles' GoogLeNet width multiplier does not apply; ``channels`` / ``out_channels`` size
+    the CNNs. Options: ``protocol`` (``"vision_only"`` the paper's, ``"gravity_aided"``),
+    ``volume_nll_weight`` (0: heads' loss only), ``gravity_weight``, ``n_yaw`` yaw bins,
+    ``cell_m`` grid cell (m), ``search_m`` half-side of the searched square (m), ``template_m``
+    bird's-eye radius (m), ``smoothing`` of the NLL target (cells/bins), ``temperature``
+    (initial), ``correlation`` (``"fft"`` or ``"conv"``, the same numbers)."""
+    spec = parse_variant(variant)
+    if spec.fusion or spec.attention:
+        raise ValueError(
+            f"matching encoder: variant {variant!r} is a GoogLeNet variant (SE / fusion levels); "
+            "the matching encoder has one level: set variant to '/'"
+        )
+    return MatchingEncoder(
+        input_size,
+        protocol=protocol,
+        volume_nll_weight=volume_nll_weight,
+        gravity_weight=gravity_weight,
+        n_yaw=n_yaw,
+        cell_m=cell_m,
+        search_m=search_m,
+        template_m=template_m,
+        channels=channels,
+        out_channels=out_channels,
+        gravity_dim=gravity_dim,
+        smoothing=smoothing,
+        temperature=temperature,
+        correlation=correlation,
+    )

@@ -1,0 +1,68 @@
+"""The pair-encoder contract: one module that sees both images of a pair at once (issue 21).
+
+The Siamese ``Encoder`` (``benchmark.models.encoder``) embeds each image alone and ``PoseModel``
+concatenates ``[e_uav, e_sat]``, so the heads get ``2 D`` features. A ``PairEncoder`` instead
+takes the pair and its per-sample geometry and returns the heads' features itself::
+
+    enc = encoder(uav (B, 3, H, W), sat (M, 3, H, W), sat_index (B,) int64, context)
+    enc.features      # (B, F): what every head gets (heads are built with in_features = F)
+    enc.extras        # dict of tensors its own loss needs (e.g. the pose volume)
+    terms = encoder.loss(enc.extras, R_gt (B, 3, 3), T_gt (B, 3))
+    terms["enc"]      # the weighted sum PoseModel.loss adds to the heads' loss (0: heads only)
+
+Images arrive normalised (ImageNet statistics, as for every encoder). ``sat`` holds the distinct
+satellite images of the batch and ``sat_index`` says which one each pair uses (``PoseModel``
+encodes each distinct image once; ``sat_index = arange(B)`` when every pair brings its own).
+``context`` is the dict ``PairDataset`` puts under each item's ``"context"`` (collated to
+``(B, ...)`` tensors; see ``benchmark.data.dataset``): ``fov`` (rad), ``sat_footprint_m`` (E, N),
+``sat_height_m``, ``prior_attitude`` (pitch, roll rad) and ``prior_altitude_m``. A pair encoder
+has one level (no auxiliary attitude heads) and reads what it needs from ``context``; training and
+evaluation pass the dict through without knowing what is in it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from torch import Tensor, nn
+
+from benchmark.models.encoder import Encoder
+
+__all__ = ["PairEncoder", "PairEncoding"]
+
+
+@dataclass
+class PairEncoding:
+    """``features (B, F)`` for the heads; ``extras``: tensors the encoder's own loss needs."""
+
+    features: Tensor
+    extras: dict[str, Tensor] = field(default_factory=dict)
+
+
+class PairEncoder(nn.Module):
+    """Base class of pair encoders. Subclasses set ``feature_dim`` (F) and ``min_input_size``
+    (px) and implement ``forward`` and ``loss``. ``embedding_dims = (F,)``: one level."""
+
+    is_pair_encoder = True
+    feature_dim: int = 0
+    min_input_size: int = 1
+
+    @property
+    def embedding_dims(self) -> tuple[int, ...]:
+        return (self.feature_dim,)
+
+    check_input = Encoder.check_input
+
+    def forward(
+        self,
+        uav: Tensor,
+        sat: Tensor,
+        sat_index: Tensor,
+        context: Mapping[str, Tensor] | None = None,
+    ) -> PairEncoding:
+        raise NotImplementedError
+
+    def loss(self, extras: Mapping[str, Tensor], R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
+        """Named scalar terms; ``"enc"`` is the weighted sum added to the total loss."""
+        raise NotImplementedError

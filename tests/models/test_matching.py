@@ -1,0 +1,238 @@
+"""The matching encoder: correlation, pose volume, its NLL, the pair-encoder contract, shapes and
+every registered attitude head on top of it."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from benchmark.models import PairEncoder, create_model, list_heads
+from benchmark.models.matching import MatchingEncoder
+from benchmark.models.matching_ops import bev_templates, correlate_conv, correlate_fft
+
+
+def _context(b: int, size_m=(2000.0, 1000.0)) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(b)
+    return {
+        "fov": torch.full((b,), math.radians(60.0)),
+        "sat_footprint_m": torch.tensor([size_m]).expand(b, 2).clone(),
+        "sat_height_m": torch.full((b,), 1000.0),
+        "prior_attitude": torch.rand(b, 2, generator=g) * torch.tensor([-0.8, 0.3]),
+        "prior_altitude_m": 70.0 + 20.0 * torch.rand(b, generator=g),
+    }
+
+
+def _labels(b: int) -> tuple[torch.Tensor, torch.Tensor]:
+    from benchmark.geometry import SAT_R_N, euler_to_rotmat
+
+    g = torch.Generator().manual_seed(100 + b)
+    e = torch.rand(b, 3, generator=g, dtype=torch.float64)
+    R_n = euler_to_rotmat((e[:, 0] - 0.5) * 6.2, -0.8 * e[:, 1], 0.3 * (e[:, 2] - 0.5))
+    R = (R_n @ SAT_R_N.to(R_n).transpose(0, 1)).float()
+    T = torch.cat([(torch.rand(b, 2, generator=g) - 0.5) * 600, -920 + torch.zeros(b, 1)], 1)
+    return R, T
+
+
+class TestCorrelate:
+    @pytest.mark.parametrize("b", [1, 3])
+    def test_fft_equals_conv_and_brute_force(self, b):
+        g = torch.Generator().manual_seed(b)
+        sat = torch.randn(b, 4, 13, 13, generator=g, dtype=torch.float64)
+        tpl = torch.randn(b, 5, 4, 5, 5, generator=g, dtype=torch.float64)
+        fft, conv = correlate_fft(sat, tpl), correlate_conv(sat, tpl)
+        assert fft.shape == conv.shape == (b, 5, 9, 9)
+        torch.testing.assert_close(fft, conv, rtol=1e-10, atol=1e-10)
+        i, k, y, x = b - 1, 3, 7, 2
+        brute = (tpl[i, k] * sat[i, :, y : y + 5, x : x + 5]).sum()
+        assert float(conv[i, k, y, x]) == pytest.approx(float(brute), rel=1e-12)
+
+    @pytest.mark.parametrize("fn", [correlate_fft, correlate_conv])
+    def test_gradcheck_float64(self, fn):
+        g = torch.Generator().manual_seed(0)
+        sat = torch.randn(2, 2, 7, 7, generator=g, dtype=torch.float64, requires_grad=True)
+        tpl = torch.randn(2, 3, 2, 3, 3, generator=g, dtype=torch.float64, requires_grad=True)
+        assert torch.autograd.gradcheck(fn, (sat, tpl))
+
+
+class TestBevTemplates:
+    def test_gradcheck_float64(self):
+        # The warp is differentiable in the features and in the geometry (pitch, roll, height).
+        g = torch.Generator().manual_seed(1)
+        feats = torch.randn(2, 2, 12, 12, generator=g, dtype=torch.float64, requires_grad=True)
+        pitch = torch.tensor([-0.6, -0.4], dtype=torch.float64, requires_grad=True)
+        roll = torch.tensor([0.05, -0.1], dtype=torch.float64, requires_grad=True)
+        alt = torch.tensor([80.0, 90.0], dtype=torch.float64, requires_grad=True)
+        fov = torch.full((2,), 1.0, dtype=torch.float64)
+        yaws = torch.tensor([0.3, 2.0], dtype=torch.float64)
+
+        def warp(f, p, r, a):
+            return bev_templates(f, (2, 2), 24, yaws, 2, 23.0, p, r, a, fov)[0]
+
+        assert torch.autograd.gradcheck(warp, (feats, pitch, roll, alt), atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def flat_scene():
+    """A flat 512 m city (textures kept) and its nadir satellite image, 480 x 480 m at 96 px."""
+    from benchmark.sim.render import render_satellite
+    from benchmark.sim.world import build_city
+
+    city = build_city("oxford", 11, cache_dir=False, size_m=(512.0, 512.0), n_lights=1)
+    flat = city.with_rasters(
+        height=np.zeros_like(city.height), mat=np.zeros_like(city.mat),
+        ground=np.zeros_like(city.ground),
+    )  # fmt: skip
+    sat = render_satellite(flat, np.array([0.0, 0.0]), height_m=1000.0,
+                           footprint_m=(480.0, 480.0), size=96)  # fmt: skip
+    return flat, sat
+
+
+def _raw(img: np.ndarray) -> torch.Tensor:
+    """Raw image channels as features: RGB in [0, 1] minus the image mean, (1, 3, H, W)."""
+    x = torch.from_numpy(img.astype(np.float64)).permute(2, 0, 1)[None] / 255.0
+    return x - x.mean(dim=(2, 3), keepdim=True)
+
+
+# (yaw deg, dE m, dN m, pitch deg): poses whose view sees enough ground for raw grey levels.
+POSES = [(100.0, 30.0, -20.0, -40.0), (10.0, 0.0, 60.0, -50.0), (280.0, -40.0, 10.0, -45.0)]
+
+
+class TestVolumeOnRenderedPair:
+    @pytest.mark.parametrize("pose", POSES)
+    def test_peaks_at_the_true_yaw_and_position(self, flat_scene, pose):
+        from benchmark.sim.camera import Camera
+        from benchmark.sim.render import render_uav
+
+        city, sat = flat_scene
+        yaw_deg, de, dn, pitch_deg = pose
+        yaw, pitch, roll, alt = math.radians(yaw_deg), math.radians(pitch_deg), 0.05, 80.0
+        img = render_uav(city, np.array([de, dn, alt]), yaw, pitch, roll, Camera.square(96, 60.0))
+        enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0).double()
+        t64 = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+        with torch.no_grad():
+            fov, fp = t64(math.radians(60.0)), t64([480.0, 480.0])
+            lv = enc.match(_raw(img), _raw(sat), t64(pitch), t64(roll), t64(alt), fov, fp,
+                           (1, 1), (1, 1))  # fmt: skip
+        assert lv.shape == (1, 36, 17, 17)
+        assert float(lv.exp().sum()) == pytest.approx(1.0, abs=1e-9)
+        y, e, n = enc.decode_volume(lv)
+        err = abs((math.degrees(float(y)) - yaw_deg + 180.0) % 360.0 - 180.0)
+        assert err <= 5.0 + 1e-6  # the true yaw's bin
+        assert (float(e), float(n)) == (de, dn)
+        # The NLL term: lower at the true pose than at a wrong yaw or a wrong position.
+        true = float(enc.volume_nll(lv, t64(yaw), t64(de), t64(dn)))
+        assert true < float(enc.volume_nll(lv, t64(yaw + math.pi / 2), t64(de), t64(dn))) - 3
+        assert true < float(enc.volume_nll(lv, t64(yaw), t64(de + 60.0), t64(dn - 40.0))) - 3
+
+
+class TestVolumeNll:
+    def test_delta_volume_and_smoothing(self):
+        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
+        lv = torch.full((1, 8, 5, 5), -30.0)
+        lv[0, 2, 1, 3] = 0.0  # nearly all mass at yaw 90 deg, N = +10 m, E = +10 m
+        lv = torch.log_softmax(lv.flatten(1), 1).view_as(lv)
+        at = enc.volume_nll(lv, torch.tensor([math.pi / 2]), torch.tensor([10.0]),
+                            torch.tensor([10.0]))  # fmt: skip
+        off = enc.volume_nll(lv, torch.tensor([math.pi / 2]), torch.tensor([10.0]),
+                             torch.tensor([-10.0]))  # fmt: skip
+        # smoothing 0.5 cell / bin: the target puts w = 1 / (1 + 2 exp(-2))^3 on the true cell
+        # and the rest on its 6 neighbours at -30 (and beyond), so NLL ~ 30 (1 - w).
+        w = 1 / (1 + 2 * math.exp(-2)) ** 3
+        assert float(at) == pytest.approx(30 * (1 - w), rel=0.02)
+        assert float(off) > 29.0
+
+
+class TestMatchingEncoderContract:
+    @pytest.mark.parametrize("b", [1, 8])
+    @pytest.mark.parametrize("protocol", ["vision_only", "gravity_aided"])
+    def test_shapes_and_loss_keys(self, b, protocol):
+        torch.manual_seed(0)
+        model = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options={"protocol": protocol})  # fmt: skip
+        assert isinstance(model.encoder, PairEncoder)
+        f = model.encoder.feature_dim
+        assert model.attitude_head.in_features == f == len(model.encoder.feature_names)
+        uav, sat = torch.rand(b, 3, 32, 32), torch.rand(b, 3, 32, 32)
+        R, T = _labels(b)
+        for train in (True, False):
+            model.train(train)
+            out = model(uav, sat, torch.arange(b), context=_context(b))
+            lv = out.encoder["log_volume"]
+            assert lv.shape[:2] == (b, 36) and out.encoder["gravity"].shape == (b, 3)
+            terms = model.loss(out, R, T)
+            assert {"total", "att", "tran", "enc", "enc_volume", "enc_gravity"} <= set(terms)
+            assert all(torch.isfinite(v) for v in terms.values())
+            R_hat, T_hat = model.decode(out)
+            assert R_hat.shape == (b, 3, 3) and T_hat.shape == (b, 3)
+        model.train()
+        model.loss(model(uav, sat, None, context=_context(b)), R, T)["total"].backward()
+        grads = [p.grad for p in model.encoder.parameters()]
+        assert all(g is not None and torch.isfinite(g).all() for g in grads)
+
+    def test_shared_satellite_is_exact(self):
+        torch.manual_seed(0)
+        model = create_model(encoder="matching", variant="/", input_size=32).eval()
+        uav, one = torch.rand(4, 3, 32, 32), torch.rand(1, 3, 32, 32)
+        sat = one.expand(4, 3, 32, 32).clone()
+        ctx = _context(4)
+        a = model(uav, sat, torch.zeros(4, dtype=torch.int64), context=ctx)
+        b = model(uav, sat, None, context=ctx)
+        torch.testing.assert_close(a.encoder["log_volume"], b.encoder["log_volume"])
+
+    def test_weight_zero_is_heads_only(self):
+        torch.manual_seed(0)
+        model = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options={"volume_nll_weight": 0.0,
+                                              "gravity_weight": 0.0})  # fmt: skip
+        R, T = _labels(2)
+        out = model(torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32), context=_context(2))
+        terms = model.loss(out, R, T)
+        assert float(terms["enc"]) == 0.0 and float(terms["enc_volume"]) > 0
+        torch.testing.assert_close(terms["total"], terms["att"] + terms["tran"])
+
+    def test_bad_options_and_context(self):
+        with pytest.raises(ValueError, match="variant"):
+            create_model(encoder="matching", input_size=32)  # the default variant is a-f
+        with pytest.raises(ValueError, match="protocol"):
+            create_model(encoder="matching", variant="/", input_size=32,
+                         encoder_options={"protocol": "imu"})  # fmt: skip
+        model = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options={"protocol": "gravity_aided"})  # fmt: skip
+        with pytest.raises(ValueError, match="prior_attitude"):
+            ctx = _context(2)
+            del ctx["prior_attitude"]
+            model(torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32), context=ctx)
+        with pytest.raises(ValueError, match="sat_footprint_m"):
+            ctx = _context(2)
+            ctx["sat_footprint_m"] = torch.ones(2)
+            model(torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32), context=ctx)
+
+    def test_protocol_is_part_of_the_config(self):
+        from benchmark.models import ModelConfig
+
+        a = ModelConfig(encoder="matching", variant="/")
+        b = ModelConfig(encoder="matching", variant="/",
+                        encoder_options={"protocol": "gravity_aided"})  # fmt: skip
+        assert a.encoder_options == {} and hash(a) != hash(b)
+
+
+@pytest.mark.parametrize("head", list_heads("attitude"))
+class TestEveryAttitudeHead:
+    def test_builds_and_runs_on_the_matching_encoder(self, head):
+        torch.manual_seed(0)
+        model = create_model(encoder="matching", variant="/", input_size=32, attitude=head)
+        R, T = _labels(3)
+        model.translation_head.fit_statistics(T.double())
+        out = model(torch.rand(3, 3, 32, 32), torch.rand(3, 3, 32, 32), context=_context(3))
+        terms = model.loss(out, R, T)
+        terms["total"].backward()
+        assert torch.isfinite(terms["total"])
+        model.eval()
+        with torch.no_grad():
+            R_hat, _ = model.decode(model(torch.rand(3, 3, 32, 32), torch.rand(3, 3, 32, 32),
+                                          context=_context(3)))  # fmt: skip
+        eye = torch.eye(3).expand(3, 3, 3)
+        torch.testing.assert_close(R_hat @ R_hat.transpose(1, 2), eye, atol=1e-4, rtol=0)
