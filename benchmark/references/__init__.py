@@ -1,0 +1,54 @@
+"""Non-learned references, evaluated like models (issue 21, item 5).
+
+Each reference estimates the pose of a pair from its two images and a stated set of true values
+(``Reference.given``; the report labels name them), and is evaluated with the models' metrics,
+per-frame table and satellite-swap probe (:func:`evaluate_reference`):
+
+- ``geometry_oracle`` (:class:`GeometryOracle`): given the true position, pitch and roll, a yaw
+  sweep of the UAV pixels cast onto the ground plane against the satellite image. What the pixels
+  allow.
+- ``gravity_template`` (:class:`GravityTemplate`): given the true pitch, roll and altitude, a
+  bird's-eye template matched over the whole satellite image at every yaw (yaw and position).
+- ``feature_pnp`` (:class:`FeaturePnP`): given nothing of the pose, local features (SIFT or ORB)
+  matched between the images, satellite keypoints lifted to the ground plane, and
+  ``cv2.solvePnPRansac`` (OrthoLoC's protocol): the full pose.
+
+``uavbench reference NAME --data DIR --split S [--satellite swap]`` runs one from the command line.
+"""
+
+from benchmark.references.base import Estimate, Frame, Reference
+from benchmark.references.evaluate import (
+    POSE_THRESHOLDS,
+    default_train_split,
+    evaluate_reference,
+    fallback_pose,
+    iter_frames,
+    reference_summary,
+)
+from benchmark.references.ground import GroundCast, SatelliteGrid, cast_uav_pixels, rotate_offsets
+from benchmark.references.oracle import GeometryOracle
+from benchmark.references.pnp import FeaturePnP
+from benchmark.references.registry import create_reference, get_reference_class, list_references
+from benchmark.references.template import GravityTemplate
+
+__all__ = [
+    "POSE_THRESHOLDS",
+    "Estimate",
+    "FeaturePnP",
+    "Frame",
+    "GeometryOracle",
+    "GravityTemplate",
+    "GroundCast",
+    "Reference",
+    "SatelliteGrid",
+    "cast_uav_pixels",
+    "create_reference",
+    "default_train_split",
+    "evaluate_reference",
+    "fallback_pose",
+    "get_reference_class",
+    "iter_frames",
+    "list_references",
+    "reference_summary",
+    "rotate_offsets",
+]
