@@ -341,8 +341,9 @@ def _train_one_epoch(
     for step, batch in enumerate(loader):
         batch = to_device(batch, device)  # the same dict on the CPU
         sat_ids = batch["sat_id"] if cfg.model.shared_satellite else None
+        context = {"context": batch["context"]} if "context" in batch else {}  # pair encoders
         with autocast(device, precision):
-            out = model(batch["uav"], batch["sat"], sat_ids)
+            out = model(batch["uav"], batch["sat"], sat_ids, **context)
         if precision != "fp32":
             out = outputs_to_float(out)
         losses = model.loss(out, batch["R"], batch["T"])
