@@ -144,7 +144,8 @@ class TestSmokeUnitInBf16:
     def test_trains_evaluates_and_is_tracked_as_bf16(self, smoke_dataset, tmp_path, monkeypatch):
         """``uavbench train --set precision=bf16`` on the smoke dataset: trains, evaluates with
         the true and the swapped satellite image and logs an MLflow run tagged precision=bf16;
-        ``uavbench evaluate --precision bf16`` on its checkpoint gives the same predictions."""
+        ``uavbench evaluate --precision bf16`` on its checkpoint gives the same predictions.
+        (Re-Net-R keeps it fast; Pd/Re-Net's logits in bf16: test_devices.py::TestBf16OnCpu.)"""
         from mlflow.tracking import MlflowClient
 
         if NATIVE_HERE:
@@ -155,8 +156,9 @@ class TestSmokeUnitInBf16:
         monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
         out = tmp_path / "out"
         sets = [f"data.root={smoke_dataset}", "data.limit_train=8", "data.limit_val=4",
-                "model.width=0.25", "model.variant=/", "optim.epochs=1", "optim.batch_size=4",
-                "threads=1", "device=cpu", "precision=bf16"]  # fmt: skip
+                "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
+                "optim.epochs=1", "optim.batch_size=4", "threads=1", "device=cpu",
+                "precision=bf16"]  # fmt: skip
         args = ["train", "--quiet", "--out", str(out)]
         for item in sets:
             args += ["--set", item]
