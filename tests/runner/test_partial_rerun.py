@@ -85,6 +85,7 @@ def committed(tmp_path, monkeypatch):
 
 
 def reproduce(tmp_path, dataset, *extra: str) -> int:
+    """`reproduce --only table1` (a later `--only` in `extra` wins) into tmp_path/reports."""
     return main([
         "reproduce", "--profile", "smoke", "--data", str(dataset), "--out",
         str(tmp_path / "reports"), "--workdir", str(tmp_path / "runs"), "--tracker", "null",
@@ -224,4 +225,34 @@ class TestDropTheEarlierTables:
         assert "towns/test" not in findings and EARLIER not in readme
         assert "Removed, with their rows, files and findings" in section(readme, "Partial rerun")
         assert "earlier_tables" not in json.loads((out / "provenance.json").read_text())
+        assert_agrees(out)
+
+
+class TestLiveTables:
+    def test_kept_live_and_rendered_again_from_their_rows(
+        self, tmp_path, smoke_dataset, monkeypatch, capsys
+    ):
+        """``--only table1`` then ``--only table3`` on the same dataset: table1's units are
+        today's, so it stays live (no mark), its file rendered again from its rows says what it
+        said, and the claims on it are decided again."""
+        monkeypatch.setattr(pool_module, "run_unit", fake_unit)
+        monkeypatch.setattr(outputs_module, "heading_cue_report", stub_audit)
+        monkeypatch.chdir(tmp_path)
+        out = tmp_path / "reports"
+        assert reproduce(tmp_path, smoke_dataset) == 0
+        table1 = (out / "table1.md").read_text()
+        capsys.readouterr()
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table3") == 0
+        printed = capsys.readouterr().out
+        assert "kept and decided again (today's units" in printed and ": table1" in printed
+        assert (out / "table1.md").read_text() == table1
+        results = pd.read_csv(out / "results.csv")
+        assert set(results["table"]) == {"table1", "table3"}
+        assert results["stale_from"].isna().all()
+        readme = (out / "README.md").read_text()
+        assert set(listed_tables(readme)) == {"table1", "table3"}
+        assert "Kept from an earlier invocation and decided again" in readme
+        assert EARLIER not in readme
+        claims = section(readme, "Claims of the paper, checked")
+        assert re.search(r"^\| 1 \|.*\| \*\*not resolved at this scale\*\* \|", claims, re.M)
         assert_agrees(out)
