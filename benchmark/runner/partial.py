@@ -293,40 +293,13 @@ def plan_merge(
 
         manifest = manifest_sha256(data_root)
     prov = read_earlier_provenance(out)
-    before = prov.get("dataset", {}).get("manifest_sha256", "") if prov else ""
-    marked = prov.get("earlier_tables", {}) if prov else {}
+    before = prov.get("dataset", {}).get("manifest_sha256", "")
+    marked = prov.get("earlier_tables", {})
 
     why: dict[str, str] = {t: "its spec is gone" for t in with_rows if t not in known}
     candidates = [known[t] for t in with_rows if t in known]
     trained = others[others["unit"].notna() & others["table"].isin([s.name for s in candidates])]
-    seeds = sorted({int(x) for x in trained["seed"]}) if len(trained) else [0]
-    planned: list[Unit] = []
-    other_data = _other_dataset(before, manifest)
-    if other_data:  # unit keys hold the dataset's digest: none of them can be today's
-        why.update({s.name: other_data for s in candidates})
-    else:
-        try:
-            from benchmark.data import list_splits
-
-            splits = list_splits(data_root)
-            planned = plan_units(candidates, profile, seeds, data_root, splits, manifest)
-        except (ValueError, FileNotFoundError, KeyError) as err:
-            why.update({s.name: f"its units cannot be planned on this dataset ({err})"
-                        for s in candidates})  # fmt: skip
-    by_key = {u.key: u for u in planned}
-    for spec in candidates:
-        if spec.name in why:
-            continue
-        keys = set(trained.loc[trained["table"] == spec.name, "unit"])
-        if not keys <= set(by_key):
-            why[spec.name] = (
-                "its units are not those this dataset, profile and code plan today (another "
-                "profile, seeds or head versions)"
-            )
-        elif workdir is not None and any(
-            not (Path(workdir) / "units" / k / "eval").is_dir() for k in keys
-        ):
-            why[spec.name] = f"its predictions are gone from {workdir}/units"
+    planned = _why_not_live(why, candidates, trained, profile, data_root, workdir, manifest, before)
     for name in files:  # a file without rows: costs, or a table whose rows were never written
         if name in marked:
             why[name] = marked[name].get("why", "kept from an earlier run")
@@ -349,26 +322,12 @@ def plan_merge(
     plan.live_units = [u for u in planned if u.key in live_keys]
 
     for name in [*with_rows, *files]:
-        if name not in why:
-            continue
-        part = others[others["table"] == name] if len(others) else others
-        stamped = sorted(set(part[STALE_COLUMN]) - {""}) if len(part) else []
-        entry = marked.get(name, {})
-        commit = entry.get("git_commit") or (stamped[0] if stamped else "")
-        commit = commit or prov.get("git_commit", "") or "unknown"
-        already = bool(entry) or bool(stamped)
-        plan.earlier.append(
-            EarlierTable(
-                name,
-                known[name].title if name in known else name,
-                entry.get("why", why[name]) if already else why[name],
-                commit,
-                entry.get("dataset_manifest", "") if already else before,
-                entry.get("written", "") if already else prov.get("written", ""),
-            )
-        )
-        if name in known:
-            plan.earlier_specs[name] = known[name]
+        if name in why:
+            part = others[others["table"] == name] if len(others) else others
+            title = known[name].title if name in known else name
+            plan.earlier.append(_earlier_table(name, title, why[name], part, prov))
+            if name in known:
+                plan.earlier_specs[name] = known[name]
     plan.earlier.sort(key=lambda t: t.name)
     commits = {t.name: t.commit for t in plan.earlier}
     stale = others[others["table"].isin(commits)].copy() if len(others) else others
@@ -376,10 +335,69 @@ def plan_merge(
         stale["paper_model"] = stale["paper_model"].fillna("") if "paper_model" in stale else ""
         stale[STALE_COLUMN] = stale["table"].map(commits)
     plan.earlier_rows = stale
-    units = {**prov.get("units", {}), **prov.get("earlier_units", {})} if prov else {}
+    units = {**prov.get("units", {}), **prov.get("earlier_units", {})}
     stale_keys = set(stale["unit"].dropna()) if len(stale) else set()
     plan.earlier_units = {k: v for k, v in units.items() if k in stale_keys}
     return plan
+
+
+def _why_not_live(
+    why: dict[str, str],
+    candidates: list[TableSpec],
+    trained: pd.DataFrame,
+    profile: ReproProfile,
+    data_root: Path,
+    workdir: Path | None,
+    manifest: str,
+    before: str,
+) -> list[Unit]:
+    """Fill ``why`` (table -> reason) for the ``candidates`` (earlier tables with rows and a
+    spec) that cannot stay live; return the units planned today for them. ``trained``: their
+    earlier rows of trained models; ``before``: the earlier report's dataset manifest."""
+    other_data = _other_dataset(before, manifest)
+    if other_data:  # unit keys hold the dataset's digest: none of them can be today's
+        why.update({s.name: other_data for s in candidates})
+        return []
+    seeds = sorted({int(x) for x in trained["seed"]}) if len(trained) else [0]
+    try:
+        from benchmark.data import list_splits
+
+        planned = plan_units(candidates, profile, seeds, data_root, list_splits(data_root),
+                             manifest)  # fmt: skip
+    except (ValueError, FileNotFoundError, KeyError) as err:
+        why.update({s.name: f"its units cannot be planned on this dataset ({err})"
+                    for s in candidates})  # fmt: skip
+        return []
+    today = {u.key for u in planned}
+    for spec in candidates:
+        keys = set(trained.loc[trained["table"] == spec.name, "unit"])
+        if spec.name in why:
+            continue
+        if not keys <= today:
+            why[spec.name] = (
+                "its units are not those this dataset, profile and code plan today (another "
+                "profile, seeds or head versions)"
+            )
+        elif workdir is not None and any(
+            not (Path(workdir) / "units" / k / "eval").is_dir() for k in keys
+        ):
+            why[spec.name] = f"its predictions are gone from {workdir}/units"
+    return planned
+
+
+def _earlier_table(name: str, title: str, why: str, rows: pd.DataFrame, prov: dict) -> EarlierTable:
+    """The record of an earlier table: that run's commit, dataset and date from the earlier
+    ``provenance.json`` (``prov``), or, for a table that report had already kept from an even
+    earlier run, the record it kept (``earlier_tables``) or its rows' ``stale_from``."""
+    entry = prov.get("earlier_tables", {}).get(name, {})
+    stamped = sorted(set(rows[STALE_COLUMN]) - {""}) if len(rows) else []
+    if entry or stamped:
+        commit = entry.get("git_commit") or (stamped[0] if stamped else "") or "unknown"
+        dataset, written = entry.get("dataset_manifest", ""), entry.get("written", "")
+        return EarlierTable(name, title, entry.get("why", why), commit, dataset, written)
+    dataset = prov.get("dataset", {}).get("manifest_sha256", "")
+    commit = prov.get("git_commit") or "unknown"
+    return EarlierTable(name, title, why, commit, dataset, prov.get("written", ""))
 
 
 def _other_dataset(before: str, now: str, what: str = "its units were trained") -> str:
