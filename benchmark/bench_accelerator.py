@@ -120,7 +120,7 @@ def bench_lines(args: argparse.Namespace, device: torch.device, precisions: list
     train_args = bench.parser().parse_args(
         [
             *("--batch-size", str(batch), "--distinct-sat", str(sats)),
-            *("--steps", str(args.steps), "--warmup", "1", "--no-plain"),
+            *("--steps", str(args.steps), "--warmup", "1", "--no-plain", "--no-base"),
             *(["--ceiling-batch", "2"] if args.fast else []),
         ]
     )
@@ -192,6 +192,10 @@ def main(argv: list[str]) -> int:
         f"CUDA build {cuda}, {torch.get_num_threads()} torch threads; {load_text()}",
         flush=True,
     )
+    if device.type == "cpu":  # native bf16 or not, and the ISA/kernels a training conv ran
+        from benchmark.models.bench_ceiling import cpu_bf16_line
+
+        print(cpu_bf16_line(("fp32", "bf16")), flush=True)
     for note in notes:
         print(note)
     ok = True

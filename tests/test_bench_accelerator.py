@@ -24,6 +24,7 @@ def test_bench_and_latency_lines_without_reproduction(capsys):
     assert main([*FAST, "--no-reproduce"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("accelerator check: cpu (")
+    assert out.splitlines()[1].startswith("bf16 on this CPU: ")  # native or not, the ISA
     assert "smoke reproduction" not in out
     for precision in ("fp32", "bf16"):
         assert re.search(rf"^train 48 px width 0.25 batch 4 {precision}: [\d.]+ pairs/s", out, re.M)

@@ -18,13 +18,25 @@ grad weight) per step; bias-free like the encoder's convolutions. Each shape is 
 times after a warm-up; the rate of a shape is its median, the ceiling is the best shape. A
 training step can approach it only where it is made of such convolutions: normalisation,
 activations, pooling, concatenation and the optimiser cost time and no counted FLOPs.
+
+:func:`cpu_kernel_report` says which kernels a training convolution really runs on the CPU, per
+precision: ATen's vector ISA (``torch.backends.cpu.get_cpu_capability()``), oneDNN's ISA and the
+oneDNN implementations (read from oneDNN's verbose output of one small convolution), or the ATen
+reference convolution where oneDNN has no kernel (bf16 without AVX-512); :func:`cpu_bf16_line`
+puts it in one line beside whether bf16 is native (``avx512_bf16`` / ``amx_bf16``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import os
+import platform
 import statistics
+import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import torch
@@ -115,6 +127,137 @@ def measure_ceiling(
     return CeilingResult.of(precision, rates)
 
 
+# ATen's wrappers around the convolution that really runs (not named in the report).
+_CONV_WRAPPERS = {"aten::conv2d", "aten::convolution", "aten::_convolution", "aten::thnn_conv2d"}
+_CONV_WRAPPERS |= {"aten::convolution_backward", "aten::convolution_overrideable"}
+
+
+@dataclass(frozen=True)
+class KernelReport:
+    """What ran one training convolution (forward, grad input, grad weight; channels_last) on the
+    CPU. ``aten_isa``: ATen's vectorised kernels (``"AVX2"``, ``"AVX512"``, ...); ``onednn_isa``:
+    the ISA oneDNN dispatched to, from its verbose ``isa:`` line (None if it did not print one:
+    oneDNN prints it once per process); ``conv``: precision -> ``"oneDNN <fwd> / <bwd data> /
+    <bwd weights>"`` implementations, or ``"ATen <op>"`` when oneDNN did not run it."""
+
+    aten_isa: str
+    onednn_isa: str | None
+    conv: dict[str, str]
+
+
+@contextlib.contextmanager
+def _captured_output() -> Iterator[list[str]]:
+    """Redirect file descriptors 1 and 2 (where oneDNN's C code and the profiler print) into a
+    temporary file; the list holds the captured lines after the block."""
+    lines: list[str] = []
+    with tempfile.TemporaryFile() as f:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+        saved = [os.dup(1), os.dup(2)]
+        os.dup2(f.fileno(), 1)
+        os.dup2(f.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            with contextlib.suppress(OSError, AttributeError, TypeError):
+                import ctypes
+
+                ctypes.CDLL(None).fflush(None)  # C stdio buffers (no-op where libc has none)
+            for fd, copy in zip((1, 2), saved, strict=True):
+                os.dup2(copy, fd)
+                os.close(copy)
+            f.seek(0)
+            lines += f.read().decode(errors="replace").splitlines()
+
+
+def _trace_conv(precision: str) -> tuple[list[str], set[str]]:
+    """oneDNN's verbose lines and the ATen op names of one training convolution on the CPU
+    (4 x 32 -> 32 channels, 16 px, 3x3, channels_last: large enough for ATen to pick oneDNN)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    from benchmark.models.device import autocast
+
+    cpu = torch.device("cpu")
+    g = torch.Generator().manual_seed(0)
+    conv = nn.Conv2d(32, 32, 3, padding=1, bias=False).to(memory_format=torch.channels_last)
+    x = torch.randn(4, 32, 16, 16, generator=g).contiguous(memory_format=torch.channels_last)
+    x.requires_grad_(True)
+    with _captured_output() as lines:
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            with torch.backends.mkldnn.verbose(torch.backends.mkldnn.VERBOSE_ON):
+                with autocast(cpu, precision):
+                    y = conv(x)
+                y.float().sum().backward()
+    names = {e.key for e in prof.key_averages() if "conv" in e.key and e.key.startswith("aten::")}
+    return lines, names - _CONV_WRAPPERS
+
+
+def _conv_implementations(lines: list[str]) -> list[str]:
+    """The implementation of each executed oneDNN convolution (``brg_conv_fwd:avx2``, ...), in
+    order, from verbose lines ``onednn_verbose,v1,primitive,exec,cpu,convolution,<impl>,...``."""
+    found = []
+    for line in lines:
+        fields = line.split(",")
+        if "exec" in fields and "convolution" in fields[fields.index("exec") :]:
+            at = fields.index("convolution", fields.index("exec"))
+            if at + 1 < len(fields) and fields[at + 1] not in found:
+                found.append(fields[at + 1])
+    return found
+
+
+_ONEDNN_ISA: dict[str, str] = {}  # oneDNN prints its ISA once per process: remembered here
+
+
+@functools.cache
+def _conv_kernels(precision: str) -> str:
+    """``"oneDNN <impl> / ..."`` or ``"ATen <op> / ... (no oneDNN kernel)"`` for one training
+    convolution in ``precision`` on the CPU (cached: the answer is a property of the machine)."""
+    lines, aten = _trace_conv(precision)
+    for line in lines:
+        if ",info,cpu,isa:" in line:
+            _ONEDNN_ISA.setdefault("isa", line.split(",info,cpu,isa:", 1)[1].strip())
+    impls = _conv_implementations(lines)
+    if impls:
+        return "oneDNN " + " / ".join(impls)
+    ops = sorted((n.removeprefix("aten::") for n in aten), key=lambda n: ("forward" not in n, n))
+    return f"ATen {' / '.join(ops) or '(unknown op)'} (no oneDNN kernel)"
+
+
+def cpu_kernel_report(precisions: tuple[str, ...] = ("fp32", "bf16")) -> KernelReport:
+    """Which ISA and kernels ran a training convolution on this CPU in each of ``precisions``."""
+    conv = {precision: _conv_kernels(precision) for precision in precisions}
+    isa = _ONEDNN_ISA.get("isa")
+    return KernelReport(torch.backends.cpu.get_cpu_capability(), isa, conv)
+
+
+def native_bf16_flags() -> tuple[str, ...]:
+    """The CPU flags that make bf16 native on this architecture: ``avx512_bf16``, ``amx_bf16``
+    on x86; ``bf16`` (Armv8.6) on Arm."""
+    from benchmark.models.precision_support import NATIVE_BF16_FLAGS
+
+    arm = platform.machine().lower() in ("aarch64", "arm64")
+    return tuple(f for f in NATIVE_BF16_FLAGS if (f == "bf16") == arm)
+
+
+def cpu_bf16_line(precisions: tuple[str, ...] = ("fp32", "bf16")) -> str:
+    """One line: is bf16 native on this CPU (each native-bf16 flag present or missing; how
+    oneDNN runs bf16 otherwise), ATen's and oneDNN's ISA, and the kernels a training
+    convolution ran in each of ``precisions`` (:func:`cpu_kernel_report`)."""
+    from benchmark.models.precision_support import bf16_support_label, cpu_bf16_level, cpu_flags
+
+    flags = cpu_flags()
+    native = cpu_bf16_level(flags) == "native"
+    named = ", ".join(f"{f} {'present' if f in flags else 'missing'}" for f in native_bf16_flags())
+    how = "" if native else f": {bf16_support_label(torch.device('cpu'))}"
+    report = cpu_kernel_report(tuple(precisions))
+    kernels = "; ".join(f"{p} conv ran {k}" for p, k in report.conv.items())
+    return (
+        f"bf16 on this CPU: {'native' if native else 'not native'} ({named or 'no CPU flags'}"
+        f"{how}); ATen ISA {report.aten_isa}, oneDNN ISA {report.onednn_isa or 'not reported'};"
+        f" {kernels}"
+    )
+
+
 def main(argv: list[str]) -> int:
     """``uavbench bench ceiling [--device D] [--precision fp32,bf16] [--repeats N]``."""
     import argparse
@@ -136,6 +279,8 @@ def main(argv: list[str]) -> int:
         torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
     precisions, notes = precision_plan(device, args.precision)
+    if device.type == "cpu":
+        print(cpu_bf16_line(("fp32", "bf16")))
     for note in notes:
         print(note)
     for precision in precisions:

@@ -9,11 +9,22 @@ times full SGD steps (forward, Algorithm 1 loss, backward, update) of
   (``sat_ids``), as ``benchmark.training`` trains;
 - ours bf16: the same under ``torch.autocast`` bf16 (weights, optimiser state and the loss stay
   float32; the heads' outputs are cast back to float32 before the loss, as training does),
+- base fp32 (CPU only): ours fp32 as it ran before issue 20, the optimiser's per-tensor Python
+  loop (torch's CPU default) instead of ``make_optimizer``'s ``foreach`` (same weights bit for bit,
+  see ``benchmark.training.loop.make_optimizer``): the before/after of that change, side by side,
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
 (``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step, so
 machine load affects every column alike. It prints pairs/s, the ratio to plain and to our fp32,
-the step's convolution/matmul rate and its share of the ceiling of the same precision.
+the step's convolution/matmul rate and its share of the ceiling of the same precision; with bf16
+beside fp32, a table of bf16/fp32 and bf16/plain per model (the issue's layout). On the CPU a line
+says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and which ISA and kernels ran a
+training convolution in each precision (``bench_ceiling.cpu_bf16_line``).
+
+The optimiser is the paper's SGD with momentum (lr 1e-3, as the issue measured) or, with
+``--optimizer adam``, the quick profile's Adam (lr 3e-4, gradient norm clipped at 10), both built by
+``make_optimizer`` as training builds them. ``--profile N`` adds, per "ours" loop, where one step's
+time goes by kind of work (``bench_breakdown``) and torch.profiler's N top ops.
 
 FLOPs of a step are counted, not estimated: ``torch.utils.flop_counter.FlopCounterMode`` runs one
 whole step (forward and backward) and counts 2 x multiply-adds of every convolution and matrix
@@ -33,6 +44,38 @@ from dataclasses import dataclass
 import torch
 
 MODELS = {"quick": (96, 0.25), "paper": (224, 1.0)}
+# --optimizer: OptimConfig fields (benchmark.training.config); "adam" is the quick profile's
+# (benchmark.runner.profiles, which training may not import), "sgd" the paper's (Sec. 3.3).
+OPTIMIZERS: dict[str, dict[str, object]] = {
+    "sgd": {"name": "sgd", "lr": 1e-3, "momentum": 0.9},
+    "adam": {"name": "adam", "lr": 3e-4, "grad_clip": 10.0},
+}
+
+
+@dataclass(frozen=True)
+class LoopSpec:
+    """One timed loop: ``channels_last`` and ``share`` (encode each distinct satellite image
+    once) as our model runs, ``foreach`` the optimiser's (None: ``make_optimizer``'s choice,
+    False: torch's per-tensor loop, the plain/base setting)."""
+
+    name: str
+    precision: str
+    channels_last: bool
+    share: bool
+    foreach: bool | None
+
+
+def loop_specs(
+    precisions: Sequence[str], device: torch.device, plain: bool, base: bool
+) -> list[LoopSpec]:
+    """The loops of a run, in print order: plain fp32, base fp32 (CPU only: the foreach change
+    is a CPU one), ours in each precision. Plain and base use torch's default optimiser loop."""
+    default = False if device.type == "cpu" else None  # torch's own default on that device
+    specs = [LoopSpec("plain fp32", "fp32", False, False, default)] if plain else []
+    if base and device.type == "cpu" and "fp32" in precisions:
+        specs.append(LoopSpec("base fp32", "fp32", True, True, False))
+    specs += [LoopSpec(f"ours {p}", p, True, True, None) for p in precisions]
+    return specs
 
 
 @dataclass(frozen=True)
@@ -41,7 +84,7 @@ class LoopResult:
     in 10^9), ``gflops`` (counted FLOPs / median step time) and ``ceiling_share`` (``gflops`` /
     the ceiling of this precision; None without a ceiling)."""
 
-    loop: str  # "plain fp32", "ours fp32", "ours bf16"
+    loop: str  # "plain fp32", "base fp32", "ours fp32", "ours bf16"
     precision: str
     pairs_per_s: float
     step_gflop: float
@@ -66,9 +109,15 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
                    "where the device supports bf16, else fp32 and the reason)")  # fmt: skip
     p.add_argument("--no-plain", action="store_true", help="skip the plain reference loop")
+    p.add_argument("--no-base", action="store_true", help="skip the base row (ours fp32 before "
+                   "issue 20: per-tensor optimiser loop)")  # fmt: skip
+    p.add_argument("--optimizer", choices=sorted(OPTIMIZERS), default="sgd", help="sgd: the "
+                   "paper's SGD, momentum 0.9, lr 1e-3 (default); adam: the quick profile's Adam, "
+                   "lr 3e-4, gradient norm clipped at 10")  # fmt: skip
     p.add_argument("--no-ceiling", action="store_true", help="skip the convolution ceiling")
     p.add_argument("--profile", type=int, default=0, metavar="N", help="after timing, profile "
-                   "one step of each of our loops and print its N top ops (self time)")  # fmt: skip
+                   "one step of each of our loops: time by kind of work and its N top ops (self "
+                   "time)")  # fmt: skip
     p.add_argument("--ceiling-batch", type=int, default=None, help="images per ceiling "
                    "convolution (default 24: 20 pairs over 4 satellite images)")  # fmt: skip
     return p
@@ -96,12 +145,20 @@ def batch_of(
 
 
 def make_step(
-    model, optimizer, batch: dict[str, torch.Tensor], share: bool, device, precision: str
+    model,
+    optimizer,
+    batch: dict[str, torch.Tensor],
+    share: bool,
+    device,
+    precision: str,
+    grad_clip: float | None = None,
 ) -> Callable[[], float]:
-    """A function running one SGD step of ``model`` on ``batch`` and returning its seconds
-    (device synchronised before each clock reading)."""
+    """A function running one optimiser step of ``model`` on ``batch`` (gradient norm clipped at
+    ``grad_clip`` first, as training does) and returning its seconds (device synchronised before
+    each clock reading)."""
     from benchmark.models.bench_ceiling import synchronize
     from benchmark.models.device import autocast, outputs_to_float
+    from benchmark.training.bench_breakdown import CLIP_LABEL
 
     def step() -> float:
         synchronize(device)
@@ -113,6 +170,9 @@ def make_step(
         loss = model.loss(out, batch["R"], batch["T"])["total"]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
+        if grad_clip is not None:
+            with torch.profiler.record_function(CLIP_LABEL):  # "optimizer" in the breakdown
+                torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
         optimizer.step()
         synchronize(device)
         return time.perf_counter() - start
@@ -120,19 +180,42 @@ def make_step(
     return step
 
 
-def count_step_flops(step: Callable[[], float]) -> int:
-    """FLOPs (2 x multiply-adds of convolutions and matrix products, forward and backward) of
-    one call of ``step`` (which then also updates the weights: count before timing)."""
+def step_flops(step: Callable[[], float]) -> dict[str, int]:
+    """FLOPs (2 x multiply-adds, forward and backward) of one call of ``step`` (which then also
+    updates the weights: count before timing): ``total``, ``convolution`` (forward and both
+    gradients) and ``matmul`` (mm, addmm, bmm, ...: the dense layers)."""
     from torch.utils.flop_counter import FlopCounterMode
 
     with FlopCounterMode(display=False) as counter:
         step()
-    return int(counter.get_total_flops())
+    ops = counter.get_flop_counts().get("Global", {})
+    conv = sum(int(n) for op, n in ops.items() if "convolution" in str(op))
+    return {
+        "total": int(counter.get_total_flops()),
+        "convolution": conv,
+        "matmul": sum(int(n) for op, n in ops.items() if "convolution" not in str(op)),
+    }
 
 
-def build(size: int, width: float, args: argparse.Namespace, channels_last: bool, device):
-    """The benchmarked model (seed 0: every loop starts from the same weights) and its SGD."""
+def count_step_flops(step: Callable[[], float]) -> int:
+    """FLOPs (2 x multiply-adds of convolutions and matrix products, forward and backward) of
+    one call of ``step`` (which then also updates the weights: count before timing)."""
+    return step_flops(step)["total"]
+
+
+def optim_config(args: argparse.Namespace):
+    """The ``OptimConfig`` of ``--optimizer`` (batch size from ``--batch-size``)."""
+    from benchmark.training.config import OptimConfig
+
+    return OptimConfig(**OPTIMIZERS[args.optimizer], batch_size=args.batch_size)  # type: ignore[arg-type]
+
+
+def build(size: int, width: float, args: argparse.Namespace, spec: LoopSpec, device):
+    """The benchmarked model (seed 0: every loop starts from the same weights) and its
+    optimiser, built by training's ``make_optimizer`` (``spec.foreach``)."""
     from benchmark.models import create_model
+    from benchmark.training.config import TrainConfig
+    from benchmark.training.loop import make_optimizer
 
     torch.manual_seed(0)
     m = create_model(
@@ -140,11 +223,12 @@ def build(size: int, width: float, args: argparse.Namespace, channels_last: bool
         input_size=size,
         attitude=args.attitude,
         variant=args.variant,
-        channels_last=channels_last,
+        channels_last=spec.channels_last,
     )
     m.translation_head.set_statistics(torch.zeros(3), torch.full((3,), 50.0))
     m = m.to(device).train()
-    return m, torch.optim.SGD(m.parameters(), lr=1e-3, momentum=0.9)
+    cfg = TrainConfig(optim=optim_config(args))
+    return m, make_optimizer(cfg, m, foreach=spec.foreach)
 
 
 def measure(
@@ -158,17 +242,14 @@ def measure(
     from benchmark.models.bench_ceiling import SHAPES, CeilingResult, conv_job
 
     batch = batch_of(size, args.batch_size, args.distinct_sat, device)
+    clip = optim_config(args).grad_clip
+    specs = loop_specs(precisions, device, not args.no_plain, not getattr(args, "no_base", False))
     loops: dict[str, tuple[str, Callable[[], float]]] = {}
-    if not args.no_plain:
-        loops["plain fp32"] = ("fp32", make_step(*build(size, width, args, False, device),
-                                                 batch, False, device, "fp32"))  # fmt: skip
-    for precision in precisions:
-        model, opt = build(size, width, args, True, device)
-        loops[f"ours {precision}"] = (
-            precision,
-            make_step(model, opt, batch, True, device, precision),
-        )
-    flops = {name: count_step_flops(step) for name, (_, step) in loops.items()}
+    for spec in specs:
+        model, opt = build(size, width, args, spec, device)
+        step = make_step(model, opt, batch, spec.share, device, spec.precision, clip)
+        loops[spec.name] = (spec.precision, step)
+    flops = {name: step_flops(step) for name, (_, step) in loops.items()}
     convs: dict[tuple[str, str], tuple[Callable[[], float], int]] = {}
     if not args.no_ceiling:
         for precision in precisions:
@@ -193,31 +274,22 @@ def measure(
     results = []
     for name, (precision, _) in loops.items():
         seconds = statistics.median(times[name])
-        gflops = flops[name] / seconds / 1e9
+        total = flops[name]["total"]
+        gflops = total / seconds / 1e9
         share = gflops / ceilings[precision] if precision in ceilings else None
         results.append(
-            LoopResult(name, precision, args.batch_size / seconds, flops[name] / 1e9, gflops, share)
+            LoopResult(name, precision, args.batch_size / seconds, total / 1e9, gflops, share)
         )
     if getattr(args, "profile", 0):
-        for name, (_, step) in loops.items():
+        from benchmark.training.bench_breakdown import breakdown_line, profile_step
+
+        for name, (precision, step) in loops.items():
             if name.startswith("ours"):
+                table, kinds = profile_step(step, args.profile)
                 print(f"profile of one step, {size} px width {width:g}, {name}:")
-                print(profile_step(step, args.profile))
+                print(breakdown_line(kinds, flops[name], ceilings.get(precision)))
+                print(table)
     return results, ceilings
-
-
-def profile_step(step: Callable[[], float], rows: int) -> str:
-    """``torch.profiler``'s table of one call of ``step``: the ``rows`` ops of most self time
-    (on CUDA the device's time too)."""
-    from torch.profiler import ProfilerActivity, profile
-
-    activities = [ProfilerActivity.CPU]
-    if torch.cuda.is_available():
-        activities.append(ProfilerActivity.CUDA)
-    with profile(activities=activities) as prof:
-        step()
-    key = "self_cuda_time_total" if len(activities) > 1 else "self_cpu_time_total"
-    return prof.key_averages().table(sort_by=key, row_limit=rows)
 
 
 def check_args(args: argparse.Namespace) -> list[str]:
@@ -263,7 +335,7 @@ def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -
     rows = []
     for r in results:
         vs_plain = f"{r.pairs_per_s / plain.pairs_per_s:7.2f}x" if plain else f"{'-':>8s}"
-        ours = r.loop.startswith("ours") and fp32
+        ours = r.loop.startswith(("ours", "base")) and fp32
         vs_fp32 = f"{r.pairs_per_s / fp32.pairs_per_s:7.2f}x" if ours else f"{'-':>8s}"
         share = f"{100 * r.ceiling_share:8.0f}%" if r.ceiling_share is not None else f"{'-':>9s}"
         rows.append(
@@ -271,6 +343,43 @@ def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -
             f"{vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} {share}"
         )
     return rows
+
+
+def change_line(name: str, results: list[LoopResult]) -> str | None:
+    """Before/after of issue 20's change (base fp32 -> ours fp32): pairs/s and share of the
+    ceiling; None without both rows."""
+    by = {r.loop: r for r in results}
+    base, ours = by.get("base fp32"), by.get("ours fp32")
+    if base is None or ours is None:
+        return None
+    shares = ""
+    if base.ceiling_share is not None and ours.ceiling_share is not None:
+        shares = f", {100 * base.ceiling_share:.0f}% -> {100 * ours.ceiling_share:.0f}% of ceiling"
+    return (
+        f"{'':7s} before -> after (base fp32 -> ours fp32: optimiser foreach): "
+        f"{base.pairs_per_s:.2f} -> {ours.pairs_per_s:.2f} pairs/s "
+        f"({ours.pairs_per_s / base.pairs_per_s:.2f}x{shares})"
+    )
+
+
+def bf16_table(rows: list[tuple[str, list[LoopResult]]]) -> list[str]:
+    """bf16 beside fp32 per model (the issue's layout): fp32 and bf16 pairs/s (ours), bf16/fp32,
+    bf16/plain; empty when no model has both."""
+    lines = []
+    for name, results in rows:
+        by = {r.loop: r for r in results}
+        fp32, bf16, plain = by.get("ours fp32"), by.get("ours bf16"), by.get("plain fp32")
+        if fp32 is None or bf16 is None:
+            continue
+        vs_plain = f"{bf16.pairs_per_s / plain.pairs_per_s:9.2f}x" if plain else f"{'-':>10s}"
+        lines.append(
+            f"{name:7s} {fp32.pairs_per_s:12.2f} {bf16.pairs_per_s:12.2f} "
+            f"{bf16.pairs_per_s / fp32.pairs_per_s:9.2f}x {vs_plain}"
+        )
+    if not lines:
+        return []
+    head = f"{'model':7s} {'fp32 pairs/s':>12s} {'bf16 pairs/s':>12s} {'bf16/fp32':>10s} "
+    return ["bf16 beside fp32 (ours, same rounds):", head + f"{'bf16/plain':>10s}", *lines]
 
 
 HEADER = (
@@ -289,7 +398,9 @@ def load_text() -> str:
 
 
 def main(argv: Sequence[str]) -> int:
+    from benchmark.models.bench_ceiling import cpu_bf16_line
     from benchmark.models.device import accelerator_name
+    from benchmark.models.precision_support import bf16_support_label
 
     args = parser().parse_args(list(argv))
     names = check_args(args)
@@ -298,20 +409,31 @@ def main(argv: Sequence[str]) -> int:
         torch.set_num_threads(args.threads)
     print(
         f"bench train: {args.attitude} ({args.variant}), batch {args.batch_size} with "
-        f"{args.distinct_sat} distinct satellite images, {args.steps} timed steps, device "
-        f"{device} ({accelerator_name(device)}), {torch.get_num_threads()} torch threads; "
-        f"{load_text()}"
+        f"{args.distinct_sat} distinct satellite images, {args.steps} timed steps, optimizer "
+        f"{args.optimizer}, device {device} ({accelerator_name(device)}), "
+        f"{torch.get_num_threads()} torch threads; {load_text()}"
     )
+    if device.type == "cpu":
+        print(cpu_bf16_line(("fp32", "bf16")))
+    else:
+        print(f"bf16 on {device}: {bf16_support_label(device)}")
     for note in notes:
         print(note)
     print(HEADER)
+    measured = []
     for name in names:
         size, width = MODELS[name]
         size, width = args.size or size, args.width or width
         results, ceilings = measure(size, width, args, device, precisions)
+        measured.append((name, results))
         print("\n".join(format_rows(name, size, width, results)), flush=True)
         for precision, gflops in ceilings.items():
             print(f"{'':7s} conv ceiling {precision}: {gflops:.1f} GFLOP/s (best of "
                   "bench_ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
+        change = change_line(name, results)
+        if change:
+            print(change, flush=True)
+    for line in bf16_table(measured):
+        print(line)
     print(f"end: {load_text()}")
     return 0

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-from benchmark.models import precision_support
+from benchmark.models import bench_ceiling, precision_support
 from benchmark.models.bench_ceiling import SHAPES, conv_job, conv_step_flops, main, measure_ceiling
 from benchmark.models.precision_support import precision_plan
 
@@ -72,3 +73,69 @@ class TestPrecisionPlan:
         assert (reason is None) == bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
         if reason is not None:
             assert "AVX-512" in reason
+
+
+# Verbose lines as oneDNN 3.x prints them (an AVX2 machine's, and an AVX-512 BF16 one's forward).
+AVX2_LINES = [
+    "onednn_verbose,v1,info,oneDNN v3.12.0 (commit 80afa71049cd69a3df32adcccb623b12cd7baa22)",
+    "onednn_verbose,v1,info,cpu,isa:Intel AVX2",
+    "onednn_verbose,v1,primitive,exec,cpu,reorder,jit:uni,undef,src:f32::blocked:acdb::f0 ...",
+    "onednn_verbose,v1,primitive,exec,cpu,convolution,brg_conv_fwd:avx2,forward_training,src:f32",
+    "onednn_verbose,v1,primitive,create_nested:cache_miss,cpu,convolution,brg_conv_fwd:avx2,x",
+    "onednn_verbose,v1,primitive,exec,cpu,convolution,brg_conv_bwd:avx2+brg_conv_fwd:avx2,bwd",
+    "onednn_verbose,v1,primitive,exec,cpu,convolution,jit:avx2,backward_weights,src:f32::blocked",
+    "onednn_verbose,v1,primitive,exec,cpu,convolution,brg_conv_fwd:avx2,forward_training,again",
+]
+BF16_LINE = "onednn_verbose,v1,primitive,exec,cpu,convolution,brg_conv_fwd:avx512_core_bf16,fwd"
+
+
+class TestKernelReport:
+    def test_implementations_parsed_in_order_once(self):
+        assert bench_ceiling._conv_implementations(AVX2_LINES) == [
+            "brg_conv_fwd:avx2",
+            "brg_conv_bwd:avx2+brg_conv_fwd:avx2",
+            "jit:avx2",
+        ]
+        assert bench_ceiling._conv_implementations([BF16_LINE]) == ["brg_conv_fwd:avx512_core_bf16"]
+        assert bench_ceiling._conv_implementations(["hello", "a,exec,b"]) == []
+
+    def test_report_matches_torch(self):
+        """fp32 channels_last training convolutions run in oneDNN wherever PyTorch has it; bf16
+        runs in oneDNN exactly where PyTorch's own check says oneDNN has bf16 kernels, else in
+        ATen's reference convolution. The ATen ISA is torch's."""
+        report = bench_ceiling.cpu_kernel_report(("fp32", "bf16"))
+        assert report.aten_isa == torch.backends.cpu.get_cpu_capability()
+        if torch.backends.mkldnn.is_available():
+            assert report.conv["fp32"].startswith("oneDNN "), report
+        bf16_in_onednn = bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+        assert report.conv["bf16"].startswith("oneDNN ") == bf16_in_onednn, report
+        if not bf16_in_onednn:
+            assert report.conv["bf16"].endswith("(no oneDNN kernel)")
+            assert "_slow_conv2d_forward" in report.conv["bf16"]
+
+    def test_captured_output_restores_the_descriptors(self, capfd):
+        """What C code writes to file descriptors 1 and 2 is captured, and only inside."""
+        with bench_ceiling._captured_output() as lines:
+            os.write(1, b"inside 1\n")
+            os.write(2, b"inside 2\n")
+        os.write(1, b"outside\n")
+        assert lines == ["inside 1", "inside 2"]
+        assert capfd.readouterr().out == "outside\n"
+
+    def test_line_names_flags(self, monkeypatch):
+        """Native exactly when a native-bf16 flag is present; each flag named present/missing."""
+        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx2", "avx512_bf16"})
+        monkeypatch.setattr(bench_ceiling.platform, "machine", lambda: "x86_64")
+        line = bench_ceiling.cpu_bf16_line(("fp32",))
+        assert line.startswith("bf16 on this CPU: native (avx512_bf16 present, amx_bf16 missing)")
+        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx", "avx2"})
+        line = bench_ceiling.cpu_bf16_line(("fp32",))
+        assert line.startswith(
+            "bf16 on this CPU: not native (avx512_bf16 missing, amx_bf16 missing: reference code"
+        )
+        assert f"ATen ISA {torch.backends.cpu.get_cpu_capability()}, oneDNN ISA " in line
+
+    def test_ceiling_command_prints_the_line(self, capsys):
+        assert main(["--device", "cpu", "--precision", "fp32", "--repeats", "1",
+                     "--batch", "1", "--threads", "1"]) == 0  # fmt: skip
+        assert capsys.readouterr().out.startswith("bf16 on this CPU: ")

@@ -4,6 +4,7 @@ closed forms and the printed rates (the measured speeds themselves are not asser
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 import torch
@@ -12,12 +13,13 @@ from torch import nn
 from benchmark.errors import UsageError
 from benchmark.models.bench_ceiling import conv_step_flops
 from benchmark.training import bench
-from benchmark.training.bench import count_step_flops, main
+from benchmark.training.bench import count_step_flops, main, step_flops
+from benchmark.training.bench_breakdown import KINDS
 
 TINY = ["--models", "quick", "--size", "32", "--width", "0.1", "--steps", "1", "--warmup", "0"]
 TINY += ["--batch-size", "4", "--distinct-sat", "2", "--threads", "1"]
 ROW = re.compile(
-    r"^quick\s+32\s+0\.10\s+(plain fp32|ours fp32|ours bf16)\s+([\d.]+)\s+([\d.]+x|-)\s+"
+    r"^quick\s+32\s+0\.10\s+(plain fp32|base fp32|ours fp32|ours bf16)\s+([\d.]+)\s+([\d.]+x|-)\s+"
     r"([\d.]+x|-)\s+([\d.]+)\s+([\d.]+)\s+(\d+%|-)$",
     re.MULTILINE,
 )
@@ -32,14 +34,29 @@ class TestBenchTrain:
         assert main([*TINY, "--precision", "fp32,bf16", "--no-ceiling"]) == 0
         out = capsys.readouterr().out
         got = rows(out)
-        assert set(got) == {"plain fp32", "ours fp32", "ours bf16"}, out
-        plain, fp32, bf16 = (float(got[k][0]) for k in ("plain fp32", "ours fp32", "ours bf16"))
-        assert min(plain, fp32, bf16) > 0
+        assert set(got) == {"plain fp32", "base fp32", "ours fp32", "ours bf16"}, out
+        names = ("plain fp32", "base fp32", "ours fp32", "ours bf16")
+        plain, base, fp32, bf16 = (float(got[k][0]) for k in names)
+        assert min(plain, base, fp32, bf16) > 0
         # x plain and x fp32 are the ratios of the printed rates (rounding of 2 decimals).
         assert float(got["ours fp32"][1][:-1]) == pytest.approx(fp32 / plain, abs=0.02)
         assert float(got["ours bf16"][1][:-1]) == pytest.approx(bf16 / plain, abs=0.02)
         assert float(got["ours bf16"][2][:-1]) == pytest.approx(bf16 / fp32, abs=0.02)
+        assert float(got["base fp32"][2][:-1]) == pytest.approx(base / fp32, abs=0.02)
         assert got["plain fp32"][2] == "-" and got["ours fp32"][5] == "-"  # no ceiling asked
+        # Before/after of the optimiser change and the issue's bf16 table repeat those rates.
+        change = re.search(
+            r"base fp32 -> ours fp32.*: ([\d.]+) -> ([\d.]+) pairs/s \(([\d.]+)x", out
+        )
+        assert change is not None, out
+        assert [float(change.group(i)) for i in (1, 2)] == pytest.approx([base, fp32], abs=0.01)
+        assert float(change.group(3)) == pytest.approx(fp32 / base, abs=0.02)
+        table = re.search(r"^quick\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)x\s+([\d.]+)x$", out, re.M)
+        assert table is not None and "bf16 beside fp32" in out, out
+        t_fp32, t_bf16, t_ratio, t_plain = (float(x) for x in table.groups())
+        assert (t_fp32, t_bf16) == pytest.approx((fp32, bf16), abs=0.01)
+        assert t_ratio == pytest.approx(bf16 / fp32, abs=0.02)
+        assert t_plain == pytest.approx(bf16 / plain, abs=0.02)
         # GFLOP/s = GFLOP per step x steps per second (= pairs/s / pairs per step).
         for rate, _, _, step_gflop, gflops, _ in got.values():
             expected = float(step_gflop) * float(rate) / 4
@@ -48,12 +65,62 @@ class TestBenchTrain:
         assert float(got["ours fp32"][3]) < float(got["plain fp32"][3])
         assert "load" in out.splitlines()[0] and out.splitlines()[-1].startswith("end: load")
 
+    def test_cpu_line_names_the_bf16_flags_and_isa(self, capsys):
+        """The line's present/missing flags are /proc/cpuinfo's (read here independently) and
+        its ATen ISA is torch's; bf16 is native exactly when a native-bf16 flag is present."""
+        from benchmark.models.bench_ceiling import native_bf16_flags
+
+        assert main([*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]) == 0
+        line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("bf16 on "))
+        try:
+            text = Path("/proc/cpuinfo").read_text()
+            flags = set(re.search(r"^(?:flags|Features)\s*:(.*)$", text, re.M).group(1).split())
+        except (OSError, AttributeError):
+            pytest.skip("no /proc/cpuinfo flags on this machine")
+        for flag in native_bf16_flags():
+            assert f"{flag} {'present' if flag in flags else 'missing'}" in line, line
+        native = any(f in flags for f in native_bf16_flags())
+        assert line.startswith(f"bf16 on this CPU: {'native' if native else 'not native'} (")
+        assert f"ATen ISA {torch.backends.cpu.get_cpu_capability()}," in line
+        assert "fp32 conv ran " in line and "bf16 conv ran " in line
+
+    @pytest.mark.parametrize("optimizer", ["sgd", "adam"])
+    def test_base_and_ours_train_the_same_weights(self, optimizer):
+        """The base row (torch's per-tensor optimiser loop) and ours (foreach) differ in speed
+        only: three steps from the same weights end in bit-identical weights."""
+        args = bench.parser().parse_args([*TINY, "--optimizer", optimizer])
+        cpu = torch.device("cpu")
+        batch = bench.batch_of(32, 4, 2)
+        clip = bench.optim_config(args).grad_clip
+        weights = []
+        for spec in bench.loop_specs(["fp32"], cpu, plain=False, base=True):
+            model, opt = bench.build(32, 0.1, args, spec, cpu)
+            assert opt.defaults["foreach"] is (spec.name == "ours fp32")
+            step = bench.make_step(model, opt, batch, spec.share, cpu, "fp32", clip)
+            for _ in range(3):
+                step()
+            weights.append([p.detach().clone() for p in model.parameters()])
+        assert len(weights) == 2
+        assert all(torch.equal(a, b) for a, b in zip(*weights, strict=True))
+        start = bench.build(32, 0.1, args, spec, cpu)[0].parameters()
+        assert not all(torch.equal(a, b) for a, b in zip(start, weights[0], strict=True))
+
+    def test_profile_breaks_the_step_down(self, capsys):
+        argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--ceiling-batch", "1"]
+        assert main([*argv, "--profile", "2", "--optimizer", "adam"]) == 0
+        out = capsys.readouterr().out
+        line = next(x for x in out.splitlines() if x.startswith("time by kind"))
+        shares = dict(re.findall(r"(\w+) (\d+)%", line.split(": ", 1)[1]))
+        assert set(shares) >= {"convolution", "matmul", "optimizer", "other"}, line
+        assert sum(int(shares[k]) for k in KINDS) == pytest.approx(100, abs=len(KINDS))
+        assert int(shares["optimizer"]) > 0  # Adam's step and the clipping are found
+
     def test_ceiling_share(self, capsys):
         argv = [*TINY, "--precision", "fp32", "--no-plain", "--ceiling-batch", "1"]
         assert main(argv) == 0
         out = capsys.readouterr().out
         got = rows(out)
-        assert set(got) == {"ours fp32"}, out
+        assert set(got) == {"base fp32", "ours fp32"}, out
         ceiling = re.search(r"conv ceiling fp32: ([\d.]+) GFLOP/s", out)
         assert ceiling is not None, out
         share = float(got["ours fp32"][5][:-1])
@@ -64,16 +131,17 @@ class TestBenchTrain:
         from benchmark.models import precision_support
 
         monkeypatch.setattr(precision_support, "bf16_unsupported_reason", lambda d: "no units")
-        assert main([*TINY, "--no-ceiling", "--no-plain"]) == 0
+        assert main([*TINY, "--no-ceiling", "--no-plain", "--no-base"]) == 0
         out = capsys.readouterr().out
         assert set(rows(out)) == {"ours fp32"}
-        assert "bf16 skipped: no units" in out
+        assert "bf16 skipped: no units" in out and "bf16 beside fp32" not in out
         monkeypatch.setattr(precision_support, "bf16_unsupported_reason", lambda d: None)
-        assert main([*TINY, "--no-ceiling", "--no-plain"]) == 0
+        assert main([*TINY, "--no-ceiling", "--no-plain", "--no-base"]) == 0
         assert set(rows(capsys.readouterr().out)) == {"ours fp32", "ours bf16"}
 
     def test_profile_prints_the_top_ops(self, capsys):
-        argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-ceiling", "--profile", "3"]
+        argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]
+        argv += ["--profile", "3"]
         assert main(argv) == 0
         out = capsys.readouterr().out
         assert "profile of one step, 32 px width 0.1, ours fp32:" in out and "Self CPU" in out
@@ -114,6 +182,22 @@ class TestCountStepFlops:
             return 0.0
 
         assert count_step_flops(step) == conv_step_flops(2, 8, 16, 12) == 3 * 2 * 2 * 144 * 16 * 72
+
+    def test_split_by_kind(self):
+        """A convolution and a dense layer: each kind's FLOPs are its closed form (dense layer:
+        forward, grad input, grad weight, 3 x 2 B in out), and they add up to the total."""
+        conv = nn.Conv2d(4, 6, 3, padding=1, bias=False)
+        dense = nn.Linear(6 * 8 * 8, 5, bias=False)
+        x = torch.randn(2, 4, 8, 8, requires_grad=True)
+
+        def step() -> float:
+            dense(conv(x).flatten(1)).sum().backward()
+            return 0.0
+
+        got = step_flops(step)
+        assert got["convolution"] == conv_step_flops(2, 4, 6, 8)
+        assert got["matmul"] == 3 * 2 * 2 * 384 * 5
+        assert got["total"] == got["convolution"] + got["matmul"]
 
     def test_first_layer_has_no_input_gradient(self):
         conv = nn.Conv2d(3, 4, 3, padding=1, bias=False)
