@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from benchmark.sim import detmath
+
 
 @dataclass(frozen=True)
 class CameraEffects:
@@ -54,6 +56,15 @@ def _motion_kernel(length: float, angle: float) -> np.ndarray:
     return k / k.sum()
 
 
+def _gaussian_kernel(sigma: float) -> np.ndarray:
+    """Normalised float32 Gaussian taps of standard deviation ``sigma`` px, cut at ``4 sigma``
+    (at least one tap each side), as OpenCV sizes its float kernels."""
+    radius = max(1, round(4.0 * sigma))
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    w = detmath.exp(-(x * x) / (2.0 * sigma * sigma))
+    return (w / w.sum()).astype(np.float32)
+
+
 def apply_camera_effects(
     image: np.ndarray, rng: np.random.Generator, effects: CameraEffects | None = None
 ) -> np.ndarray:
@@ -71,13 +82,16 @@ def apply_camera_effects(
     scale = w / 224.0
     img = image.astype(np.float32)
 
+    # The filters are detmath's fixed-order float32 multiply-adds, not OpenCV's GaussianBlur /
+    # filter2D, whose SIMD paths (SSE, AVX2 with FMA, AVX-512) round differently (issue 20).
     sigma = rng.uniform(*fx.defocus_sigma_px) * scale
     if sigma > 0.05:
-        img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, borderType=cv2.BORDER_REFLECT)
+        g = _gaussian_kernel(sigma)
+        img = detmath.correlate2d(detmath.correlate2d(img, g[None, :]), g[:, None])
     length = rng.uniform(*fx.motion_length_px) * scale
     angle = rng.uniform(0.0, math.pi)
     if length >= 1.0:
-        img = cv2.filter2D(img, -1, _motion_kernel(length, angle), borderType=cv2.BORDER_REFLECT)
+        img = detmath.correlate2d(img, _motion_kernel(length, angle))
 
     gain = rng.uniform(*fx.exposure_gain) * (1.0 + fx.white_balance_std * rng.standard_normal(3))
     img = img * gain.astype(np.float32)
@@ -89,7 +103,7 @@ def apply_camera_effects(
     img = img + np.sqrt(var) * rng.standard_normal(img.shape).astype(np.float32)
 
     img = np.clip(img, 0.0, 255.0) / 255.0
-    img = 255.0 * img ** np.float32(rng.uniform(*fx.gamma))
+    img = 255.0 * detmath.power(img, np.float32(rng.uniform(*fx.gamma)))
     out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
     if fx.jpeg_quality is None:

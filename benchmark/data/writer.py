@@ -43,7 +43,9 @@ from benchmark.locks import work_lock
 from benchmark.progress import Progress
 
 LOCK = ".simulate.lock"  # one writer per dataset directory (benchmark.locks)
-PLAN_VERSION = 2  # bump when benchmark.sim.flights / splits change what they produce
+# Bump when benchmark.sim.flights / splits change what they produce. 3: labels through
+# benchmark.sim.detmath (libm, fixed-order products) instead of torch (issue 20).
+PLAN_VERSION = 3
 
 
 SPLIT_NOTES = {

@@ -40,6 +40,10 @@ light=0)``
     North-up nadir perspective view squashed to ``size x size`` (INTER_AREA), ~0.2 s; no haze.
 ``satellite_pose(city, centre_en, *, height_m=1000) -> (position (3,), (yaw, pitch, roll))``
 ``project_enu_to_pixel(points_enu, position_enu, yaw, pitch, roll, camera) -> (uv (N, 2), mask)``
+``detmath``
+    The ISA-independent primitives every float computation of the simulator and the camera model
+    goes through (libm transcendentals, fixed-order matrix products and filters): the same dataset
+    bytes on every x86-64 CPU with FMA (issue 20; ``benchmark/sim/detmath.py`` says why).
 
 ``FlightSpec``, ``generate_flight(...)``
     Flight curves around a centre (``benchmark.sim.flights``).
@@ -54,8 +58,14 @@ above ground" is at ``U = city.ground_height(E, N) + 100``. The satellite camera
 above the terrain at its centre.
 """
 
+import os
 from typing import Any
 
+# numba may vectorise libm calls in our kernels with Intel SVML when the icc_rt package is
+# installed; SVML's last bits differ from glibc's. Off unless the user asks (before numba loads).
+os.environ.setdefault("NUMBA_DISABLE_INTEL_SVML", "1")
+
+from benchmark.sim import detmath
 from benchmark.sim.camera import Camera, euler_to_rotmat_np, project_enu_to_pixel
 from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.render import render_satellite, render_uav, satellite_camera, satellite_pose
@@ -80,6 +90,7 @@ __all__ = [
     "build_town",
     "changed_city",
     "city_seed",
+    "detmath",
     "euler_to_rotmat_np",
     "generate_flight",
     "make_plan",

@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+
+from benchmark.sim import detmath
 
 __all__ = ["Camera", "euler_to_rotmat_np", "project_enu_to_pixel"]
 
@@ -64,19 +67,29 @@ class Camera:
         return np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
 
 
-def euler_to_rotmat_np(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """``R_b^n = Rz(yaw) Rx(pitch) Ry(roll)`` as a float64 ``(3, 3)`` numpy array (paper Eq. 1).
+def euler_to_rotmat_np(yaw: Any, pitch: Any, roll: Any) -> np.ndarray:
+    """``R_b^n = Rz(yaw) Rx(pitch) Ry(roll)`` as float64 numpy (paper Eq. 1).
 
-    A numpy twin of ``benchmark.geometry.euler_to_rotmat`` for the renderer, which must not pay for
-    torch per frame; the tests check the two agree.
+    ``yaw, pitch, roll``: radians, scalars or arrays broadcast against each other; returns
+    ``(..., 3, 3)`` (``(3, 3)`` for scalars). A numpy twin of ``benchmark.geometry.euler_to_rotmat``
+    for the renderer, which must not pay for torch per frame; the tests check the two agree.
+    ISA-independent (``detmath``: libm cos/sin and the two products in a fixed order, not BLAS),
+    so the dataset's labels (``splits.relative_labels``) hold exactly the rotation the renderer
+    used, on every CPU.
     """
-    cz, sz = math.cos(yaw), math.sin(yaw)
-    cx, sx = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(roll), math.sin(roll)
-    Rz = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
-    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
-    Ry = np.array([[cy, 0.0, sy], [0.0, 1.0, 0.0], [-sy, 0.0, cy]])
-    return Rz @ Rx @ Ry
+    yaw, pitch, roll = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (yaw, pitch, roll)))
+    cz, sz = detmath.cos(yaw), detmath.sin(yaw)
+    cx, sx = detmath.cos(pitch), detmath.sin(pitch)
+    cy, sy = detmath.cos(roll), detmath.sin(roll)
+    zero, one = np.zeros_like(cz), np.ones_like(cz)
+
+    def mat(rows: list[list[np.ndarray]]) -> np.ndarray:
+        return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+    Rz = mat([[cz, -sz, zero], [sz, cz, zero], [zero, zero, one]])
+    Rx = mat([[one, zero, zero], [zero, cx, -sx], [zero, sx, cx]])
+    Ry = mat([[cy, zero, sy], [zero, one, zero], [-sy, zero, cy]])
+    return detmath.matmul(detmath.matmul(Rz, Rx), Ry)
 
 
 def check_pose(position_enu: np.ndarray, yaw: float, pitch: float, roll: float) -> np.ndarray:
@@ -118,7 +131,7 @@ def project_enu_to_pixel(
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points_enu must have shape (N, 3), got {pts.shape}")
     R = euler_to_rotmat_np(float(yaw), float(pitch), float(roll))
-    body = (pts - pos) @ R  # rows: R^T (p - c), i.e. ENU -> body
+    body = detmath.matmul(pts - pos, R)  # rows: R^T (p - c), i.e. ENU -> body
     x, y, z = body[:, 0], body[:, 1], body[:, 2]
     in_front = y > 1e-9
     f = camera.focal_px

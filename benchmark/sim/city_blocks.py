@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from benchmark.sim import detmath
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_TREE, MAT_WATER
 from benchmark.sim.textures import hash01
 from benchmark.sim.world_styles import Style
@@ -176,7 +177,7 @@ def fill_terrace(S: Style, cv: Canvas, P: BlockPixels, high: bool) -> None:
     eave = lerp(S.height_high if high else S.height_low, hp(6)) * (0.8 + 0.4 * P.district)
     eave = np.minimum(eave, MAX_EAVE_M)
     gable = (hp(7) < (S.gable_prob * (0.3 if high else 1.0))) & (D < 16.0)
-    pitch = np.tan(np.radians(lerp((30.0, 45.0), hp(8))))
+    pitch = detmath.tan(np.radians(lerp((30.0, 45.0), hp(8))))
     ridge = pitch * (0.5 * D - np.abs(d - 0.5 * D))
     roof = eave + np.where(gable, ridge, 0.0)
     inb = (d < D) & ~gap & (P.bw > 8.0) & (P.bh > 8.0)
@@ -250,7 +251,7 @@ def fill_detached(S: Style, cv: Canvas, P: BlockPixels) -> None:
     inh &= P.lu < P.bw - 2.0
     inh &= ~touching(pkey, inh, P.edge < 2.0)  # whole houses only along a district boundary
     eave = lerp(S.height_low, hp(6))
-    pitch = np.tan(np.radians(lerp((32.0, 45.0), hp(7))))
+    pitch = detmath.tan(np.radians(lerp((32.0, 45.0), hp(7))))
     ridge_across = hp(8) < 0.25  # some houses have the ridge perpendicular to the street
     r1 = pitch * (0.5 * hd - np.abs(b - sb - 0.5 * hd))
     r2 = pitch * (0.5 * hw - np.abs(ac))

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 
+from benchmark.sim import detmath
 from benchmark.sim.city_blocks import BlockPixels, Canvas, _set, lerp, pick, touching
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
 from benchmark.sim.textures import hash01
@@ -58,11 +59,11 @@ def fill_lawn(S: Style, cv: Canvas, P: BlockPixels) -> None:
     has &= ~touching(P.key, (ax < 52.5 * k + 2.0) & (ay < 34.0 * k + 2.0), d < 4.0)
     # Distance to the pitch outline (a rectangle), then the halfway line.
     outline = np.minimum(
-        np.where(ay <= hw, np.abs(ax - hl), np.hypot(ax - hl, ay - hw)),
-        np.where(ax <= hl, np.abs(ay - hw), np.hypot(ax - hl, ay - hw)),
+        np.where(ay <= hw, np.abs(ax - hl), detmath.hypot(ax - hl, ay - hw)),
+        np.where(ax <= hl, np.abs(ay - hw), detmath.hypot(ax - hl, ay - hw)),
     )
     dist = np.minimum(outline, np.where(ay <= hw, np.abs(x), 1e3))
-    dist = np.minimum(dist, np.abs(np.hypot(x, y) - 9.15 * k))  # centre circle
+    dist = np.minimum(dist, np.abs(detmath.hypot(x, y) - 9.15 * k))  # centre circle
     pen = np.minimum(
         np.where(ay <= 20.15 * k, np.abs(ax - (hl - 16.5 * k)), 1e3),
         np.where((ax >= hl - 16.5 * k) & (ax <= hl), np.abs(ay - 20.15 * k), 1e3),
@@ -86,7 +87,7 @@ def fill_plaza(S: Style, cv: Canvas, P: BlockPixels) -> None:
     church = hash01(P.key, cv.seed, 72) < S.church_prob
     x = P.lu - 0.5 * P.bw
     y = P.lv - 0.5 * P.bh
-    r = np.hypot(x, y)
+    r = detmath.hypot(x, y)
     # Fountain or church only where a district boundary does not cut through it.
     centre = (np.abs(x) < np.minimum(0.3 * np.maximum(P.bw, P.bh), 22.0) + 2.0) & (np.abs(y) < 8)
     centre |= (np.abs(y) < np.minimum(0.3 * np.maximum(P.bw, P.bh), 22.0) + 2.0) & (np.abs(x) < 8)
@@ -153,8 +154,8 @@ def meander(rng: np.random.Generator, E, N, half_n: float, amp: float, wavelengt
     ph = rng.uniform(0, 2 * math.pi)
     s = E * math.cos(ang) + N * math.sin(ang)
     c = -E * math.sin(ang) + N * math.cos(ang)
-    centre = off + amp * np.sin(k * s + ph)
-    slope = amp * k * np.cos(k * s + ph)
+    centre = off + amp * detmath.sin(k * s + ph)
+    slope = amp * k * detmath.cos(k * s + ph)
     return ((c - centre) / np.sqrt(1.0 + slope * slope)).astype(np.float32), s, ang
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from benchmark.sim import detmath
 from benchmark.sim.textures import smooth_noise
 from benchmark.sim.world_styles import Style
 
@@ -109,7 +110,7 @@ def plan_districts(S: Style, seed: int, size_e: float, size_n: float) -> tuple[D
         out.append((e, nn))
     cen = np.asarray(out)
     if S.old_town != "grid" and n > 1:  # the district nearest the tile centre is the old core
-        kinds[int(np.argmin(np.hypot(cen[:, 0], cen[:, 1])))] = KINDS.index(S.old_town)
+        kinds[int(np.argmin(detmath.hypot(cen[:, 0], cen[:, 1])))] = KINDS.index(S.old_town)
     dists = []
     for k in range(n):
         f = pf[k] * (0.75 if kinds[k] == ORGANIC else 1.0)
@@ -343,7 +344,7 @@ def _radial(S, F: Streets, d, dist: District, r, idx, e, n, table, park: int) ->
     x = e - np.float32(dist.centre[0])
     y = n - np.float32(dist.centre[1])
     rad = np.sqrt(x * x + y * y)
-    th = np.arctan2(y, x)
+    th = detmath.arctan2(y, x)
     r0 = r.uniform(30.0, 70.0)
     rings = [-float(FAR), r0]
     for _ in range(r.integers(2, 5)):
@@ -393,8 +394,8 @@ def _radial(S, F: Streets, d, dist: District, r, idx, e, n, table, park: int) ->
             F.ksv.ravel()[ii] = d * KEY_BASE + kv
             ang = (0.5 * (vl[1 : ns + 1] + vl[2 : ns + 2]) / mid)[None, :]
             keys = _keys(d, b, np.arange(ns)[None, :])
-            cx = dist.centre[0] + mid * np.cos(ang)
-            cy = dist.centre[1] + mid * np.sin(ang)
+            cx = dist.centre[0] + mid * detmath.cos(ang)
+            cy = dist.centre[1] + mid * detmath.sin(ang)
             bt, dn = table(keys, cx, cy)
         _lookup(F, ii, bt, dn, np.zeros(sel.size, np.int64), kv)
     return outside

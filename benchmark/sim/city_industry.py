@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from benchmark.sim import detmath
 from benchmark.sim.city_blocks import (
     TRAILER_COLOURS,
     BlockPixels,
@@ -75,7 +76,7 @@ def _tanks(cv: Canvas, P: BlockPixels, pkey, sel, xl, y, pl, W) -> None:
     cj = np.floor((y - 6.0) / pitch)
     dx = (xl - 6.0) - (ci + 0.5) * pitch
     dy = (y - 6.0) - (cj + 0.5) * pitch
-    d = np.hypot(dx, dy)
+    d = detmath.hypot(dx, dy)
     fits = ((ci + 1) * pitch + 6.0 < pl) & ((cj + 1) * pitch + 6.0 < W)
     tank = sel & (d < r) & fits & (hash01(pkey, ci, cj, cv.seed, 94) < 0.85)
     tkey = (pkey * 4099 + ci.astype(np.int64)) * 4099 + cj.astype(np.int64)

@@ -18,6 +18,7 @@ import numpy as np
 from benchmark.sim import city_blocks as cb
 from benchmark.sim import city_details as cd
 from benchmark.sim import city_industry as ci
+from benchmark.sim import detmath
 from benchmark.sim.city_districts import KEY_BASE, Streets, rng_for, street_fields
 from benchmark.sim.city_nature import SEASON_GRASS, plant_trees, river_distance, terrain
 from benchmark.sim.render_core import MAT_BUILDING, MAT_GROUND, MAT_SMALL, MAT_WATER
@@ -90,7 +91,7 @@ def generate(
     # walls share one direction (the window grid is laid out along it). Across district
     # boundaries grad u is meaningless, but those texels are arterial roads, never walls.
     gu_n, gu_e = np.gradient(F.u)
-    theta_u = np.arctan2(gu_n, gu_e).astype(np.float32)
+    theta_u = detmath.arctan2(gu_n, gu_e).astype(np.float32)
     del gu_e, gu_n
     theta = np.mod(theta_u, math.pi / 2)
     orient = ((np.round(theta / (math.pi / 2) * 32.0) % 32) * 8).astype(np.uint8)
@@ -194,12 +195,12 @@ def generate(
     if S.river_width > 0:
         d, ang_r = river_distance(rng("river"), E, N, 0.5 * H * mpp, S.river_width)
         half = 0.5 * S.river_width
-        valley = np.exp(-((d / (3.0 * S.river_width)) ** 2)).astype(np.float32)
+        valley = detmath.exp(-((d / (3.0 * S.river_width)) ** 2)).astype(np.float32)
         ground -= 3.0 * valley
         bank = (d < half + 14.0) & (d >= half)
         # Bridges: every other major street of the family that crosses the river most squarely
         # in its district (grad u along the river: the constant-u streets cross it).
-        cross_u = np.abs(np.cos(theta_u - ang_r)) > np.abs(np.sin(theta_u - ang_r))
+        cross_u = np.abs(detmath.cos(theta_u - ang_r)) > np.abs(detmath.sin(theta_u - ang_r))
         major_u = on_u & (hu >= 0.5 * S.road_major) & (hash01(F.ksu, seed, 61) < 0.5)
         major_v = on_v & (hv >= 0.5 * S.road_major) & (hash01(F.ksv, seed, 61) < 0.5)
         lines = np.where(cross_u, major_u, major_v) & ~on_a
@@ -262,7 +263,7 @@ def _block_types(S: Style, seed: int, change: int, keys, ce, cn):
     for _ in range(3):
         k = 2 * math.pi / r.uniform(1200.0, 2400.0)
         a = r.uniform(0, 2 * math.pi)
-        acc += np.sin(k * (E * math.cos(a) + N * math.sin(a)) + r.uniform(0, 2 * math.pi))
+        acc += detmath.sin(k * (E * math.cos(a) + N * math.sin(a)) + r.uniform(0, 2 * math.pi))
     dist = np.clip(0.5 + acc / 3.0, 0.0, 1.0)
     base = np.array(
         [

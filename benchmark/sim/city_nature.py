@@ -14,6 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
+from benchmark.sim import detmath
 from benchmark.sim.render_core import MAT_BUILDING, MAT_TREE
 from benchmark.sim.textures import fbm, hash01
 from benchmark.sim.world_styles import Style
@@ -54,8 +55,8 @@ def river_distance(
     s = E * math.cos(ang) + N * math.sin(ang)
     c = -E * math.sin(ang) + N * math.cos(ang)
     k1, k2 = 2 * math.pi / l1, 2 * math.pi / l2
-    centre = off + a1 * np.sin(k1 * s + p1) + a2 * np.sin(k2 * s + p2)
-    slope = a1 * k1 * np.cos(k1 * s + p1) + a2 * k2 * np.cos(k2 * s + p2)
+    centre = off + a1 * detmath.sin(k1 * s + p1) + a2 * detmath.sin(k2 * s + p2)
+    slope = a1 * k1 * detmath.cos(k1 * s + p1) + a2 * k2 * detmath.cos(k2 * s + p2)
     return (np.abs(c - centre) / np.sqrt(1.0 + slope * slope)).astype(np.float32), ang
 
 
@@ -120,7 +121,7 @@ def plant_trees(
         keep = (keep & (hash01(gi, gj, change, 4) >= 0.2)) | ((u >= p) & (u < 1.15 * p))
     cx, cy, gi, gj = cx[keep], cy[keep], gi[keep], gj[keep]
     tint, rfac, opacity = SEASON_TREE[season]
-    rad = (2.2 + 3.6 * hash01(gi, gj, seed, 5) ** 1.5) * rfac / mpp
+    rad = (2.2 + 3.6 * detmath.power(hash01(gi, gj, seed, 5), 1.5)) * rfac / mpp
     top = 6.0 + 10.0 * hash01(gi, gj, seed, 6)
     base = np.asarray(S.tree, np.float64)[None, :]
     var = hash01(gi, gj, seed, 7)[:, None]

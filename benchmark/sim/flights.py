@@ -22,6 +22,8 @@ from typing import Protocol
 
 import numpy as np
 
+from benchmark.sim import detmath
+
 FLIGHT_STREAM = 0x46  # spawn-key tag of the flight seeds (see flight_rng)
 MAX_ATTEMPTS = 64
 
@@ -117,7 +119,7 @@ def _oscillation(
     out = np.zeros_like(t)
     for weight in (0.7, 0.3):
         period = rng.uniform(*period_s)
-        out += weight * np.sin(2.0 * np.pi * t / period + rng.uniform(0.0, 2.0 * np.pi))
+        out += weight * detmath.sin(2.0 * np.pi * t / period + rng.uniform(0.0, 2.0 * np.pi))
     return out
 
 
@@ -143,12 +145,12 @@ def _draw_flight(
         [[0.0], np.cumsum(0.5 * (dtheta[1:] + dtheta[:-1]) * np.diff(fine_t))]
     )
     theta = np.interp(t, fine_t, fine_theta)
-    E = centre[0] + radius * np.cos(theta)
-    N = centre[1] + radius * np.sin(theta)
+    E = centre[0] + radius * detmath.cos(theta)
+    N = centre[1] + radius * detmath.sin(theta)
 
     # Heading of travel: the tangent of the circle (radius drift ignored for the camera).
-    vE, vN = -direction * np.sin(theta), direction * np.cos(theta)
-    travel_yaw = np.arctan2(-vE, vN)  # yaw 0 looks north, +90 deg looks west (DEVELOPERS.md)
+    vE, vN = -direction * detmath.sin(theta), direction * detmath.cos(theta)
+    travel_yaw = detmath.arctan2(-vE, vN)  # yaw 0 looks north, +90 deg looks west (DEVELOPERS.md)
     offset = rng.uniform(-np.pi, np.pi)
     wobble = spec.heading_wobble_deg * deg * _oscillation(rng, t, (10.0, 40.0))
     yaw = wrap_angle(travel_yaw + offset + wobble)

@@ -43,10 +43,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import torch
 from scipy.spatial import cKDTree
 
-from benchmark.geometry import SAT_R_N, euler_to_rotmat, relative_rotation
+from benchmark.geometry import SAT_R_N
+from benchmark.sim import detmath
+from benchmark.sim.camera import euler_to_rotmat_np
 from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.illumination import assign_illumination
 from benchmark.sim.render import satellite_pose
@@ -167,7 +168,8 @@ class _LeakIndex:
         for i, near in enumerate(tree.query_ball_point(pts, LEAK_DIST_M)):
             if not near:
                 continue
-            dyaw = np.abs(np.angle(np.exp(1j * (rows[near, 3] - d["yaw"][i]))))
+            dyaw = rows[near, 3] - d["yaw"][i]
+            dyaw = np.abs(detmath.arctan2(detmath.sin(dyaw), detmath.cos(dyaw)))  # wrapped
             dpitch = np.abs(rows[near, 4] - d["pitch"][i])
             if np.any((dyaw < tol) & (dpitch < tol)):
                 return True
@@ -213,14 +215,14 @@ def relative_labels(uav: pd.DataFrame, sat: pd.DataFrame) -> pd.DataFrame:
     """R_uav^sat (Eq. 2) and T = UAV - satellite position (metres ENU) for aligned rows.
 
     ``uav`` and ``sat`` have the columns ``E, N, U, yaw, pitch, roll`` (radians), one row per
-    pair; computed in float64 with the geometry core.
+    pair; float64. ``R_uav^n`` is ``euler_to_rotmat_np``, bit for bit the rotation the renderer
+    used for the UAV image, and ``R_sat^n`` the exact ``SAT_R_N`` of Eq. 5 (every satellite image
+    of the plan has that attitude, checked in ``sat_position``). The rotation and the product go
+    through ``detmath``, so the labels are the same on every CPU (torch's sin/cos and matmul
+    kernels, used here before, depend on the ATen CPU capability). ``sat`` is used for positions.
     """
-    t = {
-        k: torch.from_numpy(uav[k].to_numpy(np.float64, copy=True))
-        for k in ("yaw", "pitch", "roll")
-    }
-    R_uav = euler_to_rotmat(t["yaw"], t["pitch"], t["roll"])
-    R = relative_rotation(R_uav, SAT_R_N.to(torch.float64).expand_as(R_uav)).numpy().reshape(-1, 9)
+    R_uav = euler_to_rotmat_np(*(uav[k].to_numpy(np.float64) for k in ("yaw", "pitch", "roll")))
+    R = detmath.matmul(R_uav, SAT_R_N.numpy().T).reshape(-1, 9)
     out = pd.DataFrame(R, columns=R_COLUMNS, index=uav.index)
     for k, c in zip(("dE", "dN", "dU"), ("E", "N", "U"), strict=True):
         out[k] = uav[c].to_numpy(np.float64) - sat[c].to_numpy(np.float64)
@@ -340,7 +342,9 @@ def make_plan(
             rows = by_group[f"standard/{part}"]
             order = rng.permutation(flights_of[f"standard/{part}"])
             chosen = rows.set_index("flight").loc[order].reset_index()  # whole flights, shuffled
-            subsets[part] = chosen.iloc[: min(n, len(chosen))].sort_values("uav_index")
+            subsets[part] = chosen.iloc[: min(n, len(chosen))].sort_values(
+                "uav_index", kind="stable"
+            )
         for h in p.sat_heights_m:
             for part in ("train", "test"):
                 add_pairs(f"height{h:g}/{part}", subsets[part], "now", h, footprint(h))

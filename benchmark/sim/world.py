@@ -59,7 +59,7 @@ from benchmark.sim.textures import max_pyramid
 from benchmark.sim.world_city import City, dilate3
 from benchmark.sim.world_styles import STYLES, get_style
 
-GENERATOR_VERSION = "16"
+GENERATOR_VERSION = "17"  # 17: detmath (issue 20), float32 city maths through libm
 # The modules whose code decides a city's arrays (world.py and everything it builds with).
 CITY_MODULES = (
     "city_blocks", "city_details", "city_districts", "city_industry", "city_layout",
