@@ -21,6 +21,7 @@ TARGETS: dict[str, str] = {
     "ceiling": "benchmark.models.bench_ceiling:main",
     "accelerator": "benchmark.bench_accelerator:main",
     "ray": "benchmark.runner.bench_ray:main",
+    "isa": "benchmark.data.bench_isa:main",
 }
 
 TARGET_HELP: dict[str, str] = {
@@ -31,6 +32,7 @@ TARGET_HELP: dict[str, str] = {
     "ceiling": "convolution throughput ceiling (GFLOP/s, fp32/bf16) of the device",
     "accelerator": "one-command accelerator check: smoke reproduction, train fp32/bf16, latency",
     "ray": "smoke reproduction through the process pool and a local Ray: wall times, ratio",
+    "isa": "dataset manifest digest with each library's SIMD level forced down, side by side",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

@@ -115,7 +115,9 @@ def swap_targets(sat_table: pd.DataFrame, split: str, used: Iterable[int]) -> di
     Raises:
         DatasetError: when an image has no replacement of another place.
     """
-    sat = sat_table.sort_values(["city", "centre", "sat_index"]).set_index("sat_index", drop=False)
+    sat = sat_table.sort_values(["city", "centre", "sat_index"], kind="stable").set_index(
+        "sat_index", drop=False
+    )
     used = sorted({int(i) for i in used})
     missing = [i for i in used if i not in sat.index]
     if missing:
