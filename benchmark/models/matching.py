@@ -57,7 +57,7 @@ __all__ = ["PROTOCOLS", "MatchingEncoder", "matching"]
 PROTOCOLS = ("vision_only", "gravity_aided")
 GRAVITY_SCALE = (math.radians(2.0), math.radians(2.0), 5.0)  # loss units: 2 deg, 2 deg, 5 m
 MASKED = -1.0e4  # log-score of excluded positions (finite: 0 * MASKED stays 0 in the loss)
-ALTITUDE_PRIOR_M = 80.0  # the gravity branch's initial height (quick flights: 70-90 m)
+ALTITUDE_PRIOR_M = 100.0  # the gravity branch's initial height (flights: 80-120 m)
 
 
 def _trunk(channels: int, out_channels: int, pool: tuple[int, int]) -> nn.ModuleDict:
@@ -249,7 +249,10 @@ class MatchingEncoder(PairEncoder):
             uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=5.0), geo["fov"],
             geo["sat_footprint_m"],
         )  # fmt: skip
-        feats = self._summary(log_volume, predicted, used, g, geo["sat_height_m"])
+        # The heads see the values the protocol has at test time: in vision-only training the
+        # bird's-eye view uses the priors, but the features carry the prediction twice.
+        shown = used if self.protocol == "gravity_aided" else predicted
+        feats = self._summary(log_volume, predicted, shown, g, geo["sat_height_m"])
         extras = {
             "log_volume": log_volume,
             "gravity": predicted,

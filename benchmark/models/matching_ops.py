@@ -20,7 +20,14 @@ from benchmark.models.matching_geometry import (
     sat_pixel_of_offset,
 )
 
-__all__ = ["bev_templates", "correlate", "correlate_conv", "correlate_fft", "sat_grid"]
+__all__ = [
+    "bev_templates",
+    "correlate",
+    "correlate_conv",
+    "correlate_fft",
+    "fft_size",
+    "sat_grid",
+]
 
 
 def bev_templates(
@@ -93,19 +100,42 @@ def correlate_conv(sat: Tensor, templates: Tensor) -> Tensor:
     return out.view(b, k, g - t + 1, g - t + 1)
 
 
+def fft_size(n: int) -> int:
+    """The smallest ``m >= n`` whose prime factors are 2, 3 and 5 (pocketfft is fast there; a
+    prime size such as 71 takes Bluestein's algorithm, about 10x slower here)."""
+    m = max(1, n)
+    while True:
+        k = m
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        if k == 1:
+            return m
+        m += 1
+
+
 def correlate_fft(sat: Tensor, templates: Tensor) -> Tensor:
     """:func:`correlate_conv` by the FFT: ``conj(F(template)) F(sat)`` summed over channels is the
-    circular cross-correlation; with the FFT size ``G`` the kept outputs ``y, x <= G - t`` read
-    ``y + i <= G - 1``, so nothing wraps around. Computed in float32 at least."""
+    circular cross-correlation; with an FFT size ``L >= G`` the kept outputs ``y, x <= G - t``
+    read ``y + i <= G - 1 < L``, so nothing wraps around. Computed in float32 at least."""
     t = templates.shape[-1]
     g = sat.shape[-1]
+    n = fft_size(g)
     dtype = torch.promote_types(sat.dtype, torch.float32)
-    fs = torch.fft.rfft2(sat.to(dtype), s=(g, g))  # (B, C, G, G//2+1)
-    ft = torch.fft.rfft2(templates.to(dtype), s=(g, g))  # (B, K, C, G, G//2+1)
-    prod = torch.einsum("bkcuv,bcuv->bkuv", ft.conj(), fs)
-    out = torch.fft.irfft2(prod, s=(g, g))
-    n = g - t + 1
-    return out[..., :n, :n].to(sat.dtype)
+    # Channels first, so that each channel's spectra are contiguous blocks.
+    fs = torch.fft.rfft2(sat.to(dtype).transpose(0, 1), s=(n, n))  # (C, B, L, L//2+1)
+    ft = torch.fft.rfft2(templates.to(dtype).permute(2, 0, 1, 3, 4), s=(n, n)).conj()
+    # Sum over channels one at a time: a batched matmul over every frequency would run
+    # B L (L/2 + 1) tiny (K x C) @ (C x 1) products, and the full broadcast product would hold
+    # B K C L (L/2 + 1) complex numbers.
+    # (unbind, not indexing: the backward of C selects would zero-fill C full-size gradients).
+    ft_c, fs_c = ft.unbind(0), fs.unsqueeze(2).unbind(0)  # (B, K, L, L//2+1), (B, 1, ...)
+    prod = ft_c[0] * fs_c[0]
+    for a, b in zip(ft_c[1:], fs_c[1:], strict=True):
+        prod = prod + a * b
+    out = torch.fft.irfft2(prod, s=(n, n))
+    m = g - t + 1
+    return out[..., :m, :m].to(sat.dtype)
 
 
 def correlate(sat: Tensor, templates: Tensor, method: str = "fft") -> Tensor:
