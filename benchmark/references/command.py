@@ -45,6 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--limit", type=int, help="evaluate only the first N pairs")
     parser.add_argument(
+        "--stride",
+        type=int,
+        default=1,
+        help="evaluate every K-th pair (0, K, 2K, ...: every flight keeps frames); default 1",
+    )
+    parser.add_argument(
         "--verify",
         choices=("sha256", "size", "full"),
         default="sha256",
@@ -82,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"unknown reference {args.name!r}; known: {', '.join(list_references())}")
     if args.limit is not None and args.limit < 1:
         raise UsageError(f"--limit must be >= 1, got {args.limit}")
+    if args.stride < 1:
+        raise UsageError(f"--stride must be >= 1, got {args.stride}")
     options = _parse_options(args.options)
     try:
         reference = create_reference(args.name, **options)
@@ -99,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         dataset = PairDataset(args.data, args.split, verify=args.verify, satellite=args.satellite)
         fallback = fallback_pose(PairDataset(args.data, train_split, verify=args.verify))
-        rows = None if args.limit is None else list(range(min(args.limit, len(dataset))))
+        rows = list(range(0, len(dataset), args.stride))[: args.limit]
         summary, _ = evaluate_reference(
             reference,
             dataset,
@@ -118,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
                 "split": args.split,
                 "satellite": args.satellite,
                 "train_split": train_split,
+                "stride": args.stride,
                 "summary": summary,
             }
             text = json.dumps(record, indent=1, sort_keys=True) + "\n"

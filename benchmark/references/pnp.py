@@ -25,6 +25,7 @@ horizontally -> failed (the evaluation then gives the frame the constant predict
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import cv2
@@ -90,6 +91,9 @@ class FeaturePnP(Reference):
         self._features = self._make_detector()
         norm = cv2.NORM_L2 if detector == "sift" else cv2.NORM_HAMMING
         self._matcher = cv2.BFMatcher(norm)
+        # Satellite keypoints by image content: a split serves a few dozen distinct images to
+        # hundreds of pairs, so each is described once (the cache holds the last 64).
+        self._sat_cache: dict[bytes, tuple[np.ndarray, np.ndarray | None]] = {}
 
     def options(self) -> dict[str, object]:
         return {
@@ -124,7 +128,12 @@ class FeaturePnP(Reference):
     def matches(self, frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         """Ratio-test matches: ``(uav (M, 2), sat (M, 2))`` pixel coordinates."""
         p_uav, d_uav = self.keypoints(frame.uav)
-        p_sat, d_sat = self.keypoints(frame.sat)
+        key = hashlib.blake2b(np.ascontiguousarray(frame.sat).tobytes(), digest_size=16).digest()
+        if key not in self._sat_cache:
+            if len(self._sat_cache) >= 64:
+                self._sat_cache.pop(next(iter(self._sat_cache)))
+            self._sat_cache[key] = self.keypoints(frame.sat)
+        p_sat, d_sat = self._sat_cache[key]
         if d_uav is None or d_sat is None or len(p_sat) < 2:
             return np.zeros((0, 2)), np.zeros((0, 2))
         pairs = self._matcher.knnMatch(d_uav, d_sat, k=2)
