@@ -147,6 +147,7 @@ def run(args: argparse.Namespace) -> int:
         + "".join(f", {k}={summary[k]:.3f}" for k in summary if k.startswith("acc_"))
         + f", failure_rate={summary['failure_rate']:.3f}"
         + f", frames_per_s={summary.get('frames_per_s', float('nan')):.1f}"
+        + f", cpu_ms_per_frame={summary['cpu_ms_per_frame']:.0f}"
     )
     if args.out is not None:
         print(f"per-frame predictions in {args.out}", file=sys.stderr)
