@@ -75,7 +75,8 @@ def train_config(
     job: Job, profile: ReproProfile, seed: int, data_root: Path, splits: list[str]
 ) -> TrainConfig:
     """The unit config of ``job``: the row's model at the profile's width, the profile's
-    optimiser, one torch thread, validation on the training family's val split."""
+    optimiser, device and precision, one torch thread, validation on the training family's val
+    split."""
     return TrainConfig(
         data=DataConfig(
             root=str(data_root),
@@ -88,6 +89,8 @@ def train_config(
         optim=profile.optim,
         seed=seed,
         threads=1,
+        device=profile.device,
+        precision=profile.precision,
     )
 
 

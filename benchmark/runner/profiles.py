@@ -31,6 +31,11 @@ class ReproProfile:
     optim: OptimConfig
     seeds: int = 1  # default number of seeds
     dataset_size: int | None = None  # standard-split pairs; None: the dataset profile's own
+    # Where and in what precision every unit trains (``TrainConfig.device``/``precision``; set by
+    # ``reproduce --device/--precision``). The device is never part of a unit's identity; a
+    # precision other than fp32 is (a bf16 unit is another model).
+    device: str = "auto"
+    precision: str = "auto"
 
 
 PROFILES: dict[str, ReproProfile] = {

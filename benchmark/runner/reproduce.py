@@ -10,6 +10,7 @@ figures, the raw CSV and a claim-by-claim summary under ``--out``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import platform
 import sys
 import time
@@ -70,6 +71,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="log no trained model to the tracker (about 15 MB each at the smoke/quick width; "
         "the checkpoints stay in --workdir)",
+    )
+    parser.add_argument(
+        "--device",
+        default="auto",
+        help="where every unit trains and evaluates: auto (CUDA, else MPS, else CPU), cpu, cuda, "
+        "cuda:N, mps (default: auto; not part of a unit's identity)",
+    )
+    parser.add_argument(
+        "--precision",
+        default="auto",
+        help="auto, fp32, bf16 or fp16 for every unit (default auto: bf16 on CUDA with bf16, "
+        "fp32 on every CPU); bf16 on a CPU needs native bf16 (avx512_bf16/amx_bf16) or "
+        "UAVBENCH_ALLOW_SLOW_BF16=1; a precision other than fp32 trains other units",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     add_executor_arguments(parser)
@@ -136,8 +150,27 @@ def _check_data(root: Path, profile: ReproProfile, args: argparse.Namespace) -> 
         raise _data_error(root, profile, args.dataset_seed, err) from None
 
 
+def _with_device(profile: ReproProfile, device: str, precision: str) -> ReproProfile:
+    """``profile`` training on ``device`` in ``precision``, checked before any work: a bad name,
+    a device this machine lacks or bf16 on a CPU without native bf16 is one line (exit 2)."""
+    from benchmark.models.device import (
+        check_precision_name,
+        check_precision_supported,
+        resolve_device,
+        resolve_precision,
+    )
+
+    try:
+        check_precision_name(precision)
+        resolved = resolve_device(device)
+        check_precision_supported(resolve_precision(precision, resolved), resolved)
+    except ValueError as err:
+        raise UsageError(f"reproduce: {err}") from None
+    return dataclasses.replace(profile, device=device, precision=precision)
+
+
 def run(args: argparse.Namespace) -> int:
-    profile = get_repro_profile(args.profile)
+    profile = _with_device(get_repro_profile(args.profile), args.device, args.precision)
     if args.seeds is not None and args.seeds < 1:
         raise UsageError(f"--seeds must be >= 1, got {args.seeds}")
     if args.jobs < 1:

@@ -1,0 +1,81 @@
+"""``uavbench reproduce --device/--precision`` (issue 20): every unit trains in the precision
+asked for, its runs say so, and a precision the machine cannot run is refused before any work.
+
+The bf16 reproduction runs on every machine: where the CPU has no native bf16 (``avx512_bf16`` /
+``amx_bf16``) it sets ``UAVBENCH_ALLOW_SLOW_BF16=1``, the documented way to run bf16 anyway.
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from benchmark.cli import main
+from benchmark.models import precision_support
+from benchmark.models.precision_support import cpu_bf16_level
+from benchmark.runner import outputs as outputs_module
+
+AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
+
+
+def reproduce(tmp_path, dataset, *extra: str) -> int:
+    return main([
+        "reproduce", "--profile", "smoke", "--data", str(dataset), "--out",
+        str(tmp_path / "reports"), "--workdir", str(tmp_path / "runs"), "--tracker", "local",
+        "--quiet", "--jobs", "1", "--seeds", "1", "--no-models", "--only", "fig7", *extra,
+    ])  # fmt: skip
+
+
+def unit_runs(tmp_path) -> list[dict]:
+    """The run records of the trained units (those with a device tag)."""
+    runs = [json.loads(p.read_text()) for p in (tmp_path / "tracking-local").rglob("run.json")]
+    return [r for r in runs if "device" in r["tags"]]
+
+
+class TestRefusedBeforeAnyWork:
+    def test_unknown_precision_is_one_line(self, tmp_path, smoke_dataset, capsys):
+        assert reproduce(tmp_path, smoke_dataset, "--precision", "fp8") == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1
+        assert "precision must be one of auto, fp32, bf16, fp16, got 'fp8'" in err
+        assert not (tmp_path / "runs").exists()
+
+    def test_bf16_without_native_units_names_the_instruction_set(
+        self, tmp_path, smoke_dataset, capsys, monkeypatch
+    ):
+        monkeypatch.delenv("UAVBENCH_ALLOW_SLOW_BF16", raising=False)
+        monkeypatch.setattr(precision_support, "cpu_flags", lambda: set(AVX2_ONLY))
+        assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "bf16") == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "avx512_bf16" in err and "avx2" in err
+        assert "UAVBENCH_ALLOW_SLOW_BF16" in err
+        assert not (tmp_path / "runs").exists()
+
+    @pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
+    def test_missing_device_is_one_line(self, tmp_path, smoke_dataset, capsys):
+        assert reproduce(tmp_path, smoke_dataset, "--device", "cuda:1") == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "cuda:1" in err
+
+
+@pytest.mark.slow
+class TestBf16SmokeReproduction:
+    def test_units_train_in_bf16_and_are_tagged(self, tmp_path, smoke_dataset, monkeypatch):
+        if cpu_bf16_level() != "native":
+            monkeypatch.setenv("UAVBENCH_ALLOW_SLOW_BF16", "1")
+        monkeypatch.setattr(
+            outputs_module, "heading_cue_report", lambda root: ("# Heading-cue audit\n", [])
+        )
+        monkeypatch.chdir(tmp_path)  # the local tracking store lives in the working directory
+        assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "bf16") == 0
+        bf16 = unit_runs(tmp_path)
+        assert bf16 and {r["tags"]["precision"] for r in bf16} == {"bf16"}
+        assert {r["status"] for r in bf16} == {"FINISHED"}
+        assert "fig7.md" in {p.name for p in (tmp_path / "reports").iterdir()}
+        # fp32 units are other models: a second reproduction trains them instead of reusing bf16
+        assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "fp32") == 0
+        runs = unit_runs(tmp_path)
+        fp32_keys = {r["tags"]["run_key"] for r in runs if r["tags"]["precision"] == "fp32"}
+        assert fp32_keys and not fp32_keys & {r["tags"]["run_key"] for r in bf16}
