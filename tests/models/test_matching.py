@@ -256,3 +256,66 @@ class TestEveryAttitudeHead:
                                           context=_context(3)))  # fmt: skip
         eye = torch.eye(3).expand(3, 3, 3)
         torch.testing.assert_close(R_hat @ R_hat.transpose(1, 2), eye, atol=1e-4, rtol=0)
+
+
+class TestContextFields:
+    def test_items_carry_the_geometry_and_seeded_priors(self, smoke_dataset):
+        from benchmark.data.dataset import PRIOR_SIGMA, PairDataset
+
+        ds = PairDataset(smoke_dataset, "standard/train", verify="size")
+        sat = ds.sat_table.set_index("sat_index")
+        noise = []
+        for i in range(len(ds)):
+            item, row = ds[i], ds.poses.iloc[i]
+            ctx = item["context"]
+            assert float(ctx["fov"]) == pytest.approx(
+                math.radians(ds.manifest["profile"]["fov_deg"])
+            )
+            s = sat.loc[int(item["sat_id"])]
+            assert ctx["sat_footprint_m"].tolist() == [s.footprint_E_m, s.footprint_N_m]
+            assert float(ctx["sat_height_m"]) == s.height_m
+            truth = [row.pitch, row.roll, row.dU + row.sat_height_m]
+            got = [*ctx["prior_attitude"].tolist(), float(ctx["prior_altitude_m"])]
+            noise.append(np.subtract(got, truth) / np.asarray(PRIOR_SIGMA))
+        z = np.asarray(noise)
+        assert np.all(np.abs(z) < 5) and np.abs(z).mean() > 0.3  # noisy, at the stated scale
+        again = PairDataset(smoke_dataset, "standard/train", verify="size")[3]["context"]
+        torch.testing.assert_close(again, ds[3]["context"])  # the same priors for every model
+        other = PairDataset(smoke_dataset, "frames/train", verify="size")
+        a = other[3]["context"]["prior_attitude"] - other[3]["uav_euler"][1:]
+        b = ds[3]["context"]["prior_attitude"] - ds[3]["uav_euler"][1:]
+        assert not torch.equal(a, b)  # another split, other noise
+
+    def test_swap_serves_the_swapped_images_geometry_and_keeps_the_priors(self, smoke_dataset):
+        from benchmark.data.dataset import PairDataset
+
+        true = PairDataset(smoke_dataset, "towns/train", verify="size")
+        swap = PairDataset(smoke_dataset, "towns/train", verify="size", satellite="swap")
+        sat = swap.sat_table.set_index("sat_index")
+        for i in range(len(swap)):
+            item = swap[i]
+            s = sat.loc[int(item["sat_id"])]
+            assert item["context"]["sat_footprint_m"].tolist() == [s.footprint_E_m, s.footprint_N_m]
+            torch.testing.assert_close(item["context"]["prior_attitude"],
+                                       true[i]["context"]["prior_attitude"])  # fmt: skip
+
+
+class TestTrainEndToEnd:
+    def test_train_and_evaluate_pass_the_context(self, smoke_dataset, tmp_path):
+        from benchmark.training.config import load_train_config
+        from benchmark.training.pipeline import train_and_evaluate
+
+        cfg = load_train_config(
+            None,
+            [
+                f"data.root={smoke_dataset}", "data.limit_train=8", "data.limit_val=4",
+                "data.verify=size", "model.encoder=matching", "model.variant=/",
+                "model.encoder_options.protocol=gravity_aided", "model.attitude=re_net_r",
+                "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
+                "optim.epochs=1", "threads=1",
+            ],
+        )  # fmt: skip
+        done = train_and_evaluate(cfg, tmp_path / "run", ["standard/test"])
+        history = done.trained.history[0]
+        assert {"train_loss_enc_volume", "train_loss_enc_gravity", "val_loss_enc"} <= set(history)
+        assert math.isfinite(done.metrics["standard/test"]["median_dpsi_deg"])
