@@ -9,9 +9,9 @@ times full SGD steps (forward, Algorithm 1 loss, backward, update) of
   (``sat_ids``), as ``benchmark.training`` trains;
 - ours bf16: the same under ``torch.autocast`` bf16 (weights, optimiser state and the loss stay
   float32; the heads' outputs are cast back to float32 before the loss, as training does),
-- base fp32 (CPU only): ours fp32 as it ran before issue 20, the optimiser's per-tensor Python
-  loop (torch's CPU default) instead of ``make_optimizer``'s ``foreach`` (same weights bit for bit,
-  see ``benchmark.training.loop.make_optimizer``): the before/after of that change, side by side,
+- base fp32 (CPU, ``--optimizer adam``): ours fp32 as it ran before issue 20, the optimiser's
+  per-tensor Python loop (torch's CPU default) instead of ``make_optimizer``'s ``foreach`` (same
+  weights bit for bit; ``loop.CPU_FOREACH``): the before/after of that change, side by side,
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
 (``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step, so
@@ -66,13 +66,21 @@ class LoopSpec:
 
 
 def loop_specs(
-    precisions: Sequence[str], device: torch.device, plain: bool, base: bool
+    precisions: Sequence[str],
+    device: torch.device,
+    plain: bool,
+    base: bool,
+    optimizer: str = "sgd",
 ) -> list[LoopSpec]:
-    """The loops of a run, in print order: plain fp32, base fp32 (CPU only: the foreach change
-    is a CPU one), ours in each precision. Plain and base use torch's default optimiser loop."""
+    """The loops of a run, in print order: plain fp32, base fp32, ours in each precision. Plain
+    and base use torch's default optimiser loop; base is there only where ``make_optimizer``
+    chooses otherwise (on the CPU for Adam: ``loop.CPU_FOREACH``), so it times the change."""
+    from benchmark.training.loop import CPU_FOREACH
+
     default = False if device.type == "cpu" else None  # torch's own default on that device
     specs = [LoopSpec("plain fp32", "fp32", False, False, default)] if plain else []
-    if base and device.type == "cpu" and "fp32" in precisions:
+    changed = device.type == "cpu" and CPU_FOREACH.get(OPTIMIZERS[optimizer]["name"]) is True
+    if base and changed and "fp32" in precisions:
         specs.append(LoopSpec("base fp32", "fp32", True, True, False))
     specs += [LoopSpec(f"ours {p}", p, True, True, None) for p in precisions]
     return specs
@@ -110,7 +118,7 @@ def parser() -> argparse.ArgumentParser:
                    "where the device supports bf16, else fp32 and the reason)")  # fmt: skip
     p.add_argument("--no-plain", action="store_true", help="skip the plain reference loop")
     p.add_argument("--no-base", action="store_true", help="skip the base row (ours fp32 before "
-                   "issue 20: per-tensor optimiser loop)")  # fmt: skip
+                   "issue 20: per-tensor optimiser loop; with --optimizer adam)")  # fmt: skip
     p.add_argument("--optimizer", choices=sorted(OPTIMIZERS), default="sgd", help="sgd: the "
                    "paper's SGD, momentum 0.9, lr 1e-3 (default); adam: the quick profile's Adam, "
                    "lr 3e-4, gradient norm clipped at 10")  # fmt: skip
@@ -243,7 +251,8 @@ def measure(
 
     batch = batch_of(size, args.batch_size, args.distinct_sat, device)
     clip = optim_config(args).grad_clip
-    specs = loop_specs(precisions, device, not args.no_plain, not getattr(args, "no_base", False))
+    base = not getattr(args, "no_base", False)
+    specs = loop_specs(precisions, device, not args.no_plain, base, args.optimizer)
     loops: dict[str, tuple[str, Callable[[], float]]] = {}
     for spec in specs:
         model, opt = build(size, width, args, spec, device)
