@@ -170,27 +170,39 @@ def _dft_matrices(t: int, g: int, device: str) -> tuple[Tensor, ...]:
     return tuple(x.to(device=device, dtype=torch.complex64) for x in mats)
 
 
+def _spectrum_t(x: Tensor, cols: Tensor, rows: Tensor) -> Tensor:
+    """``(N, s, s)`` real maps -> their (half) 2D DFTs *transposed*, ``(N, V, L)`` complex64: two
+    plain GEMMs, ``(N s, s) @ (s, V)`` along the columns, then ``(N V, s) @ (s, L)`` along the
+    rows (keeping the spectrum transposed avoids broadcasting the row matrix over N)."""
+    n, size = x.shape[0], x.shape[-1]
+    y = (x.to(torch.complex64).reshape(n * size, size) @ cols).view(n, size, -1)  # (N, i, V)
+    y = y.transpose(1, 2).reshape(-1, size)  # (N V, i)
+    return (y @ rows.transpose(0, 1)).view(n, -1, rows.shape[0])
+
+
 def correlate_dft(sat: Tensor, templates: Tensor) -> Tensor:
     """:func:`correlate_fft` with the transforms as matrix products: the DFT of a template
     supported on ``t x t`` cells, padded to ``L x L``, is ``E_L,t T E_t,L/2+1`` (no work on the
-    zero padding), and the inverse is evaluated only at the ``m x m`` kept outputs. Large complex
-    GEMMs instead of many small FFTs: about 1.5x faster than :func:`correlate_fft` here for a
-    training step (36 yaws, 8 channels, 25 x 25 templates on a 63 x 63 grid). complex64, so
+    zero padding), and the inverse is evaluated only at the ``m x m`` kept outputs. A few large
+    complex GEMMs instead of many small FFTs: 1.2-1.5x faster than :func:`correlate_fft` for a
+    training step here (36 yaws, 8 channels, 25 x 25 templates on a 63 x 63 grid). complex64, so
     ~1e-6 relative error like the FFT in float32."""
     b, k, c, t, _ = templates.shape
     g = sat.shape[-1]
     cols_t, rows_t, cols_g, rows_g, inv_rows, inv_cols = _dft_matrices(t, g, str(sat.device))
-    ctype = torch.complex64
-    # Forward transforms as big GEMMs: (B K C t, t) @ (t, V), then (L, t) @ (t, ...) batched.
-    ft = (templates.to(ctype).reshape(-1, t) @ cols_t).view(b * k * c, t, -1)
-    ft = torch.matmul(rows_t, ft).view(b, k, c, rows_t.shape[0], -1).conj()
-    fs = (sat.to(ctype).reshape(-1, g) @ cols_g).view(b * c, g, -1)
-    fs = torch.matmul(rows_g, fs).view(b, 1, c, rows_g.shape[0], -1)
+    ft = _spectrum_t(templates.reshape(-1, t, t), cols_t, rows_t)
+    ft = ft.view(b, k, c, *ft.shape[1:]).conj()  # (B, K, C, V, L)
+    fs = _spectrum_t(sat.reshape(-1, g, g), cols_g, rows_g)
+    fs = fs.view(b, 1, c, *fs.shape[1:])
     ft_c, fs_c = ft.unbind(2), fs.unbind(2)  # channel by channel (see correlate_fft)
     prod = ft_c[0] * fs_c[0]
     for x, y in zip(ft_c[1:], fs_c[1:], strict=True):
-        prod = prod + x * y
-    return (inv_rows @ prod @ inv_cols).real.to(sat.dtype)
+        prod = prod + x * y  # (B, K, V, L)
+    half, n = prod.shape[-2:]
+    m = inv_rows.shape[0]
+    q = (prod.reshape(-1, n) @ inv_rows.transpose(0, 1)).view(b * k, half, m)  # rows -> y
+    out = q.transpose(1, 2).reshape(-1, half) @ inv_cols  # columns -> x: (B K m, m)
+    return out.real.view(b, k, m, m).to(sat.dtype)
 
 
 def correlate(sat: Tensor, templates: Tensor, method: str = "dft") -> Tensor:
