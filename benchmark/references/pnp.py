@@ -48,7 +48,8 @@ class FeaturePnP(Reference):
 
     Options: ``detector`` ("sift"), ``ratio`` (0.8), ``upscale`` (2.0), ``min_inliers`` (6),
     ``reprojection_px`` (3.0, in original UAV pixels), ``iterations`` (1000),
-    ``max_distance_m`` (3000).
+    ``max_distance_m`` (3000). Its score is the number of RANSAC inliers (of ratio-test matches
+    when it failed).
     """
 
     name = "feature_pnp"

@@ -1,5 +1,5 @@
 """Gravity-aided classical matching: a bird's-eye template of the UAV view searched over the whole
-satellite image at every yaw with OpenCV.
+satellite image at every yaw (OpenCV's masked TM_CCOEFF_NORMED, computed for all yaws at once).
 
 Given: the true pitch and roll (what an IMU gives) and the true height above the ground plane (an
 altimeter). Estimated: the yaw and the horizontal position (dE, dN); dU, pitch and roll are the
@@ -8,16 +8,19 @@ given ones, so dtheta, dgamma and dU are 0 by construction.
 Method. The UAV pixels whose rays meet the ground within ``max_range_m`` are cast onto the plane
 (``benchmark.references.ground``). For each candidate yaw their offsets from the UAV are turned,
 converted to satellite pixels (anisotropic: ``footprint / size`` metres per column and per row)
-and averaged into the cells of a bird's-eye template on the satellite's own pixel grid
-(``np.bincount``: every UAV pixel counts once, so the near field, where many UAV pixels share a
-cell, is averaged down to the satellite's resolution, and cells no ray reaches are masked out).
-``cv2.matchTemplate(..., TM_CCOEFF_NORMED, mask=...)`` scores every placement over the satellite
-image, padded by the template's size with its mean grey so that a UAV near the image's edge can be
-placed (the padding has no variance, so it adds nothing to the correlation but dilutes it). Grey
-level and Sobel gradient magnitude templates are matched separately and their scores added
-(``gradient_weight``). The best (yaw, placement) over a ``step_deg`` sweep, refined by
-``refine_step_deg`` steps within one coarse step, gives the yaw; the placement, refined to a
-fraction of a pixel by a parabola through the peak and its neighbours, gives the position.
+and averaged into the cells of a bird's-eye template on the satellite's own pixel grid, the UAV at
+its centre cell (``np.bincount``: every UAV pixel counts once, so the near field, where many UAV
+pixels share a cell, is averaged down to the satellite's resolution, and cells no ray reaches are
+masked out). Every placement of the UAV on a satellite pixel is scored by the masked normalised
+cross-correlation, exactly ``cv2.matchTemplate(image, template, TM_CCOEFF_NORMED, mask=mask)``
+on the image padded with its mean grey (so a UAV near the image's edge can be placed; the padding
+has no variance, so it adds nothing to the correlation but dilutes it): :func:`masked_ncc_map`
+computes it by FFT for all yaws in one batch instead of one ``matchTemplate`` call per yaw (the
+tests compare the two). Optionally a Sobel gradient magnitude template
+is matched too and its score added (``gradient_weight``). The best (yaw, placement) over a
+``step_deg`` sweep, refined by ``refine_step_deg`` steps within one coarse step, gives the yaw;
+the placement, refined to a fraction of a pixel by a parabola through the peak and its
+neighbours, gives the position.
 """
 
 from __future__ import annotations
