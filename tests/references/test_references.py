@@ -1,11 +1,12 @@
 """Each reference on rendered pairs (``scene.py``: a town at the quick profile's 96 px).
 
-Tolerances, stated: the oracle's yaw within 5 deg (one step of its sweep) on at least 60 % of the
-oblique views, and within 5 deg on at most 30 % when it is served another place's image; the
-gravity-aided template's yaw within 5 deg and position within 25 m on at least 60 % of the steep
-and near-nadir views (from oblique views at 96 px it often fails: that is what the tables show);
-feature matching + PnP within 10 deg and 20 m on a majority of near-nadir views lit like the
-satellite image (the dataset's independent illuminations defeat it).
+Tolerances, stated: the oracle's yaw within 5 deg (one step of its sweep) on a majority of the
+13 oblique views (9 here; the misses are gross: 78-154 deg), and within 5 deg on at most 30 %
+when it is served another place's image (1 here); the gravity-aided template's yaw within 5 deg
+and position within 25 m on a majority of the 10 steep and near-nadir views (7 here: from
+oblique views at 96 px it often fails, which the tables show); feature matching + PnP within
+10 deg and 20 m on a majority of the near-nadir views lit like the satellite image (5 of 5 here;
+the dataset's independent illuminations defeat it).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ class TestGeometryOracle:
         frames = scene.frames + scene.steep
         results = _errors(GeometryOracle(), frames)
         within = np.mean([e <= 5.0 for e, _, _ in results])
-        assert within >= 0.6, [round(e, 1) for e, _, _ in results]
+        assert within > 0.5, [round(e, 1) for e, _, _ in results]
         for f, (_, _, est) in zip(frames, results, strict=True):
             assert np.array_equal(est.position, f.position)  # given, returned as is
             # pitch and roll given: the body's forward axis has the true elevation
@@ -75,7 +76,7 @@ class TestGeometryOracle:
             scores = oracle.yaw_scores(frame, yaws)
             best = math.degrees(math.remainder(yaws[int(np.argmax(scores))] - f.yaw, 2 * math.pi))
             assert abs(best) <= 5.0, best
-            assert scores[36] > np.median(scores) + 0.3  # yaws[36] is the true yaw
+            assert scores[36] > np.median(scores) + 0.2  # yaws[36] is the true yaw (0.33-0.48)
 
 
 class TestGravityTemplate:
@@ -83,7 +84,7 @@ class TestGravityTemplate:
         frames = scene.steep + scene.nadir
         results = _errors(create_reference("gravity_template"), frames)
         good = [e <= 5.0 and d <= 25.0 for e, d, _ in results]
-        assert np.mean(good) >= 0.6, [(round(e, 1), round(d, 1)) for e, d, _ in results]
+        assert np.mean(good) > 0.5, [(round(e, 1), round(d, 1)) for e, d, _ in results]
         for f, (_, _, est) in zip(frames, results, strict=True):
             assert est.position[2] == f.position[2]  # the altitude is given
             assert est.R_bn[2, 1] == pytest.approx(math.sin(f.pitch), abs=1e-12)
