@@ -171,6 +171,31 @@ def test_forced_baseline_isa_render_has_the_default_manifest(smoke_dataset, tmp_
     )
 
 
+def test_written_metadata_holds_no_machine_facts(smoke_dataset):
+    """The manifest, the config and the parquet files' key-value metadata name the code and the
+    library versions only: no host, CPU, user, path or date that would differ between machines."""
+    import getpass
+    import platform
+    import socket
+    import time
+
+    import pyarrow.parquet as pq
+
+    from benchmark.data.bench_isa import _cpu_model
+
+    texts = {n: (smoke_dataset / n).read_text() for n in ("manifest.json", "config.json")}
+    for name in ("uav.parquet", "sat.parquet", "pairs.parquet"):
+        meta = pq.read_metadata(smoke_dataset / name)
+        texts[name] = meta.created_by + "".join(
+            k.decode() + v.decode(errors="replace") for k, v in (meta.metadata or {}).items()
+        )
+    facts = {socket.gethostname(), _cpu_model(), platform.node(), getpass.getuser()}
+    facts |= {str(smoke_dataset.parent), time.strftime("%Y-%m-%d"), time.strftime("%Y%m%d")}
+    for name, text in texts.items():
+        found = sorted(f for f in facts if len(f) >= 4 and f in text)
+        assert not found, f"{name} holds machine facts {found}"
+
+
 class TestBenchIsa:
     def test_registered_as_a_bench_target(self):
         from benchmark.bench import TARGET_HELP, TARGETS
