@@ -43,12 +43,19 @@ UNARY = [
 ]
 
 
-def _libm_hypot(x: float, y: float) -> float:
-    """glibc's hypot through ctypes: CPython's math.hypot is its own algorithm, not libm's."""
+def _load_libm_hypot():
     libm = ctypes.CDLL(ctypes.util.find_library("m"))
     libm.hypot.restype = ctypes.c_double
     libm.hypot.argtypes = [ctypes.c_double, ctypes.c_double]
-    return libm.hypot(x, y)
+    return libm.hypot
+
+
+_LIBM_HYPOT = _load_libm_hypot()
+
+
+def _libm_hypot(x: float, y: float) -> float:
+    """glibc's hypot through ctypes: CPython's math.hypot is its own algorithm, not libm's."""
+    return _LIBM_HYPOT(x, y)
 
 
 BINARY = [
