@@ -1,7 +1,7 @@
 """``uavbench bench train``: training throughput per precision, against a plain reference loop.
 
 For each model (quick: 96 px, width 0.25; paper: 224 px, width 1.0; both Pd/Re-Net with AGTFM) it
-times full SGD steps (forward, Algorithm 1 loss, backward, update) of
+times full training steps (forward, Algorithm 1 loss, backward, optimiser update) of
 
 - plain: the same architecture and initial weights in the default memory format, every satellite
   image encoded (no sharing), float32: what a plain PyTorch loop would do;

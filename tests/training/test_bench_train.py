@@ -216,6 +216,18 @@ class TestCountStepFlops:
         assert count_step_flops(step) == 2 * 2 * 64 * 4 * 27
 
 
+def test_optimizers_are_the_profiles():
+    """--optimizer adam is the quick profile's optimiser, sgd the paper profile's (the bench
+    keeps its own copy: training may not import the runner)."""
+    from benchmark.runner.profiles import PROFILES
+
+    for name, profile in (("adam", "quick"), ("sgd", "paper")):
+        args = bench.parser().parse_args(["--optimizer", name])
+        got, want = bench.optim_config(args), PROFILES[profile].optim
+        assert (got.name, got.lr, got.grad_clip) == (want.name, want.lr, want.grad_clip)
+        assert got.momentum == want.momentum and got.weight_decay == want.weight_decay
+
+
 def test_batch_is_deterministic():
     a, b = bench.batch_of(32, 6, 3), bench.batch_of(32, 6, 3)
     assert all(torch.equal(a[k], b[k]) for k in a)
