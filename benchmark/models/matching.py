@@ -57,6 +57,7 @@ __all__ = ["PROTOCOLS", "MatchingEncoder", "matching"]
 PROTOCOLS = ("vision_only", "gravity_aided")
 GRAVITY_SCALE = (math.radians(2.0), math.radians(2.0), 5.0)  # loss units: 2 deg, 2 deg, 5 m
 MASKED = -1.0e4  # log-score of excluded positions (finite: 0 * MASKED stays 0 in the loss)
+TEMPERATURE_GAIN = 10.0  # learning-rate multiplier of the log-temperature
 ALTITUDE_PRIOR_M = 100.0  # the gravity branch's initial height (flights: 80-120 m)
 
 
@@ -174,7 +175,9 @@ class MatchingEncoder(PairEncoder):
         self.gravity_out = nn.Linear(gravity_dim, 3)
         nn.init.zeros_(self.gravity_out.weight)
         nn.init.zeros_(self.gravity_out.bias)
-        self.log_temperature = nn.Parameter(torch.tensor(math.log(temperature)))
+        # tau = exp(TEMPERATURE_GAIN * s): Adam moves s by ~lr per step, so without the gain the
+        # temperature could change by only ~30 % in an epoch of 300 steps at lr 1e-3.
+        self.log_temperature = nn.Parameter(torch.tensor(math.log(temperature) / TEMPERATURE_GAIN))
         yaws = torch.arange(self.n_yaw, dtype=torch.float64) * (2 * math.pi / self.n_yaw)
         self.register_buffer("yaws", yaws.float(), persistent=False)
         n = self.search_cells
@@ -288,7 +291,7 @@ class MatchingEncoder(PairEncoder):
         grid = nnf.normalize(grid, dim=1)
         corr = correlate(grid, templates, self.correlation)  # (B, K, P, P)
         count = mask.flatten(2).sum(-1).clamp(min=1).to(corr.dtype)  # valid cells per template
-        scores = corr / count[..., None, None] * self.log_temperature.exp()
+        scores = corr / count[..., None, None] * (TEMPERATURE_GAIN * self.log_temperature).exp()
         half = 0.5 * footprint_m
         inside = (self.pos_n.abs()[None, :, None] <= half[:, 1, None, None]) & (
             self.pos_e.abs()[None, None, :] <= half[:, 0, None, None]
