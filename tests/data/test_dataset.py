@@ -260,9 +260,33 @@ class TestSwapTargets:
         ]
     )
 
-    def test_standard_is_the_next_centre_of_the_same_city(self):
+    def test_standard_takes_the_other_city_of_the_split(self):
+        # a city's centres overlap (400-900 m apart, 2 km x 1 km images): never the same city
         got = swap_targets(self.TABLE, "standard/test", [0, 1, 2, 3, 4])
-        assert got == {0: 1, 1: 2, 2: 0, 3: 4, 4: 3}
+        cities = self.TABLE.set_index("sat_index")["city"]
+        assert {k: cities[v] for k, v in got.items()} == {
+            0: "cambridge",
+            1: "cambridge",
+            2: "cambridge",
+            3: "oxford",
+            4: "oxford",
+        }
+        assert len({got[0], got[1], got[2]}) == 2 and got[3] != got[4]  # spread by rank
+
+    def test_one_city_takes_a_centre_whose_footprint_does_not_overlap(self):
+        # an oxford-only split: centres 0 and 1 overlap (1 km apart east, footprints 2 km wide),
+        # centre 2 lies 1.2 km north of both (footprints 1 km tall): only 2 <-> {0, 1} qualify
+        table = self.TABLE.assign(E=0.0, N=0.0)
+        table.loc[1, "E"] = 1000.0
+        table.loc[2, ["E", "N"]] = (500.0, 1200.0)
+        got = swap_targets(table, "standard/test", [0, 1, 2])
+        assert got[0] == 2 and got[1] == 2 and got[2] in (0, 1)
+
+    def test_one_city_without_a_disjoint_centre_takes_another_paper_city(self):
+        table = self.TABLE.assign(E=0.0, N=0.0)  # every oxford centre on the same ground
+        got = swap_targets(table.iloc[:3].pipe(lambda t: pd.concat([t, table.iloc[3:5]])),
+                           "pitch-0to-10/test", [0])  # fmt: skip
+        assert got[0] in (3, 4)
 
     def test_generalized_takes_a_paper_city_outside_the_split(self):
         got = swap_targets(self.TABLE, "generalized/test", [5, 6])
@@ -307,10 +331,16 @@ class TestSatelliteSwap:
                 assert not torch.equal(a["sat"], b["sat"]), (split, i)  # other pixels
                 place = (sat.city[s_true], sat.centre[s_true])
                 assert (sat.city[s_swap], sat.centre[s_swap]) != place, split
-                assert sat.height_m[s_swap] == sat.height_m[s_true], split
+                same_height = sat[sat.height_m == sat.height_m[s_true]]
+                if (same_height.city != sat.city[s_true]).any():  # smoke's height splits: none
+                    assert sat.height_m[s_swap] == sat.height_m[s_true], split
                 if split == "generalized/test":
                     assert sat.city[s_swap] != sat.city[s_true]
                     assert sat.city[s_swap] in ("oxford", "cambridge")
+                if sat.city[s_swap] == sat.city[s_true]:  # same world: footprints disjoint
+                    d_e = abs(sat.E[s_swap] - sat.E[s_true])
+                    d_n = abs(sat.N[s_swap] - sat.N[s_true])
+                    assert d_e >= sat.footprint_E_m[s_true] or d_n >= sat.footprint_N_m[s_true]
 
     def test_deterministic(self, smoke_root):
         for split in ("standard/test", "generalized/test"):
