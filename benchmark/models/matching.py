@@ -114,7 +114,7 @@ class MatchingEncoder(PairEncoder):
         out_channels: int = 8,
         gravity_dim: int = 32,
         smoothing: float = 0.5,
-        temperature: float = 20.0,
+        temperature: float = 50.0,
         correlation: str = "dft",
         default_fov_deg: float = 60.0,
         default_footprint_m: tuple[float, float] = (2000.0, 1000.0),
@@ -398,7 +398,7 @@ def matching(
     out_channels: int = 8,
     gravity_dim: int = 32,
     smoothing: float = 0.5,
-    temperature: float = 20.0,
+    temperature: float = 50.0,
     correlation: str = "dft",
 ) -> MatchingEncoder:
     """The matching encoder (module docstring). ``variant`` must be ``"/"``: the encoder has one
