@@ -18,7 +18,7 @@ import numpy as np
 from benchmark.references.ground import SatelliteGrid
 from benchmark.sim import Camera
 
-__all__ = ["Estimate", "Frame", "Reference"]
+__all__ = ["Estimate", "Frame", "Reference", "check_yaw_sweep"]
 
 
 @dataclass(frozen=True)
@@ -80,3 +80,44 @@ class Reference(abc.ABC):
     def options(self) -> dict[str, object]:
         """The options this instance was built with (recorded beside its results)."""
         return {}
+
+
+def check_yaw_sweep(
+    owner: str,
+    *,
+    step_deg: float,
+    refine_step_deg: float,
+    max_range_m: float,
+    gradient_weight: float,
+    uav_blur_px: float,
+    min_count: tuple[str, int],
+) -> dict[str, float | int]:
+    """The options shared by the references that sweep the yaw, checked and normalised.
+
+    ``min_count`` is ``(option name, value)`` of the reference's minimum of valid samples a yaw
+    needs (an integer >= 3). Returns the options by name (floats, the count an int); a bad value
+    raises ValueError naming ``owner``, the option and the range expected.
+    """
+    if not (0 < step_deg <= 90):
+        raise ValueError(f"{owner}: step_deg must be in (0, 90], got {step_deg!r}")
+    if not (0 <= refine_step_deg < step_deg):
+        raise ValueError(
+            f"{owner}: refine_step_deg must be in [0, step_deg), got {refine_step_deg!r}"
+        )
+    if not max_range_m > 0:
+        raise ValueError(f"{owner}: max_range_m must be > 0, got {max_range_m!r}")
+    if not gradient_weight >= 0:
+        raise ValueError(f"{owner}: gradient_weight must be >= 0, got {gradient_weight!r}")
+    if not uav_blur_px >= 0:
+        raise ValueError(f"{owner}: uav_blur_px must be >= 0, got {uav_blur_px!r}")
+    count_name, count = min_count
+    if not (isinstance(count, int) and count >= 3):
+        raise ValueError(f"{owner}: {count_name} must be an integer >= 3, got {count!r}")
+    return {
+        "step_deg": float(step_deg),
+        "refine_step_deg": float(refine_step_deg),
+        "max_range_m": float(max_range_m),
+        "gradient_weight": float(gradient_weight),
+        "uav_blur_px": float(uav_blur_px),
+        count_name: int(count),
+    }

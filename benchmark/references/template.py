@@ -29,7 +29,7 @@ import math
 
 import numpy as np
 
-from benchmark.references.base import Estimate, Frame, Reference
+from benchmark.references.base import Estimate, Frame, Reference, check_yaw_sweep
 from benchmark.references.ground import cast_uav_pixels, rotate_offsets
 from benchmark.references.images import check_rgb, gradient_magnitude, grey
 from benchmark.sim import euler_to_rotmat_np
@@ -132,41 +132,20 @@ class GravityTemplate(Reference):
         uav_blur_px: float = 0.0,
         min_cells: int = 12,
     ) -> None:
-        if not (0 < step_deg <= 90):
-            raise ValueError(f"gravity_template: step_deg must be in (0, 90], got {step_deg!r}")
-        if not (0 <= refine_step_deg < step_deg):
-            raise ValueError(
-                f"gravity_template: refine_step_deg must be in [0, step_deg), got "
-                f"{refine_step_deg!r}"
-            )
-        if not max_range_m > 0:
-            raise ValueError(f"gravity_template: max_range_m must be > 0, got {max_range_m!r}")
-        if not gradient_weight >= 0:
-            raise ValueError(
-                f"gravity_template: gradient_weight must be >= 0, got {gradient_weight!r}"
-            )
-        if not uav_blur_px >= 0:
-            raise ValueError(f"gravity_template: uav_blur_px must be >= 0, got {uav_blur_px!r}")
-        if not (isinstance(min_cells, int) and min_cells >= 3):
-            raise ValueError(
-                f"gravity_template: min_cells must be an integer >= 3, got {min_cells!r}"
-            )
-        self.step_deg = float(step_deg)
-        self.refine_step_deg = float(refine_step_deg)
-        self.max_range_m = float(max_range_m)
-        self.gradient_weight = float(gradient_weight)
-        self.uav_blur_px = float(uav_blur_px)
-        self.min_cells = int(min_cells)
+        self._options = check_yaw_sweep(
+            "gravity_template",
+            step_deg=step_deg,
+            refine_step_deg=refine_step_deg,
+            max_range_m=max_range_m,
+            gradient_weight=gradient_weight,
+            uav_blur_px=uav_blur_px,
+            min_count=("min_cells", min_cells),
+        )
+        for name, value in self._options.items():
+            setattr(self, name, value)
 
     def options(self) -> dict[str, object]:
-        return {
-            "step_deg": self.step_deg,
-            "refine_step_deg": self.refine_step_deg,
-            "max_range_m": self.max_range_m,
-            "gradient_weight": self.gradient_weight,
-            "uav_blur_px": self.uav_blur_px,
-            "min_cells": self.min_cells,
-        }
+        return dict(self._options)
 
     def _prepare(self, frame: Frame) -> dict | None:
         uav = check_rgb(frame.uav, "uav")
