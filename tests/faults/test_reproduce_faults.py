@@ -288,12 +288,12 @@ class TestFailedUnitsInReports:
     ):
         """Every unit fails (as when its data is damaged mid-run): exit 1, no traceback, the
         reports name the failed rows and their cells read ``failed``."""
-        from benchmark.runner import reproduce
+        from benchmark.runner import pool  # the default executor calls pool.run_unit
 
         def fails(task):
             return UnitResult(task.key, False, error="DatasetError: corrupted file x.npy")
 
-        monkeypatch.setattr(reproduce, "run_unit", fails)
+        monkeypatch.setattr(pool, "run_unit", fails)
         monkeypatch.chdir(tmp_path)
         assert main(argv(smoke_dataset, tmp_path, "--tracker", "local", "--jobs", "1")) == 1
         out = capsys.readouterr().out
@@ -303,8 +303,11 @@ class TestFailedUnitsInReports:
         rows = [
             line for line in table3.splitlines() if line.startswith("| ") and "|---" not in line
         ]
-        trained = [r for r in rows if "Constant" not in r and "failed" in r]
+        # the main table's rows, then the swap probe's (first column: the split)
+        probe = [r for r in rows if r.startswith("| `standard/test` |") and "Constant" not in r]
+        trained = [r for r in rows if "Constant" not in r and "failed" in r and r not in probe]
         assert len(trained) == 3 and all("not run" not in r for r in trained)
+        assert len(probe) == 3 and all("failed" in r for r in probe)
         readme = (tmp_path / "reports" / "README.md").read_text()
         assert "3 row(s) failed to train" in readme and "| failed | " in readme
         (journal,) = inv.read_invocations(tmp_path / "runs")
