@@ -14,9 +14,25 @@ momentum, lr 1e-3, batch 20): meant for a GPU.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from benchmark.training.config import OptimConfig
+
+
+@dataclass(frozen=True)
+class SharedEncoder:
+    """Train the profile's encoder once per seed, then every row that uses it trains only its
+    heads on the encoder's frozen features (``TrainConfig.pretrained``).
+
+    The encoder trains end to end in a unit of its own: ``attitude`` (Pd/Re-Net) and the
+    regression translation head on ``train_split`` with ``optim``, the encoder's own loss
+    included (its ``volume_nll_weight``). Its checkpoint is the ``pretrained`` checkpoint of the
+    rows' units, which the runner therefore trains first."""
+
+    optim: OptimConfig
+    train_split: str = "standard/train"
+    attitude: str = "pd_re_net"
 
 
 @dataclass(frozen=True)
@@ -36,6 +52,11 @@ class ReproProfile:
     # precision other than fp32 is (a bf16 unit is another model).
     device: str = "auto"
     precision: str = "auto"
+    # The encoder of every row that names none (``benchmark.runner.specs.VariantSpec.encoder``)
+    # and its options; rows that name an encoder (Fig. 9's GoogLeNet) keep theirs.
+    encoder: str = "googlenet"
+    encoder_options: dict[str, Any] = field(default_factory=dict)
+    shared_encoder: SharedEncoder | None = None  # None: every unit trains end to end
 
 
 PROFILES: dict[str, ReproProfile] = {

@@ -10,8 +10,11 @@ Per variant (row): ``label``, ``paper_model`` and ``attitude`` (a registered att
 required; the other fields describe the model (``benchmark.models.ModelConfig``; the profile sets
 its width, the dataset its input size) or where it trains:
 
-- ``translation`` (default ``regression``), ``encoder`` (default ``googlenet``), ``encoder_variant``
-  (``/``, ``a``, ``f``, ``a-f``; default ``/``), ``aux_weight`` (default 0.3).
+- ``translation`` (default ``regression``), ``encoder`` (default: the profile's,
+  ``benchmark.runner.profiles.ReproProfile.encoder``: the matching encoder in ``quick``, the
+  paper's GoogLeNet in ``smoke`` and ``paper``; a row that names one keeps it, e.g. Fig. 9's
+  ``googlenet``), ``encoder_variant`` (``/``, ``a``, ``f``, ``a-f``; default ``/``),
+  ``aux_weight`` (default 0.3).
 - ``attitude_options``, ``translation_options``, ``encoder_options``: mappings of constructor
   options of that head / encoder, any of them, e.g. ``attitude_options: {kappa: 5, hidden: 512}``,
   ``attitude_options: {direction_weight: 0}`` (with ``attitude: pd_net_e``),
@@ -68,7 +71,7 @@ class VariantSpec:
     paper_model: str
     attitude: str
     translation: str = "regression"
-    encoder: str = "googlenet"
+    encoder: str | None = None  # None: the profile's encoder (and its options)
     encoder_variant: str = "/"
     attitude_options: dict[str, Any] = dataclasses.field(default_factory=dict)
     translation_options: dict[str, Any] = dataclasses.field(default_factory=dict)
@@ -81,12 +84,22 @@ class VariantSpec:
     def __hash__(self) -> int:  # the option dicts are not hashable; their repr is
         return hash(repr(self))
 
-    def model_config(self, width: float = 1.0) -> ModelConfig:
+    def model_config(
+        self,
+        width: float = 1.0,
+        encoder: str = "googlenet",
+        encoder_options: dict[str, Any] | None = None,
+    ) -> ModelConfig:
         """The row's model at encoder ``width`` (the profile's), input size from the dataset.
-        Raises ValueError naming the head and its options when an option does not fit."""
+        A row without ``encoder`` takes ``encoder`` with ``encoder_options`` (the profile's),
+        updated by the row's own ``encoder_options``. Raises ValueError naming the head and its
+        options when an option does not fit."""
+        options = dict(self.encoder_options)
+        if self.encoder is None:
+            options = {**(encoder_options or {}), **options}
         return ModelConfig(
-            encoder=self.encoder,
-            encoder_options=self.encoder_options,
+            encoder=self.encoder or encoder,
+            encoder_options=options,
             variant=self.encoder_variant,
             width=width,
             attitude=self.attitude,
