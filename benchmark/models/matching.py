@@ -42,8 +42,11 @@ the matcher to the heads' loss (the paper's protocol of one loss per head).
 
 from __future__ import annotations
 
+import inspect
 import math
-from collections.abc import Mapping
+import typing
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import torch
 import torch.nn.functional as nnf
@@ -412,53 +415,64 @@ class MatchingEncoder(PairEncoder):
         return self.yaws[flat // (p * p)], self.pos_e[flat % p], self.pos_n[(flat // p) % p]
 
 
+# Arguments every encoder factory takes (``build_model`` passes them; not options).
+_FACTORY_ARGS = ("variant", "width", "input_size")
+
+
+def _class_options(cls: type) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Publish ``cls``'s constructor options (names, defaults, annotations; all but
+    ``input_size``) as the signature of a factory written with ``**options``, so that they are
+    declared once, in the class. ``ModelConfig`` reads options from the factory's signature
+    (``model_config.option_parameters``: unknown names refused, values typed by annotation), and
+    ``inspect.signature`` honours ``__signature__``."""
+    skip = ("self", "input_size")
+
+    def decorate(factory: Callable[..., Any]) -> Callable[..., Any]:
+        own = inspect.signature(factory)
+        fixed = [p for n, p in own.parameters.items() if n in _FACTORY_ARGS]
+        options = [
+            p.replace(kind=inspect.Parameter.KEYWORD_ONLY)
+            for n, p in inspect.signature(cls.__init__).parameters.items()
+            if n not in skip
+        ]
+        factory.__signature__ = own.replace(parameters=[*fixed, *options])  # type: ignore[attr-defined]
+        hints = typing.get_type_hints(cls.__init__)
+        factory.__annotations__ = {
+            **{n: hints[n] for n in (p.name for p in options) if n in hints},
+            **{n: v for n, v in typing.get_type_hints(factory).items() if n != "options"},
+        }
+        return factory
+
+    return decorate
+
+
 @register_encoder("matching")
+@_class_options(MatchingEncoder)
 def matching(
-    variant: str = "/",
-    width: float = 1.0,
-    input_size: int = 96,
-    protocol: str = "vision_only",
-    volume_nll_weight: float = 1.0,
-    gravity_weight: float = 1.0,
-    n_yaw: int = 36,
-    cell_m: float = 20.8,
-    search_m: float = 400.0,
-    template_m: float = 250.0,
-    channels: int = 16,
-    out_channels: int = 8,
-    gravity_dim: int = 32,
-    smoothing: float = 0.5,
-    temperature: float = 50.0,
-    correlation: str = "dft",
+    variant: str = "/", width: float = 1.0, input_size: int = 96, **options: Any
 ) -> MatchingEncoder:
     """The matching encoder (module docstring). ``variant`` must be ``"/"``: the encoder has one
     level (no SE branches, no auxiliary fusion levels). ``width`` is accepted and ignored: the
     profiles' GoogLeNet width multiplier does not apply; ``channels`` / ``out_channels`` size
-    the CNNs. Options: ``protocol`` (``"vision_only"`` the paper's, ``"gravity_aided"``),
-    ``volume_nll_weight`` (0: heads' loss only), ``gravity_weight``, ``n_yaw`` yaw bins,
-    ``cell_m`` grid cell (m), ``search_m`` half-side of the searched square (m), ``template_m``
-    bird's-eye radius (m), ``smoothing`` of the NLL target (cells/bins), ``temperature``
-    (initial), ``correlation`` (``"dft"`` by matrix products, ``"fft"`` or ``"conv"``: the same
-    numbers to float32 rounding; ``dft`` is the fastest on this CPU)."""
+    the CNNs. ``options`` are :class:`MatchingEncoder`'s keyword arguments, with its defaults
+    (the factory's published signature lists them): ``protocol`` (``"vision_only"`` the
+    paper's, ``"gravity_aided"``), ``volume_nll_weight`` (0: heads' loss only),
+    ``gravity_weight``, ``n_yaw`` yaw bins, ``cell_m`` grid cell (m), ``search_m`` half-side of
+    the searched square (m), ``template_m`` bird's-eye radius (m), ``smoothing`` of the NLL
+    target (cells/bins), ``temperature`` (initial), ``correlation`` (``"dft"`` by matrix
+    products, ``"fft"`` or ``"conv"``: the same numbers to float32 rounding; ``dft`` is the
+    fastest on this CPU), ``default_*`` (the geometry assumed without a ``context``)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(
             f"matching encoder: variant {variant!r} is a GoogLeNet variant (SE / fusion levels); "
             "the matching encoder has one level: set variant to '/'"
         )
-    return MatchingEncoder(
-        input_size,
-        protocol=protocol,
-        volume_nll_weight=volume_nll_weight,
-        gravity_weight=gravity_weight,
-        n_yaw=n_yaw,
-        cell_m=cell_m,
-        search_m=search_m,
-        template_m=template_m,
-        channels=channels,
-        out_channels=out_channels,
-        gravity_dim=gravity_dim,
-        smoothing=smoothing,
-        temperature=temperature,
-        correlation=correlation,
-    )
+    accepted = [n for n in inspect.signature(matching).parameters if n not in _FACTORY_ARGS]
+    unknown = sorted(set(options) - set(accepted))
+    if unknown:
+        raise ValueError(
+            f"matching encoder: no option {', '.join(map(repr, unknown))}; it takes: "
+            f"{', '.join(accepted)}"
+        )
+    return MatchingEncoder(input_size, **options)
