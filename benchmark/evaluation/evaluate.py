@@ -64,6 +64,18 @@ def make_loader(
     )
 
 
+def forward_batch(model: torch.nn.Module, batch: dict[str, Any], shared_satellite: bool) -> Any:
+    """``model``'s output for one collated batch: the heads alone on a frozen encoder's cached
+    ``features`` (``benchmark.training.encoded``), else the whole model on the images (with the
+    items' ``context`` for pair encoders)."""
+    # The items' per-sample geometry goes to the model unread here (pair encoders use it).
+    if "features" in batch:
+        return model.forward_features(batch["features"])
+    sat_ids = batch["sat_id"] if shared_satellite else None
+    context = {"context": batch["context"]} if "context" in batch else {}  # pair encoders
+    return model(batch["uav"], batch["sat"], sat_ids, **context)
+
+
 @torch.no_grad()
 def predict(
     model: torch.nn.Module,
@@ -104,11 +116,8 @@ def predict(
             for batch in loader:
                 batch = to_device(batch, device)  # the same dict on the CPU
                 R_gt, T_gt = batch["R"], batch["T"]
-                sat_ids = batch["sat_id"] if shared_satellite else None
-                # The items' per-sample geometry, passed on unread (pair encoders use it).
-                context = {"context": batch["context"]} if "context" in batch else {}
                 with autocast(device, precision):
-                    out = model(batch["uav"], batch["sat"], sat_ids, **context)
+                    out = forward_batch(model, batch, shared_satellite)
                 if precision != "fp32":
                     out = outputs_to_float(out)
                 R_hat, T_hat = model.decode(out)

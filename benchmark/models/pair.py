@@ -43,7 +43,7 @@ from benchmark.models.model_config import (
     ModelConfig,
     check_satellite_input,
 )
-from benchmark.models.pair_encoder import PairEncoder
+from benchmark.models.pair_encoder import PairEncoder, PairEncoding
 from benchmark.models.registry import create_encoder, create_head
 
 __all__ = [
@@ -235,6 +235,35 @@ class PoseModel(nn.Module):
             aux_attitude=aux,
         )
 
+    def encode_pairs(
+        self,
+        uav: Tensor,
+        sat: Tensor,
+        sat_ids: Tensor | None = None,
+        context: Mapping[str, Tensor] | None = None,
+    ) -> PairEncoding:
+        """A pair encoder's output for ``uav, sat (B, 3, H, W)`` in [0, 1] (the satellite input
+        blanked for the UAV-only control, distinct images encoded once): ``features (B, F)``
+        and the extras its loss reads."""
+        if not self.pair_encoder:
+            raise TypeError("encode_pairs is the pair-encoder path; a Siamese encoder uses "
+                            "encode_pair")  # fmt: skip
+        sat, inverse = self._distinct_satellites(uav, sat, sat_ids)
+        if inverse is None:
+            inverse = torch.arange(uav.shape[0], device=uav.device)
+        return self.encoder(self._normalize(uav), self._normalize(sat), inverse, context)
+
+    def forward_features(self, features: Tensor) -> PoseOutput:
+        """The heads on precomputed pair-encoder ``features (B, F)`` (a frozen encoder's,
+        ``benchmark.training.encoded``): the output ``forward`` gives without the encoder's
+        extras, so :meth:`loss` adds no encoder term."""
+        if not self.pair_encoder:
+            raise TypeError("forward_features takes a pair encoder's features; this model has a "
+                            "Siamese encoder")  # fmt: skip
+        return PoseOutput(
+            attitude=self.attitude_head(features), translation=self.translation_head(features)
+        )
+
     def _forward_pair_encoder(
         self,
         uav: Tensor,
@@ -242,15 +271,10 @@ class PoseModel(nn.Module):
         sat_ids: Tensor | None,
         context: Mapping[str, Tensor] | None,
     ) -> PoseOutput:
-        sat, inverse = self._distinct_satellites(uav, sat, sat_ids)
-        if inverse is None:
-            inverse = torch.arange(uav.shape[0], device=uav.device)
-        enc = self.encoder(self._normalize(uav), self._normalize(sat), inverse, context)
-        return PoseOutput(
-            attitude=self.attitude_head(enc.features),
-            translation=self.translation_head(enc.features),
-            encoder=dict(enc.extras),
-        )
+        enc = self.encode_pairs(uav, sat, sat_ids, context)
+        out = self.forward_features(enc.features)
+        out.encoder = dict(enc.extras)
+        return out
 
     def loss(self, output: PoseOutput, R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
         """Algorithm 1: ``total = tran + att``, ``att = att_final + sum_i w_i att_aux{i}``.

@@ -17,19 +17,27 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmark.models.model_config import ModelConfig
 from benchmark.runner.profiles import ReproProfile
 from benchmark.runner.specs import Job, TableSpec
-from benchmark.training.config import DataConfig, TrainConfig
+from benchmark.training.config import DataConfig, PretrainedConfig, TrainConfig
 from benchmark.training.identity import run_key
+from benchmark.training.loop import CHECKPOINT
 
 
 @dataclass
 class Unit:
-    """One model to train (``cfg``) and the jobs (table entries) that read its results."""
+    """One model to train (``cfg``) and the jobs (table entries) that read its results.
+
+    ``needs``: keys of units that must finish first (the shared encoder whose checkpoint this
+    unit's frozen encoder loads, ``cfg.pretrained``). A shared-encoder unit may have no jobs of
+    its own (no table shows its end-to-end heads); it is trained for the units that need it."""
 
     key: str
     cfg: TrainConfig
     jobs: list[Job] = field(default_factory=list)
+    needs: tuple[str, ...] = ()
+    shared_encoder: bool = False  # trained for other units' frozen encoders
 
     @property
     def val_split(self) -> str | None:
@@ -48,6 +56,8 @@ class Unit:
 
     @property
     def eval_splits(self) -> list[str]:
+        if not self.jobs:  # a shared encoder: its validation numbers only
+            return [self.val_split] if self.val_split is not None else []
         seen: dict[str, None] = {}
         for job in self.jobs:
             for split in self.job_splits(job):
@@ -56,6 +66,9 @@ class Unit:
 
     @property
     def title(self) -> str:
+        if not self.jobs:
+            return (f"shared {self.cfg.model.encoder} encoder on {self.cfg.data.train_split}, "
+                    f"seed {self.cfg.seed}")  # fmt: skip
         job = self.jobs[0]
         extra = f" [{job.x}]" if job.x is not None else ""
         return f"{job.label}{extra} on {self.cfg.data.train_split}, seed {self.cfg.seed}"
@@ -72,11 +85,17 @@ def val_split_for(train_split: str, available: list[str]) -> str | None:
 
 
 def train_config(
-    job: Job, profile: ReproProfile, seed: int, data_root: Path, splits: list[str]
+    job: Job,
+    profile: ReproProfile,
+    seed: int,
+    data_root: Path,
+    splits: list[str],
+    pretrained: PretrainedConfig | None = None,
 ) -> TrainConfig:
-    """The unit config of ``job``: the row's model at the profile's width, the profile's
-    optimiser, device and precision, one torch thread, validation on the training family's val
-    split."""
+    """The unit config of ``job``: the row's model at the profile's width (the profile's
+    encoder when the row names none), the profile's optimiser, device and precision, one torch
+    thread, validation on the training family's val split; ``pretrained``: heads only, on that
+    frozen encoder."""
     return TrainConfig(
         data=DataConfig(
             root=str(data_root),
@@ -85,13 +104,56 @@ def train_config(
             # verify: DataConfig's default, as for `uavbench train` (the same config, the same
             # run key); the default checks sha256 once per file and caches it (issue 14).
         ),
-        model=job.variant.model_config(width=profile.width),
+        model=job.variant.model_config(profile.width, profile.encoder, profile.encoder_options),
         optim=profile.optim,
         seed=seed,
         threads=1,
         device=profile.device,
         precision=profile.precision,
+        pretrained=pretrained or PretrainedConfig(),
     )
+
+
+def shared_encoder_config(
+    profile: ReproProfile, seed: int, data_root: Path, splits: list[str]
+) -> TrainConfig:
+    """The unit that trains ``profile``'s shared encoder for ``seed`` end to end (its
+    ``SharedEncoder``: attitude head, split, optimiser; the encoder's own loss included)."""
+    shared = profile.shared_encoder
+    if shared is None:
+        raise ValueError(f"profile {profile.name!r} has no shared encoder")
+    model = ModelConfig(
+        encoder=profile.encoder,
+        encoder_options=dict(profile.encoder_options),
+        variant="/",
+        width=profile.width,
+        attitude=shared.attitude,
+    )
+    return TrainConfig(
+        data=DataConfig(
+            root=str(data_root),
+            train_split=shared.train_split,
+            val_split=val_split_for(shared.train_split, splits),
+        ),
+        model=model,
+        optim=shared.optim,
+        seed=seed,
+        threads=1,
+        device=profile.device,
+        precision=profile.precision,
+    )
+
+
+def _frozen(cfg: TrainConfig, profile: ReproProfile) -> bool:
+    """Whether a unit sits on the profile's shared encoder: it uses the profile's encoder with
+    the profile's options, apart from the protocol (both protocols train the matcher on the
+    sensor priors and the gravity branch on the truth; the protocol only chooses what the
+    bird's-eye view and the heads see at test time, so one encoder serves both)."""
+    if profile.shared_encoder is None or cfg.model.encoder != profile.encoder:
+        return False
+    mine = {k: v for k, v in cfg.model.encoder_options.items() if k != "protocol"}
+    shared = {k: v for k, v in profile.encoder_options.items() if k != "protocol"}
+    return mine == shared
 
 
 def unit_key(cfg: TrainConfig, dataset_hash: str) -> str:
@@ -113,8 +175,12 @@ def plan_units(
     data_root: Path,
     splits: list[str],
     dataset_hash: str,
+    workdir: Path = Path("runs"),
 ) -> list[Unit]:
-    """Deduplicated units in first-appearance order (so ``--only table1`` runs table 1 first)."""
+    """Deduplicated units in first-appearance order (so ``--only table1`` runs table 1 first),
+    the profile's shared encoders (one per seed, :class:`~benchmark.runner.profiles.SharedEncoder`)
+    before all; ``workdir`` is where the units' checkpoints live (``<workdir>/units/<key>``):
+    a unit on a shared encoder loads it from there."""
     missing = sorted(
         {s for spec in specs for job in spec.jobs() for s in (job.train_split, *job.eval_splits)}
         - set(splits)
@@ -123,9 +189,23 @@ def plan_units(
         raise ValueError(f"{data_root}: the dataset has no split(s) {missing}; it has {splits}")
     units: dict[str, Unit] = {}
     for seed in seeds:
+        shared: Unit | None = None
+        if profile.shared_encoder is not None:
+            cfg = shared_encoder_config(profile, seed, data_root, splits)
+            key = unit_key(cfg, dataset_hash)
+            shared = units.setdefault(key, Unit(key, cfg))
+            shared.shared_encoder = True
         for spec in specs:
             for job in spec.jobs():
                 cfg = train_config(job, profile, seed, data_root, splits)
+                needs: tuple[str, ...] = ()
+                if shared is not None and _frozen(cfg, profile):
+                    checkpoint = Path(workdir) / "units" / shared.key / "train" / CHECKPOINT
+                    pretrained = PretrainedConfig(checkpoint=str(checkpoint), key=shared.key)
+                    cfg = train_config(job, profile, seed, data_root, splits, pretrained)
+                    needs = (shared.key,)
                 key = unit_key(cfg, dataset_hash)
-                units.setdefault(key, Unit(key, cfg)).jobs.append(job)
-    return list(units.values())
+                units.setdefault(key, Unit(key, cfg, needs=needs)).jobs.append(job)
+    # The shared encoders first: their units' checkpoints are what the others load.
+    ordered = sorted(units.values(), key=lambda u: not u.shared_encoder)
+    return [u for u in ordered if u.jobs or any(u.key in v.needs for v in ordered)]

@@ -59,6 +59,16 @@ class ReproProfile:
     shared_encoder: SharedEncoder | None = None  # None: every unit trains end to end
 
 
+# quick (issue 21): the matching encoder, trained once per seed end to end (Pd/Re-Net and the
+# encoder's own loss); then every row's heads on its frozen features. Settings chosen on
+# standard/val (DEVELOPERS.md, "quick profile").
+QUICK_ENCODER_OPTIM = OptimConfig(
+    name="adam", lr=1e-3, lr_schedule="cosine", batch_size=20, epochs=8, grad_clip=10.0
+)
+QUICK_HEADS_OPTIM = OptimConfig(
+    name="adam", lr=3e-4, lr_schedule="cosine", batch_size=20, epochs=5, grad_clip=10.0
+)
+
 PROFILES: dict[str, ReproProfile] = {
     "smoke": ReproProfile(
         name="smoke",
@@ -70,10 +80,10 @@ PROFILES: dict[str, ReproProfile] = {
         name="quick",
         dataset="quick",
         width=0.25,
-        optim=OptimConfig(
-            name="adam", lr=3e-4, lr_schedule="cosine", batch_size=20, epochs=5, grad_clip=10.0
-        ),
+        optim=QUICK_HEADS_OPTIM,
         seeds=3,
+        encoder="matching",
+        shared_encoder=SharedEncoder(optim=QUICK_ENCODER_OPTIM),
     ),
     "paper": ReproProfile(
         name="paper",

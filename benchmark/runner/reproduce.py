@@ -206,7 +206,8 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     out = args.out or Path("reports") / profile.name
     dataset_hash = _check_data(data_root, profile, args)
     try:
-        units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash)
+        units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash,
+                           workdir)  # fmt: skip
     except ValueError as err:
         raise UsageError(str(err)) from err
 
@@ -233,6 +234,8 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     results: dict[str, UnitResult] = {}
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
+        if unit.shared_encoder and not unit.jobs:
+            continue  # trained when a unit that needs it trains (below)
         stored = [s for job in unit.jobs if (s := logbook.finished(job, unit)) is not None]
         if len(stored) == len(unit.jobs):
             merged: dict[str, dict[str, float]] = {}
@@ -246,6 +249,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
         if args.tracker != "null":
             live = logbook.unit_tracking(unit, log_model=not args.no_models)
         todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir, tracking=live)))
+    todo = _with_shared_encoders(todo, units, workdir, logbook, args)
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
@@ -270,7 +274,23 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
 
     status = RunStatus.FINISHED
     try:
-        run_executor(args, todo, on_done, args.quiet, tracker.uri)
+        # First the shared encoders (their checkpoints are what the others load) and every
+        # unit that needs none, then the units on the shared encoders; one whose shared encoder
+        # failed is reported failed without running.
+        first = [(u, t) for u, t in todo if not u.needs]
+        run_executor(args, first, on_done, args.quiet, tracker.uri)
+        broken = {u.key: u.title for u, _ in first if not results[u.key].ok}
+        rest = []
+        for unit, task in todo:
+            if not unit.needs:
+                continue
+            bad = [broken[k] for k in unit.needs if k in broken]
+            if bad:
+                on_done(unit, UnitResult(unit.key, False, error=f"its shared encoder failed "
+                                         f"({bad[0]})"))  # fmt: skip
+            else:
+                rest.append((unit, task))
+        run_executor(args, rest, on_done, args.quiet, tracker.uri)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
         written = _write_reports(
@@ -304,6 +324,30 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     if hint:
         print(hint)
     return 1 if failures else 0
+
+
+def _with_shared_encoders(
+    todo: list[tuple[Unit, UnitTask]],
+    units: list[Unit],
+    workdir: Path,
+    logbook: Logbook,
+    args: argparse.Namespace,
+) -> list[tuple[Unit, UnitTask]]:
+    """``todo`` with the shared-encoder units its units need put first, each once, even when the
+    tracking store has them: their checkpoints must be in ``workdir`` (a finished one costs
+    nothing to "run" again; a FINISHED run in the store is reused by the worker)."""
+    queued = {u.key for u, _ in todo}
+    needed = {k for u, _ in todo for k in u.needs}
+    shared = []
+    for unit in units:
+        if unit.key in needed and unit.key not in queued:
+            live = None
+            if args.tracker != "null":
+                live = logbook.unit_tracking(unit, log_model=not args.no_models)
+            task = UnitTask(unit.key, unit.cfg, unit.eval_splits, workdir / "units" / unit.key,
+                            tracking=live)  # fmt: skip
+            shared.append((unit, task))
+    return shared + todo
 
 
 def _write_reports(

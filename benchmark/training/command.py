@@ -67,11 +67,13 @@ def run(args: argparse.Namespace) -> int:
     from benchmark.config import ConfigError, flatten
     from benchmark.errors import UsageError
     from benchmark.training.config import load_train_config
+    from benchmark.training.encoded import resolve_pretrained
     from benchmark.training.identity import run_key, run_tags
     from benchmark.training.pipeline import eval_keys
 
     try:
-        cfg = load_train_config(args.config, args.overrides)
+        # A frozen pretrained encoder is named by its checkpoint's digest in the run's identity.
+        cfg = resolve_pretrained(load_train_config(args.config, args.overrides))
     except ConfigError as err:
         raise UsageError(str(err)) from None
     if not cfg.data.root:

@@ -77,6 +77,26 @@ class OptimConfig:
 
 
 @dataclass(frozen=True)
+class PretrainedConfig:
+    """Start from another run's encoder and keep it frozen: only the heads train.
+
+    ``checkpoint`` is a ``checkpoint.pt`` (``uavbench train`` / a reproduce unit) whose model has
+    the same encoder (name, options, input size); its ``encoder.*`` weights are loaded and never
+    updated. The heads then train and evaluate on the encoder's features, computed once per split
+    and satellite mode and cached beside the checkpoint (``benchmark.training.encoded``).
+    ``key`` names those weights in the run's identity instead of the path (the runner sets the
+    run key of the unit that trained them; empty: the checkpoint file's sha256, read when the run
+    starts, :func:`benchmark.training.encoded.resolve_pretrained`)."""
+
+    checkpoint: str = ""  # "": train the encoder (the default)
+    key: str = ""
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.checkpoint)
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """One training run: which data, which model (``benchmark.models.ModelConfig``, the same
     description ``create_model``, table specs and checkpoints use), how to optimise, which seed."""
@@ -104,6 +124,7 @@ class TrainConfig:
     # avx512_bf16/amx_bf16 or UAVBENCH_ALLOW_SLOW_BF16=1).
     device: str = "auto"
     precision: str = "auto"
+    pretrained: PretrainedConfig = field(default_factory=PretrainedConfig)
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -128,6 +149,7 @@ __all__ = [
     "DataConfig",
     "ModelConfig",
     "OptimConfig",
+    "PretrainedConfig",
     "TrainConfig",
     "load_train_config",
 ]

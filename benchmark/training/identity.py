@@ -49,6 +49,11 @@ def numbers_hash(cfg: TrainConfig) -> str:
 
     data = to_dict(cfg)
     del data["device"], data["precision"]
+    # A frozen pretrained encoder is named by its key, never its path; without one the section
+    # is left out, so keys of runs from before it existed are unchanged.
+    pretrained = data.pop("pretrained")
+    if pretrained["checkpoint"]:
+        data["pretrained"] = {"key": pretrained["key"]}
     precision = effective_precision(cfg)
     if precision != "fp32":
         data["precision"] = precision

@@ -41,6 +41,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset, Subset
 
 from benchmark.config import to_dict
+from benchmark.evaluation.evaluate import forward_batch
 from benchmark.models.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from benchmark.models.device import (
     autocast,
@@ -60,6 +61,7 @@ from benchmark.training.divergence import (
     non_finite_term,
     non_finite_weights,
 )
+from benchmark.training.encoded import encode_for_heads, load_pretrained_encoder
 from benchmark.training.identity import numbers_hash
 
 CHECKPOINT = "checkpoint.pt"
@@ -215,8 +217,14 @@ def train(
     check_precision_supported(precision, device)  # bf16 needs native bf16 on a CPU (or the env)
     torch.manual_seed(derive_seed(cfg.seed, 0))
     model = model_factory()  # built and initialised on the CPU: the same weights on any device
+    if cfg.pretrained.enabled:  # a frozen encoder: only the heads train, on its features
+        load_pretrained_encoder(model, cfg)
     model.translation_head.fit_statistics(translation_labels(train_set))
     model.to(device)  # the same module, in place (a no-op on the CPU)
+    if cfg.pretrained.enabled:
+        train_set = encode_for_heads(model, cfg, train_set, progress=progress)
+        if val_set is not None:
+            val_set = encode_for_heads(model, cfg, val_set, progress=progress)
     optimizer = make_optimizer(cfg, model)
     scaler = grad_scaler(device, precision)  # fp16 only; disabled otherwise
     history: list[dict[str, float]] = []
@@ -347,10 +355,8 @@ def _train_one_epoch(
     count, start = 0, time.perf_counter()
     for step, batch in enumerate(loader):
         batch = to_device(batch, device)  # the same dict on the CPU
-        sat_ids = batch["sat_id"] if cfg.model.shared_satellite else None
-        context = {"context": batch["context"]} if "context" in batch else {}  # pair encoders
         with autocast(device, precision):
-            out = model(batch["uav"], batch["sat"], sat_ids, **context)
+            out = forward_batch(model, batch, cfg.model.shared_satellite)
         if precision != "fp32":
             out = outputs_to_float(out)
         losses = model.loss(out, batch["R"], batch["T"])

@@ -38,6 +38,7 @@ from benchmark.data.swap import SATELLITE_MODES
 from benchmark.models.device import resolve_device, resolve_precision
 from benchmark.training.build import run_training
 from benchmark.training.config import TrainConfig
+from benchmark.training.encoded import encode_for_heads, resolve_pretrained
 from benchmark.training.loop import EpochCallback, TrainResult, check_finite, loader_workers
 
 SWAP_SUFFIX = "/swap"
@@ -95,6 +96,7 @@ def train_and_evaluate(
     already written are read back, not recomputed). See the module doc for the layout."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    cfg = resolve_pretrained(cfg)  # a frozen encoder named by its checkpoint's digest
     save_yaml(cfg, out_dir / "config.yaml", header="uavbench train config")
     trained = run_training(
         cfg, out_dir / "train", on_epoch_end=on_epoch_end, progress=progress, datasets=datasets
@@ -131,6 +133,8 @@ def _evaluate_split(
     if json_path.is_file() and csv_path.is_file():
         return json.loads(json_path.read_text()), csv_path
     dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify, satellite=satellite)
+    if cfg.pretrained.enabled:  # the heads on the frozen encoder's cached features
+        dataset = encode_for_heads(model, cfg, dataset, progress=progress)
     device = resolve_device(cfg.device)
     summary, _ = evaluate(
         model,

@@ -28,15 +28,18 @@ def plan(seeds=(0,), root="/data/a", only=None):
 
 
 class TestPlanUnits:
-    def test_the_paper_tables_train_32_models_per_seed(self):
-        # 8 attitude heads + Re-Net-T + 2 heads x 5 heights + 4 other kappas + 3 other encoders
-        # + the UAV-only control on standard/train (Tables 1-5 and leakage share it)
-        # + Pd/Re-Net and the control on frames/train (leakage) + 3 models on towns/train.
-        # (The extended table adds one unit per head beyond the paper; it grows with the registry.)
-        paper = [s.name for s in load_specs() if s.name != "extended"]
-        assert len(plan(only=paper)) == 32
-        assert len(plan(seeds=(0, 1, 2), only=paper)) == 96
-        extra = {u.key for u in plan()} - {u.key for u in plan(only=paper)}
+    def test_the_paper_tables_train_34_models_per_seed(self):
+        # quick: the shared matching encoder + on it 8 attitude heads + Re-Net-T + 2 heads x 5
+        # heights + 4 other kappas + the UAV-only control on standard/train (Tables 1-5 and
+        # leakage share it) + Pd/Re-Net and the control on frames/train (leakage) + 3 models on
+        # towns/train = 29; + Fig. 9's GoogLeNet in its 4 variants (end to end, 4 units).
+        # (The extended table adds one unit per head beyond the paper; it grows with the registry.
+        # The encoders table adds 3 GoogLeNet rows and 2 gravity-aided matching rows.)
+        paper = [s.name for s in load_specs() if s.name not in ("extended", "encoders")]
+        assert len(plan(only=paper)) == 34
+        assert len(plan(seeds=(0, 1, 2), only=paper)) == 102
+        assert len(plan(only=[*paper, "encoders"])) == 39
+        extra = {u.key for u in plan()} - {u.key for u in plan(only=[*paper, "encoders"])}
         for unit in plan():
             if unit.key in extra:
                 assert {j.table for j in unit.jobs} == {"extended"}
@@ -47,9 +50,10 @@ class TestPlanUnits:
         assert {u.cfg.data.train_split for u in blank} == {
             "standard/train", "frames/train", "towns/train"
         }  # fmt: skip
-        std = next(u for u in blank if u.cfg.data.train_split == "standard/train")
+        std = next(u for u in blank if u.cfg.data.train_split == "standard/train"
+                   and u.cfg.model.encoder == "matching")  # fmt: skip
         assert {j.table for j in std.jobs} == {"table1", "table2", "table3", "table4", "table5",
-                                               "leakage"}  # fmt: skip
+                                               "leakage", "encoders"}  # fmt: skip
         assert std.cfg.data.val_split == "standard/val"
 
     def test_pd_re_net_is_shared_across_tables(self):
@@ -59,9 +63,13 @@ class TestPlanUnits:
         ]
         assert len(shared) == 1
         tables = {j.table for j in shared[0].jobs}
-        # kappa 10 of Fig. 7 and variant "/" of Fig. 9 are the same model as Table 1's
+        # kappa 10 of Fig. 7 and the encoders table's vision-only matching row are the same
+        # model as Table 1's (Fig. 9 names the paper's GoogLeNet: another model in quick), and
+        # so is Table 5's "with AGTFM" row (GoogLeNet's variants do not apply to the matching
+        # encoder: the row runs it plain)
         assert tables == {
-            "table1", "table2", "table3", "table4", "fig6", "fig7", "fig9", "leakage", "extended"
+            "table1", "table2", "table3", "table4", "table5", "fig6", "fig7", "leakage",
+            "extended", "encoders",
         }  # fmt: skip
         assert shared[0].cfg.model.attitude_options == {}  # kappa 10 is the head's default
 
@@ -70,7 +78,8 @@ class TestPlanUnits:
             u
             for u in plan()
             if u.cfg.model.attitude == "re_net_r" and u.cfg.data.train_split == "standard/train"
-        )
+            and u.cfg.model.encoder == "matching" and not u.cfg.model.encoder_options
+        )  # fmt: skip
         assert "generalized/test" in unit.eval_splits and "pitch0to-10/test" in unit.eval_splits
         assert "flight/pitch0" in unit.eval_splits  # Re-Net of Table 5
 
@@ -136,7 +145,7 @@ class TestValSplitFor:
 
 class TestUnitConfigs:
     def test_row_options_reach_the_unit_config(self):
-        fig7 = [u for u in plan(only=["fig7"])]
+        fig7 = [u for u in plan(only=["fig7"]) if not u.shared_encoder]
         kappas = sorted(u.cfg.model.attitude_options.get("kappa", 10.0) for u in fig7)
         assert kappas == [1.0, 5.0, 10.0, 20.0, 50.0]
 
@@ -144,7 +153,8 @@ class TestUnitConfigs:
         profile = PROFILES["quick"]
         for unit in plan(only=["table1"]):
             assert unit.cfg.model.width == profile.width
-            assert unit.cfg.optim == profile.optim
+            optim = profile.shared_encoder.optim if unit.shared_encoder else profile.optim
+            assert unit.cfg.optim == optim
             assert unit.cfg.threads == 1 and unit.cfg.model.input_size is None
 
     def test_unit_key_is_the_train_run_key(self):

@@ -1,0 +1,76 @@
+"""Planning with a shared encoder (``ReproProfile.shared_encoder``): one encoder unit per seed,
+trained first; every row on the profile's encoder trains its heads on it, frozen; rows that
+name another encoder (Fig. 9's GoogLeNet) train end to end as before."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from test_plan import SPLITS
+
+from benchmark.runner.plan import plan_units
+from benchmark.runner.profiles import PROFILES, SharedEncoder
+from benchmark.runner.specs import load_specs
+from benchmark.training.config import OptimConfig
+
+SHARED = dataclasses.replace(
+    PROFILES["smoke"],
+    encoder="matching",
+    encoder_options={"protocol": "vision_only"},
+    shared_encoder=SharedEncoder(optim=OptimConfig(name="adam", lr=1e-3, epochs=3)),
+)
+
+
+def plan(profile=SHARED, seeds=(0, 1), only=("table1", "fig9")):
+    return plan_units(load_specs(only=list(only)), profile, list(seeds), Path("/data/a"), SPLITS,
+                      "h", workdir=Path("/work/runs"))  # fmt: skip
+
+
+class TestSharedEncoderPlan:
+    def test_one_encoder_per_seed_first_and_the_rows_on_it(self):
+        units = plan()
+        shared = [u for u in units if u.shared_encoder]
+        assert [u.cfg.seed for u in shared] == [0, 1]
+        assert units[: len(shared)] == shared  # trained before anything that loads them
+        for enc in shared:
+            assert enc.jobs == [] and enc.needs == ()
+            assert enc.cfg.model.encoder == "matching" and enc.cfg.model.attitude == "pd_re_net"
+            assert enc.cfg.optim.epochs == 3 and not enc.cfg.pretrained.enabled
+            assert enc.eval_splits == ["standard/val"]
+        by_seed = {u.cfg.seed: u.key for u in shared}
+        for unit in units:
+            if unit.shared_encoder:
+                continue
+            tables = {j.table for j in unit.jobs}
+            if tables == {"fig9"}:  # the paper's encoder, named in the row: end to end
+                assert unit.cfg.model.encoder == "googlenet" and unit.needs == ()
+                assert not unit.cfg.pretrained.enabled
+                continue
+            assert unit.cfg.model.encoder == "matching"
+            assert unit.needs == (by_seed[unit.cfg.seed],)
+            p = unit.cfg.pretrained
+            assert p.key == by_seed[unit.cfg.seed]
+            assert p.checkpoint == f"/work/runs/units/{p.key}/train/checkpoint.pt"
+            assert unit.cfg.optim == SHARED.optim  # the heads train with the profile's optimiser
+
+    def test_the_uav_only_control_sits_on_the_same_encoder(self):
+        control = [u for u in plan() if u.cfg.model.satellite_input == "blank"]
+        assert control and all(u.needs for u in control)
+
+    def test_keys_do_not_depend_on_the_workdir(self):
+        a = plan_units(load_specs(only=["table1"]), SHARED, [0], Path("/d"), SPLITS, "h",
+                       workdir=Path("/w1"))  # fmt: skip
+        b = plan_units(load_specs(only=["table1"]), SHARED, [0], Path("/d"), SPLITS, "h",
+                       workdir=Path("/w2"))  # fmt: skip
+        assert [u.key for u in a] == [u.key for u in b]
+
+    def test_no_encoder_unit_when_nothing_uses_it(self):
+        units = plan(only=("fig9",))
+        assert not any(u.shared_encoder for u in units)
+
+    def test_without_a_shared_encoder_nothing_changes(self):
+        plain = dataclasses.replace(SHARED, shared_encoder=None)
+        units = plan(plain)
+        assert not any(u.needs or u.cfg.pretrained.enabled for u in units)
+        assert {u.cfg.model.encoder for u in units} == {"matching", "googlenet"}

@@ -1,0 +1,151 @@
+"""Heads on a frozen pretrained encoder (``benchmark.training.encoded``): the encoder's weights
+never move, the cached features are the encoder's own, heads on them predict what the whole
+model predicts on the images, the cache is reused and invalidated, and a wrong checkpoint is a
+clear error."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+
+from benchmark.config import ConfigError
+from benchmark.training.config import PretrainedConfig, load_train_config
+from benchmark.training.identity import numbers_hash, run_key
+from benchmark.training.pipeline import train_and_evaluate
+
+BASE = [
+    "data.limit_train=8", "data.limit_val=4", "data.verify=size", "model.encoder=matching",
+    "model.variant=/", "optim.name=adam", "optim.batch_size=4", "optim.epochs=1", "threads=1",
+    "model.attitude_options.hidden=32",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def pretrained(smoke_dataset, tmp_path_factory):
+    """A matching encoder trained end to end (Pd/Re-Net head, 1 epoch on 8 pairs)."""
+    cfg = load_train_config(None, [f"data.root={smoke_dataset}", *BASE, "model.attitude=pd_re_net"])
+    out = tmp_path_factory.mktemp("pretrain") / "run"
+    train_and_evaluate(cfg, out, [])
+    return out / "train" / "checkpoint.pt"
+
+
+def _frozen_cfg(root, checkpoint, *extra):
+    return load_train_config(
+        None,
+        [f"data.root={root}", *BASE, "model.attitude=re_net_r",
+         f"pretrained.checkpoint={checkpoint}", *extra],
+    )  # fmt: skip
+
+
+def _encoder_state(state: dict) -> dict:
+    return {k: v for k, v in state.items() if k.startswith("encoder.")}
+
+
+class TestFrozenTraining:
+    def test_encoder_weights_never_move_and_add_no_loss_term(
+        self, smoke_dataset, pretrained, tmp_path
+    ):
+        cfg = _frozen_cfg(smoke_dataset, pretrained, "optim.epochs=2")
+        done = train_and_evaluate(cfg, tmp_path / "run", [])
+        before = torch.load(pretrained, weights_only=False)["model"]
+        after = done.trained.model.state_dict()
+        for k, v in _encoder_state(before).items():
+            assert torch.equal(v, after[k]), k
+        assert len(done.trained.history) == 2
+        assert "train_loss_enc" not in done.trained.history[0]  # no encoder term: frozen
+
+    def test_cached_features_give_the_whole_models_predictions(
+        self, smoke_dataset, pretrained, tmp_path
+    ):
+        from benchmark.data import PairDataset
+        from benchmark.evaluation.evaluate import predict
+        from benchmark.training.encoded import encode_for_heads
+
+        cfg = _frozen_cfg(smoke_dataset, pretrained)
+        done = train_and_evaluate(cfg, tmp_path / "run", [])
+        model = done.trained.model.eval()
+        images = PairDataset(smoke_dataset, "standard/test", verify="size")
+        cached = encode_for_heads(model, cfg, images)
+        a = predict(model, images, batch_size=3)  # end to end, other batches than the cache
+        b = predict(model, cached, batch_size=5)
+        torch.testing.assert_close(a.R_hat, b.R_hat, rtol=1e-4, atol=1e-4)
+        torch.testing.assert_close(a.T_hat, b.T_hat, rtol=1e-4, atol=1e-3)
+        torch.testing.assert_close(a.R_gt, b.R_gt)
+        torch.testing.assert_close(a.T_gt, b.T_gt)
+
+
+class TestCache:
+    def test_reused_then_recomputed_when_the_checkpoint_changes(
+        self, smoke_dataset, pretrained, tmp_path, monkeypatch
+    ):
+        import shutil
+
+        from benchmark.data import PairDataset
+        from benchmark.training import encoded
+
+        checkpoint = tmp_path / "train" / "checkpoint.pt"
+        checkpoint.parent.mkdir()
+        shutil.copy(pretrained, checkpoint)
+        cfg = _frozen_cfg(smoke_dataset, checkpoint)
+        from benchmark.training.build import image_size_of, model_factory
+
+        dataset = PairDataset(smoke_dataset, "standard/test", verify="size")
+        model = model_factory(cfg, image_size_of(dataset))()
+        encoded.load_pretrained_encoder(model, cfg)
+        calls = []
+        real = encoded._encode
+        monkeypatch.setattr(encoded, "_encode", lambda *a, **k: calls.append(1) or real(*a, **k))
+        first = encoded.encode_for_heads(model, cfg, dataset)
+        again = encoded.encode_for_heads(model, cfg, dataset)
+        assert len(calls) == 1 and torch.equal(first.features, again.features)
+        assert (checkpoint.parent / "encodings" / "standard__test.pt").is_file()
+        swapped = PairDataset(smoke_dataset, "standard/test", verify="size", satellite="swap")
+        swap = encoded.encode_for_heads(model, cfg, swapped)
+        assert len(calls) == 2 and not torch.equal(swap.features, first.features)
+        state = torch.load(checkpoint, weights_only=False)
+        state["epoch"] = state["epoch"] + 1  # another file: another digest
+        torch.save(state, checkpoint)
+        encoded.encode_for_heads(model, cfg, dataset)
+        assert len(calls) == 3
+
+    def test_items_and_per_frame_columns(self, smoke_dataset, pretrained, tmp_path):
+        from benchmark.data import PairDataset
+        from benchmark.evaluation.evaluate import pair_columns
+        from benchmark.training.build import image_size_of, model_factory
+        from benchmark.training.encoded import encode_for_heads, load_pretrained_encoder
+
+        cfg = _frozen_cfg(smoke_dataset, pretrained)
+        dataset = PairDataset(smoke_dataset, "standard/test", verify="size", satellite="swap")
+        model = model_factory(cfg, image_size_of(dataset))()
+        load_pretrained_encoder(model, cfg)
+        enc = encode_for_heads(model, cfg, dataset)
+        assert len(enc) == len(dataset)
+        item, ref = enc[2], dataset[2]
+        assert item["features"].shape == (model.encoder.feature_dim,)
+        torch.testing.assert_close(item["R"], ref["R"])
+        torch.testing.assert_close(item["T"], ref["T"])
+        assert pair_columns(enc) == pair_columns(dataset)  # flights, swapped sat_index
+
+
+class TestErrorsAndIdentity:
+    def test_missing_checkpoint_is_named(self, smoke_dataset, tmp_path):
+        cfg = _frozen_cfg(smoke_dataset, tmp_path / "nope.pt")
+        with pytest.raises(ConfigError, match=r"pretrained\.checkpoint=.*nope\.pt.*no such file"):
+            train_and_evaluate(cfg, tmp_path / "run", [])
+
+    def test_another_encoder_is_refused_naming_the_option(self, smoke_dataset, pretrained,
+                                                          tmp_path):  # fmt: skip
+        cfg = _frozen_cfg(smoke_dataset, pretrained, "model.encoder_options.n_yaw=24")
+        with pytest.raises(ConfigError, match=r"encoder_options.*n_yaw"):
+            train_and_evaluate(cfg, tmp_path / "run", [])
+
+    def test_identity_names_the_weights_not_the_path(self, smoke_dataset, pretrained):
+        cfg = _frozen_cfg(smoke_dataset, pretrained)
+        keyed = dataclasses.replace(cfg, pretrained=PretrainedConfig(str(pretrained), "k1"))
+        moved = dataclasses.replace(keyed, pretrained=PretrainedConfig("/elsewhere.pt", "k1"))
+        other = dataclasses.replace(keyed, pretrained=PretrainedConfig(str(pretrained), "k2"))
+        assert run_key(keyed, "m") == run_key(moved, "m") != run_key(other, "m")
+        plain = dataclasses.replace(cfg, pretrained=PretrainedConfig())
+        assert numbers_hash(plain) != numbers_hash(keyed)
