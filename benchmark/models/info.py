@@ -1,18 +1,23 @@
 """``uavbench model-info``: parameters, size, FLOPs and CPU latency of a pair model (paper Table 6).
 
 FLOPs are counted by ``torch.utils.flop_counter.FlopCounterMode`` on one UAV/satellite pair at the
-given input size. It counts the matrix products and convolutions only (normalisation, activations,
-pooling and softmax are not counted, as in most published FLOP figures) and reports FLOPs = 2 x
-multiply-adds. "Inference" runs the model in eval mode (the fusion variants' auxiliary branches and
-heads are skipped, as at test time); "training forward" includes them. The dense share (``addmm``/
-``mm``) is printed separately: the paper's Table 6 figures (Re-Net 24.43, Pd/Re-Net with AGTFM 90.96
-MFLOPs) are far below any GoogLeNet at 224 px (~1.6 G multiply-adds per image), and of the order of
-the dense layers alone.
+given input size, with the formulas of ``benchmark.models.flop_count`` (complex matrix products,
+the spectra's products and bilinear sampling of the matching encoder). It counts the matrix
+products and convolutions only (normalisation, activations, pooling and softmax are not counted,
+as in most published FLOP figures) and reports FLOPs = 2 x multiply-adds. A pair encoder gets a
+synthetic ``context`` with the quick dataset's geometry (``benchmark.models.bench_inputs``).
+"Inference" runs the model in eval mode (the fusion variants' auxiliary branches and heads are
+skipped, as at test time); "training forward" includes them. The dense share (real ``addmm``/
+``mm``/``bmm``) is printed separately: the paper's Table 6 figures (Re-Net 24.43, Pd/Re-Net with
+AGTFM 90.96 MFLOPs) are far below any GoogLeNet at 224 px (~1.6 G multiply-adds per image), and of
+the order of the dense layers alone.
 
 Size is float32 parameters (4 bytes each) in MB = 10^6 bytes (MiB in brackets). Latency is the
 median wall time of one pair (batch 1, eval mode, no grad) over ``--repeats`` timed runs after
 ``--warmup`` untimed ones, with ``--threads`` torch threads, on the CPU in fp32 unless
-``--device`` / ``--precision`` say otherwise (``benchmark.models.device``). Head and encoder
+``--device`` / ``--precision`` say otherwise (``benchmark.models.device``). bf16 is refused as in
+training on a CPU without native bf16 (``device.check_precision_supported``: a one-line usage
+error) unless ``UAVBENCH_ALLOW_SLOW_BF16=1``. Head and encoder
 options are set as in ``uavbench train``: ``--set attitude_options.hidden=512``
 (``benchmark.models.ModelConfig``).
 """
@@ -29,8 +34,9 @@ from typing import Any
 
 import torch
 from torch import nn
-from torch.utils.flop_counter import FlopCounterMode
 
+from benchmark.models.bench_inputs import synthetic_labels
+from benchmark.models.flop_count import count_flops_by_kind
 from benchmark.models.model_config import parse_scalar
 from benchmark.models.pair import PoseModel, create_model
 
@@ -70,19 +76,23 @@ def count_parameters(model: nn.Module) -> int:
 
 
 def count_flops(model: PoseModel, input_size: int, training: bool = False) -> tuple[int, int]:
-    """``(total, dense)`` FLOPs (2 x multiply-adds) of one pair at ``input_size`` px."""
+    """``(total, dense)`` FLOPs (2 x multiply-adds) of one pair at ``input_size`` px; dense: the
+    real matrix products (``flop_count`` kind ``matmul``: the heads' and fusion's layers)."""
     was_training = model.training
     model.train(training)
     dtype = next(model.parameters()).dtype
     x = torch.rand(1, 3, input_size, input_size, dtype=dtype)
+    context = synthetic_labels(1)[2]  # read by pair encoders only
+
+    def forward() -> None:
+        with torch.no_grad():
+            model(x, x.clone(), context=context)
+
     try:
-        with FlopCounterMode(display=False) as counter, torch.no_grad():
-            model(x, x.clone())
+        flops = count_flops_by_kind(forward)
     finally:
         model.train(was_training)
-    ops = counter.get_flop_counts().get("Global", {})
-    dense = sum(v for k, v in ops.items() if str(k) in ("aten.addmm", "aten.mm", "aten.bmm"))
-    return int(counter.get_total_flops()), int(dense)
+    return flops["total"], flops["matmul"]
 
 
 def measure_latency(
@@ -102,6 +112,7 @@ def measure_latency(
     model.to(device).eval()
     uav = torch.rand(1, 3, input_size, input_size).to(device)
     sat = torch.rand(1, 3, input_size, input_size).to(device)
+    context = {k: v.to(device) for k, v in synthetic_labels(1)[2].items()}  # pair encoders'
 
     def sync() -> None:
         if device.type == "cuda":
@@ -113,7 +124,7 @@ def measure_latency(
             sync()
             start = time.perf_counter()
             with autocast(device, precision):
-                out = model(uav, sat)
+                out = model(uav, sat, context=context)
             if precision != "fp32":
                 out = outputs_to_float(out)
             model.decode(out)
@@ -140,10 +151,17 @@ def model_info(
     ``encoder_options`` to the options of that head or encoder (``ModelConfig``). FLOPs are
     counted on the CPU; the latency is measured on ``device`` in ``precision``
     (``benchmark.models.device`` names; ``auto`` resolved). Defaults: the CPU in fp32 (Table 6)."""
-    from benchmark.models.device import accelerator_name, resolve_device, resolve_precision
+    from benchmark.models.device import (
+        accelerator_name,
+        check_precision_supported,
+        resolve_device,
+        resolve_precision,
+    )
 
     where = resolve_device(device)
     precision = resolve_precision(precision, where)
+    # As training and evaluation: bf16 on a CPU without native bf16 only when allowed.
+    check_precision_supported(precision, where)
     model = create_model(
         encoder=encoder,
         variant=variant,
