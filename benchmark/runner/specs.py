@@ -36,6 +36,12 @@ its width, the dataset its input size) or where it trains:
 ``swap_metrics`` (table level): metrics shown a second time, measured with each pair's satellite
 image swapped for another place's (the satellite-swap probe, ``benchmark.data.swap``), beside the
 true ones. Every trained model is evaluated both ways whatever the spec says.
+
+``references`` (table level, ``kind: table`` only): non-learned rows shown beside the models, by
+registry name (``benchmark.references.list_references()``: ``geometry_oracle``,
+``gravity_template``, ``feature_pnp``), each evaluated once per test split of the table with the
+true and the swapped satellite image (``benchmark.runner.reference_rows``). They take part in no
+claim about heads.
 """
 
 from __future__ import annotations
@@ -142,6 +148,7 @@ class TableSpec:
     sweep_values: tuple[str, ...] = ()
     swap_metrics: tuple[str, ...] = ()  # also shown with the swapped satellite image
     note: str = ""  # printed under the rendered table
+    references: tuple[str, ...] = ()  # non-learned rows (benchmark.references names)
 
     def jobs(self) -> list[Job]:
         """Concrete jobs; a sweep yields one per (value, variant). Cost specs train nothing."""
@@ -277,6 +284,26 @@ def _check_models(spec: TableSpec) -> None:
                 ) from None
 
 
+def _references_from(raw: Any, kind: str, path: Path) -> tuple[str, ...]:
+    """The table-level ``references`` field checked: a list of distinct registered reference
+    names, on a ``kind: table`` spec; SpecError naming the file, the field and the known names."""
+    from benchmark.references import list_references
+
+    known = list_references()
+    if not isinstance(raw, list):
+        raise SpecError(f"{path}: references must be a list of {known}, got {raw!r}")
+    if kind != "table":
+        raise SpecError(f"{path}: references are rows of a table; kind {kind!r} has none")
+    for index, name in enumerate(raw):
+        if name not in known:
+            raise SpecError(
+                f"{path}: references[{index}] {name!r} is not a reference; known: {known}"
+            )
+    if len(set(raw)) != len(raw):
+        raise SpecError(f"{path}: references lists a name twice: {raw}")
+    return tuple(raw)
+
+
 def load_spec(path: str | Path) -> TableSpec:
     """Parse and validate one spec file; SpecError names the file and the field on any problem."""
     path = Path(path)
@@ -313,6 +340,8 @@ def load_spec(path: str | Path) -> TableSpec:
     values = {
         k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "variants"
     }
+    if "references" in raw:
+        values["references"] = _references_from(raw["references"], raw["kind"], path)
     spec = TableSpec(source=path, variants=variants, **values)
     if spec.kind == "sweep" and not (spec.sweep and spec.sweep_values):
         raise SpecError(f"{path}: a sweep needs 'sweep' and 'sweep_values'")
