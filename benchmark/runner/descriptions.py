@@ -46,7 +46,7 @@ def table_experiment(spec: TableSpec, profile: str) -> str:
     )
     sweep = f", sweep value of `{spec.sweep}`" if spec.kind == "sweep" and spec.sweep else ""
     return (
-        f"**{spec.title}**, `{profile}` reproduction. {compared}\n\n"
+        f"**{spec.title}**, `{profile}` reproduction. {compared}{not_learned(spec)}\n\n"
         f"One parent run `reproduce {profile}` per reproduction; under it one run per table row"
         f"{sweep} and training seed. Headline metrics `test_*` are on the row's (first) test "
         "split, `val_*` on the validation split of the training family; every split's numbers "
@@ -54,6 +54,22 @@ def table_experiment(spec: TableSpec, profile: str) -> str:
         "satellite image). Curves, dataset, predictions and the trained model are on the row's "
         f"training run in `uavbench-{profile}/{UNITS_TABLE}` (tag `training_run_id`). The "
         f"Markdown table is `{spec.name}.md` in the reproduction's reports."
+    )
+
+
+def not_learned(spec: TableSpec) -> str:
+    """The sentences on a table's non-learned reference rows (``""`` for a table without):
+    each is not learned, and which true values it is given."""
+    if spec.kind != "table" or not spec.references:
+        return ""
+    from benchmark.runner.reference_rows import describe_references
+
+    return (
+        " Beside the trained rows, non-learned rows with no run here (their numbers are in the "
+        "table file; part of no claim about the heads): the constant predictor (the training "
+        "split's mean pose) and the references: "
+        + "; ".join(describe_references(spec.references))
+        + "."
     )
 
 

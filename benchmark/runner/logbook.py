@@ -146,7 +146,11 @@ class Logbook:
     def _parent_text(self, table: str) -> str:
         spec = self.specs.get(table)
         what = f"**{spec.title}** ({descriptions.paper_reference(spec)})" if spec else table
-        return f"The `{self.profile}` reproduction of {what}: its rows are the nested runs."
+        refs = ""
+        if spec is not None and spec.references:
+            refs = " (its non-learned rows, the constant predictor and the references, are in the "
+            refs += "table file only)"
+        return f"The `{self.profile}` reproduction of {what}: its rows are the nested runs{refs}."
 
     # ------------------------------------------------------------------ training runs
     def unit_tracking(self, unit: Unit, *, log_model: bool = True) -> UnitTracking:

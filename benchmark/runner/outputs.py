@@ -4,8 +4,9 @@ costs and the claim-by-claim summary ``README.md``.
 ``results.csv`` has one row per (table, model, sweep value, split, satellite mode, seed); the
 column ``satellite`` says whether the row was measured with each pair's true satellite image
 (``true``) or with another place's (``swap``, the satellite-swap probe); ``role`` is ``test`` or
-``val`` (the unit's validation split, shown beside the test numbers); see
-``benchmark.runner.report`` for the other columns. ``provenance.md`` / ``provenance.json``
+``val`` (the unit's validation split, shown beside the test numbers); ``reference`` names the
+non-learned reference of a reference row (``benchmark.runner.reference_rows``; empty elsewhere);
+see ``benchmark.runner.report`` for the other columns. ``provenance.md`` / ``provenance.json``
 (``benchmark.runner.provenance_report``) hold the digests to compare a rerun with."""
 
 from __future__ import annotations
@@ -45,9 +46,17 @@ from benchmark.runner.provenance_report import (
     provenance_summary,
     write_provenance,
 )
+from benchmark.runner.reference_rows import (
+    ReferenceResults,
+    describe_references,
+    evaluate_references,
+    reference_labels,
+    reference_note,
+    reference_rows,
+)
 from benchmark.runner.report import extra_metrics_table, load_paper, markdown_table, summarize
 from benchmark.runner.specs import TableSpec, default_spec_dir
-from benchmark.runner.spread import cell_interval
+from benchmark.runner.spread import FRAME_METRICS, cell_interval, frame_interval
 from benchmark.runner.sweeps import sweep_figure, sweep_table
 
 CONSTANT_LABEL = "Constant (train mean)"
@@ -179,13 +188,14 @@ def write_reports(
     val = frame[frame["role"] == "val"] if len(frame) else frame
     val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
     baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
+    # The non-learned references (issue 21): once per split, cached in the work directory.
+    references = evaluate_references(specs, data_root, workdir, profile.name, quiet)
+    ref_rows = pd.DataFrame(reference_rows(specs, references))
     plan = merge or plan_merge(out, specs, profile, data_root, workdir, mode=stale)
     kept_specs, kept_units = plan.live, plan.live_units
+    parts = (frame, pd.DataFrame(baseline_rows), ref_rows, plan.rows())
     everything = _with_stale_column(
-        pd.concat(
-            [x for x in (frame, pd.DataFrame(baseline_rows), plan.rows()) if len(x)] or [frame],
-            ignore_index=True,
-        )
+        pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True)
     )
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format="%.6g")
@@ -197,7 +207,9 @@ def write_reports(
     cost_cache = Path(workdir) / "costs" if workdir is not None else None
 
     def resolve(part: pd.DataFrame) -> dict | None:
-        return cell_interval(part, metrics, workdir, constant_frames)
+        return _reference_interval(part, metrics, references) or cell_interval(
+            part, metrics, workdir, constant_frames
+        )
 
     def summary_of(name: str) -> pd.DataFrame:
         part = everything[everything["table"] == name] if len(everything) else everything
@@ -217,7 +229,9 @@ def write_reports(
             if spec.kind == "table":
                 gone = frozenset(label for label, _ in failed_jobs(spec.name, units, results))
                 gone -= set(part["label"]) if len(part) else set()  # some seeds of it did run
-                text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val, gone)
+                text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val, gone,
+                                      reference_labels(spec))  # fmt: skip
+                text += reference_note(spec, references)
                 text += extra_metrics_table(spec, summary, EXTRA_METRICS)
             elif spec.kind == "sweep":
                 text = sweep_table(spec, summary, show_val)
@@ -270,6 +284,23 @@ def write_reports(
     readme.write_text(text + provenance_summary(record))
     written.append(readme)
     return written
+
+
+def _reference_interval(
+    part: pd.DataFrame, metrics: list[str], references: ReferenceResults
+) -> dict | None:
+    """The flight bootstrap bounds of a reference row (``part``: its one results row) from its
+    per-frame table, as a model's (None for any other row, or without the table)."""
+    wanted = [m for m in metrics if m in FRAME_METRICS]
+    if part.empty or not wanted or "reference" not in part:
+        return None
+    first = part.iloc[0]
+    if not isinstance(first["reference"], str) or not first["reference"]:
+        return None
+    frame = references.frame_of(str(first["label"]), str(first["split"]), str(first["satellite"]))
+    if frame is None or "flight" not in frame:
+        return None
+    return frame_interval(frame, wanted)
 
 
 def failed_jobs(
@@ -411,6 +442,15 @@ def _readme(
             "re-decided**: see *Partial rerun* below)"
         )
     lines += [entries[name] for name in sorted(entries)]
+    with_refs = [s for s in specs if s.kind == "table" and s.references]
+    if with_refs:
+        names = list(dict.fromkeys(n for s in with_refs for n in s.references))
+        lines += ["", "Non-learned rows beside the models in "
+                  + ", ".join(f"[{s.name}]({s.name}.md)" for s in with_refs)
+                  + ": the constant predictor (the training split's mean pose, no image) and "
+                  "the references (issue 21), evaluated like the models and part of no claim "
+                  "about the heads:", ""]  # fmt: skip
+        lines += [f"- {line}." for line in describe_references(names)]
     lines += ["", "Raw numbers: [results.csv](results.csv) (one row per table, model, sweep value, "
               "split, satellite mode and seed; column `satellite`: `true` = each pair's own "
               "satellite image, `swap` = another place's, the satellite-swap probe; the `swap` "
@@ -418,6 +458,8 @@ def _readme(
               "their 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, `swap_*_boot_hi_deg`; "
               "column `satellite_input`: `blank` marks the UAV-only control; column `role`: "
               "`test`, or `val` for the validation split of the training data; column "
+              "`reference`: the non-learned reference's name on its rows, empty on the models' "
+              "and the constant predictor's (`satellite_input` `none`); column "
               "`stale_from`: empty for rows this report decides, else the git commit of the "
               "earlier run a kept table comes from)."]  # fmt: skip
     return "\n".join(lines) + "\n"

@@ -238,12 +238,15 @@ def markdown_table(
     extra_labels: list[str] = (),
     show_val: bool | None = None,
     failed: frozenset[str] = frozenset(),
+    references: list[str] = (),
 ) -> str:
     """A Markdown table of one table spec: per metric, the paper's number (paper tables only),
     ours and (see :func:`val_metrics`, ``show_val``) ours on the validation split; then each
     ``swap_metrics`` entry measured with the swapped satellite image. Rows of the labels in
     ``failed`` (every training of that row failed) read ``failed``, other missing rows
-    ``not run``."""
+    ``not run``. ``extra_labels`` (the constant predictor) and then ``references`` (the
+    non-learned references' labels) follow the trained rows; the references are in the
+    swap-probe table too and are not evaluated on validation splits (``–``)."""
     lines = [
         f"## {spec.title}",
         "",
@@ -268,7 +271,7 @@ def markdown_table(
     header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
     lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for split in splits:
-        for label, paper_model, train in table_rows(spec, split, list(extra_labels)):
+        for label, paper_model, train in table_rows(spec, split, [*extra_labels, *references]):
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
             gone = "failed" if label in failed else "not run"
@@ -280,23 +283,29 @@ def markdown_table(
                     pv = paper_value(paper, spec.paper_table, ps, paper_model, m)
                     cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
                 cells.append(cell_text(row, m, gone))
-                if m in vals:
+                if m in vals and label in references:
+                    cells.append(NO_VAL)
+                elif m in vals:
                     val_row = pick_val(summary, label, train)
                     cells.append(val_cell(val_row, m, train, val_splits, gone))
             cells += [cell_text(swap, m, gone) for m in spec.swap_metrics]
             lines.append("| " + " | ".join(cells) + " |")
     if spec.swap_metrics:
-        lines += ["", swap_probe_table(spec, summary, failed)]
+        lines += ["", swap_probe_table(spec, summary, failed, list(references))]
     if spec.note:
         lines += ["", spec.note.strip()]
     return "\n".join(lines) + "\n"
 
 
 def swap_probe_table(
-    spec: TableSpec, summary: pd.DataFrame, failed: frozenset[str] = frozenset()
+    spec: TableSpec,
+    summary: pd.DataFrame,
+    failed: frozenset[str] = frozenset(),
+    references: list[str] = (),
 ) -> str:
-    """Per trained row: the paired per-frame effect of swapping the satellite image (rows of
-    the labels in ``failed`` read ``failed``)."""
+    """Per trained row, then per non-learned reference (labels ``references``): the paired
+    per-frame effect of swapping the satellite image (rows of the labels in ``failed`` read
+    ``failed``)."""
     lines = [
         "Satellite-swap probe: each pair's satellite image replaced by another place's (another "
         "centre of the same city; for `generalized/test` another city; for `towns/*` another "
@@ -310,7 +319,7 @@ def swap_probe_table(
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for split in spec.all_eval_splits():
-        for label, _, train in table_rows(spec, split, []):
+        for label, _, train in table_rows(spec, split, list(references)):
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
             cells = [f"`{split}`", label]

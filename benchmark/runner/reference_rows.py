@@ -1,0 +1,500 @@
+"""The non-learned reference rows of the tables (issue 21, item 5): evaluated, cached, as rows.
+
+A table spec lists references by name (``TableSpec.references``; ``benchmark.references``:
+``geometry_oracle``, ``gravity_template``, ``feature_pnp``). Each (reference, test split of a
+table that lists it) is evaluated once, whatever the training seeds (a reference has none), with
+the true and with the swapped satellite image (``benchmark.data.swap``), like a model: the same
+per-frame table, metrics and flight bootstrap, and the swap effect of
+``benchmark.evaluation.paired.swap_effect``. Failed frames get the constant predictor's pose of
+the split's training split (``benchmark.references.default_train_split``) and are counted in
+``failure_rate``.
+
+Cache, per evaluation: ``<workdir>/references/<name>/<split_filename(split)>[__swap].csv`` (the
+per-frame predictions, the format of a model's ``units/<key>/eval/*.csv``, so
+``benchmark.evaluation.paired`` and ``benchmark.runner.spread`` read it as they read a model's;
+plus ``reference_failed`` and ``reference_score``) and ``.json`` beside it (the record: what was
+evaluated and its summary), written last and atomically: its presence means the evaluation is
+complete. A record is reused only when it was made with the same reference options, dataset
+(manifest sha256), frame stride, fallback split and reference code (sha256 of
+``benchmark/references/*.py``); otherwise the evaluation runs again.
+
+Cost (measured on the quick dataset, 96 px, one core: about 50 ms a frame for the oracle, 75-100
+ms for the template, 35 ms for feature + PnP): the 3 x 3,480 frames of the quick tables' test
+splits, each with the true and the swapped image, take about 21 CPU-minutes. They run in
+:data:`MAX_PROCESSES` spawned processes (about 11 minutes on 2 cores, after the training, when
+the cores are free) on every frame, so the rows and the models' rows hold the same frames and a
+paired comparison needs no alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
+``stride``-th frame of each flight instead (every flight kept; the table note says so).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import signal
+import sys
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.progress import Progress
+from benchmark.runner.execute import SATELLITE_MODES, eval_key, split_filename, worker_init
+from benchmark.runner.specs import TableSpec
+
+__all__ = [
+    "MAX_PROCESSES",
+    "PROFILE_STRIDE",
+    "ReferenceResults",
+    "describe_references",
+    "evaluate_references",
+    "reads_text",
+    "reference_labels",
+    "reference_note",
+    "reference_paths",
+    "reference_rows",
+    "strided_rows",
+]
+
+REFERENCE_DIR = "references"  # under the reproduction's work directory
+MAX_PROCESSES = 2
+# Fewer frames than this to evaluate: in this process (spawning workers costs seconds each).
+PARALLEL_MIN_FRAMES = 400
+# Frame stride by reproduction profile (default 1: every frame). ``paper``: extrapolated, not
+# measured: its 224 px test splits hold about 4x the quick frames at about 5x the pixels, so every
+# frame would take 20+ CPU-hours; every 8th frame of each flight keeps every flight.
+PROFILE_STRIDE: dict[str, int] = {"paper": 8}
+# Summary keys kept out of results.csv: timings (they differ between machines and runs).
+TIMING_KEYS = ("frames_per_s", "cpu_ms_per_frame")
+
+
+def reference_labels(spec: TableSpec) -> list[str]:
+    """The row labels of ``spec``'s references, in the spec's order (each says it is not
+    learned and what true values it is given: ``Reference.label``)."""
+    from benchmark.references import get_reference_class
+
+    return [get_reference_class(name).label for name in spec.references]
+
+
+def reference_paths(
+    workdir: str | Path, name: str, split: str, satellite: str
+) -> tuple[Path, Path]:
+    """``(csv, json)`` of one cached evaluation: ``<workdir>/references/<name>/<split file
+    name>[__swap].csv`` and ``.json``."""
+    stem = Path(workdir) / REFERENCE_DIR / name / split_filename(eval_key(split, satellite))
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def strided_rows(flights: Iterable[object], stride: int) -> list[int]:
+    """Item indices to evaluate: every ``stride``-th item of each flight (its 1st, ``stride+1``-th
+    ...), in item order; every flight keeps at least one frame. ``stride`` 1: every item."""
+    if stride < 1:
+        raise ValueError(f"reference stride must be >= 1, got {stride}")
+    seen: dict[object, int] = {}
+    rows = []
+    for i, flight in enumerate(flights):
+        k = seen.get(flight, 0)
+        if k % stride == 0:
+            rows.append(i)
+        seen[flight] = k + 1
+    return rows
+
+
+def _code_digest() -> str:
+    """sha256 of the references' source (``benchmark/references/*.py``, by name): a change of
+    any reference evaluates again."""
+    import benchmark.references as package
+
+    h = hashlib.sha256()
+    for path in sorted(Path(package.__file__).parent.glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+@dataclass(frozen=True)
+class ReferenceTask:
+    """One evaluation: reference ``name`` on ``split`` with the ``satellite`` image (``true`` or
+    ``swap``), failed frames given ``train_split``'s constant pose, every ``stride``-th frame of
+    each flight; the per-frame CSV goes to ``csv`` (None: kept in memory only)."""
+
+    name: str
+    data_root: str
+    split: str
+    satellite: str
+    train_split: str
+    stride: int
+    csv: str | None
+
+    @property
+    def key(self) -> tuple[str, str, str]:
+        return self.name, self.split, self.satellite
+
+
+def run_task(task: ReferenceTask) -> tuple[dict[str, float], pd.DataFrame]:
+    """Evaluate one task (in this process or a worker): ``(summary, per-frame table)``; writes
+    the per-frame CSV to ``task.csv`` when given (the JSON record is the caller's, last)."""
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.evaluate import pair_columns
+    from benchmark.references import create_reference, evaluate_reference, fallback_pose
+
+    dataset = PairDataset(task.data_root, task.split, satellite=task.satellite, verify="size")
+    fallback = fallback_pose(PairDataset(task.data_root, task.train_split, verify="size"))
+    rows = strided_rows(pair_columns(dataset).get("flight", range(len(dataset))), task.stride)
+    return evaluate_reference(
+        create_reference(task.name), dataset, fallback=fallback, out_csv=task.csv, rows=rows
+    )
+
+
+def _worker_init() -> None:
+    worker_init()  # one thread per process, SIGINT left to the parent
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+@dataclass
+class ReferenceResults:
+    """Every evaluation of this report: ``summaries`` and per-frame ``frames`` keyed
+    ``(name, split, satellite)``, ``records`` (the cached JSON records, same keys), ``errors``
+    (evaluations that raised: the rows read ``not run``, the table note says why) and, for rows
+    kept from an earlier report, the cache under ``workdir`` read on demand."""
+
+    summaries: dict[tuple[str, str, str], dict[str, float]] = field(default_factory=dict)
+    frames: dict[tuple[str, str, str], pd.DataFrame] = field(default_factory=dict)
+    records: dict[tuple[str, str, str], dict] = field(default_factory=dict)
+    errors: dict[tuple[str, str, str], str] = field(default_factory=dict)  # first line
+    workdir: Path | None = None
+
+    def frame_of(self, label: str, split: str, satellite: str) -> pd.DataFrame | None:
+        """The per-frame table of the reference labelled ``label`` (None: not a reference, or
+        not evaluated and not in the cache)."""
+        from benchmark.references import get_reference_class, list_references
+
+        names = [n for n in list_references() if get_reference_class(n).label == label]
+        if not names:
+            return None
+        key = (names[0], split, satellite)
+        if key not in self.frames and self.record(*key) is not None:
+            self.frames[key] = pd.read_csv(reference_paths(self.workdir, *key)[0])
+        return self.frames.get(key)
+
+    def record(self, name: str, split: str, satellite: str) -> dict | None:
+        """The JSON record of one evaluation: this report's, else the one cached in ``workdir``
+        (a table kept from an earlier report), else None."""
+        key = (name, split, satellite)
+        if key not in self.records and self.workdir is not None and key not in self.errors:
+            csv, json_path = reference_paths(self.workdir, *key)
+            if csv.is_file() and json_path.is_file():
+                try:
+                    self.records[key] = json.loads(json_path.read_text())
+                except (OSError, ValueError):
+                    return None
+        return self.records.get(key)
+
+
+def _wanted(specs: list[TableSpec]) -> list[tuple[str, str]]:
+    """``(reference, split)`` of every table that lists references, each once, in spec order."""
+    out: dict[tuple[str, str], None] = {}
+    for spec in specs:
+        if spec.kind != "table":
+            continue
+        for name in spec.references:
+            for split in spec.all_eval_splits():
+                out[name, split] = None
+    return list(out)
+
+
+def _record(task: ReferenceTask, summary: dict, frames: int, manifest: str, code: str) -> dict:
+    from benchmark.references import create_reference
+
+    ref = create_reference(task.name)
+    return {
+        "reference": task.name,
+        "label": ref.label,
+        "given": list(ref.given),
+        "options": {k: repr(v) for k, v in ref.options().items()},
+        "split": task.split,
+        "satellite": task.satellite,
+        "train_split": task.train_split,
+        "stride": task.stride,
+        "frames": frames,
+        "dataset_manifest": manifest,
+        "code_sha256": code,
+        "summary": summary,
+    }
+
+
+# What a cached record must match to be reused (the rest describes it).
+_IDENTITY = ("reference", "options", "split", "satellite", "train_split", "stride",
+             "dataset_manifest", "code_sha256")  # fmt: skip
+
+
+def _cached(task: ReferenceTask, expected: dict) -> tuple[dict, dict, pd.DataFrame] | None:
+    """``(record, summary, frame)`` of a complete cached evaluation made as ``expected`` says,
+    else None (absent, incomplete, unreadable or made otherwise: evaluated again)."""
+    if task.csv is None:
+        return None
+    csv, json_path = Path(task.csv), Path(task.csv).with_suffix(".json")
+    if not (csv.is_file() and json_path.is_file()):
+        return None
+    try:
+        record = json.loads(json_path.read_text())
+        frame = pd.read_csv(csv)
+    except (OSError, ValueError):
+        return None
+    if any(record.get(k) != expected[k] for k in _IDENTITY) or len(frame) != record.get("frames"):
+        return None
+    return record, record["summary"], frame
+
+
+def _write_json(path: Path, record: dict) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(record, indent=1, sort_keys=True, default=_json_default) + "\n")
+    tmp.replace(path)  # written last: its presence means the evaluation is complete
+
+
+def _json_default(value: object) -> object:
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def evaluate_references(
+    specs: list[TableSpec],
+    data_root: str | Path,
+    workdir: str | Path | None,
+    profile: str,
+    quiet: bool = False,
+    processes: int | None = None,
+) -> ReferenceResults:
+    """Evaluate (or read back from ``workdir``'s cache) every reference of ``specs`` on every
+    test split of the tables that list it, true and swapped satellite image.
+
+    ``profile``: the reproduction profile's name (its frame stride, :data:`PROFILE_STRIDE`);
+    ``processes``: worker processes (default: up to :data:`MAX_PROCESSES` and the CPU count when
+    at least :data:`PARALLEL_MIN_FRAMES` frames are to be evaluated, else this process). Without
+    ``workdir`` nothing is cached. A progress bar (stderr) unless ``quiet``."""
+    from benchmark.data import list_splits
+    from benchmark.evaluation.paired import swap_effect
+    from benchmark.references import default_train_split
+    from benchmark.tracking import manifest_sha256
+
+    wanted = _wanted(specs)
+    out = ReferenceResults(workdir=Path(workdir) if workdir is not None else None)
+    if not wanted:
+        return out
+    root = Path(data_root)
+    stride = PROFILE_STRIDE.get(profile, 1)
+    available = list_splits(root)
+    manifest, code = manifest_sha256(root), _code_digest()
+    tasks: dict[tuple[str, str, str], ReferenceTask] = {}
+    for name, split in wanted:
+        for satellite in SATELLITE_MODES:
+            csv = reference_paths(workdir, name, split, satellite)[0] if workdir else None
+            task = ReferenceTask(name, str(root), split, satellite,
+                                 default_train_split(split, available), stride,
+                                 str(csv) if csv else None)  # fmt: skip
+            tasks[task.key] = task
+    todo: list[ReferenceTask] = []
+    for key, task in tasks.items():
+        expected = _record(task, {}, 0, manifest, code)
+        hit = _cached(task, expected)
+        true_redone = key[2] == "swap" and tasks[(*key[:2], "true")] in todo
+        if hit is None or true_redone:  # a swap effect is computed against today's true frames
+            todo.append(task)
+        else:
+            out.records[key], out.summaries[key], out.frames[key] = hit
+    counts = {t.key: _frames_of(t) for t in todo}
+    n_frames = sum(counts.values())
+    if processes is None:
+        cpus = os.cpu_count() or 1
+        processes = min(MAX_PROCESSES, cpus, len(todo)) if n_frames >= PARALLEL_MIN_FRAMES else 1
+    done: dict[tuple[str, str, str], tuple[dict, pd.DataFrame]] = {}
+
+    def finish(task: ReferenceTask) -> None:
+        """Record finished evaluations: a true one at once, a swap one once its true one is
+        here (its swap effect is the paired difference to it, from both CSVs as written)."""
+        summary, frame = done.pop(task.key)
+        if task.satellite == "swap":
+            true_frame = out.frames[(*task.key[:2], "true")]
+            if task.csv is not None:  # both as written, so identical predictions differ by 0
+                true_csv = reference_paths(workdir, task.name, task.split, "true")[0]
+                true_frame, frame = pd.read_csv(true_csv), pd.read_csv(task.csv)
+            summary = {**summary, **swap_effect(true_frame, frame)}
+        elif task.csv is not None:
+            frame = pd.read_csv(task.csv)  # as written: the same numbers as a resumed run reads
+        record = _record(task, summary, len(frame), manifest, code)
+        if task.csv is not None:
+            _write_json(Path(task.csv).with_suffix(".json"), record)
+        out.records[task.key], out.summaries[task.key], out.frames[task.key] = (
+            record, summary, frame
+        )  # fmt: skip
+
+    def flush() -> None:
+        for key in [k for k in done if k[2] == "true"] + [k for k in done if k[2] == "swap"]:
+            true_key = (*key[:2], "true")
+            if key[2] == "swap" and true_key in out.errors:
+                done.pop(key)
+                out.errors[key] = f"its true-image evaluation failed ({out.errors[true_key]})"
+            elif key[2] == "true" or true_key in out.frames:
+                finish(tasks[key])
+
+    def failed(task: ReferenceTask, err: BaseException) -> None:
+        # One reference's error costs its rows, not the report of a finished reproduction.
+        first = (str(err).strip().splitlines() or [""])[0][:300]
+        out.errors[task.key] = f"{type(err).__name__}: {first}"
+        print(f"reference {task.name} {eval_key(task.split, task.satellite)} failed: "
+              f"{out.errors[task.key]}", file=sys.stderr)  # fmt: skip
+
+    bar = Progress(n_frames, "references", unit="pair", enabled=not quiet and bool(todo))
+    with bar:
+        bar.status(
+            f"{len(todo)} evaluation(s) to run ({len(tasks) - len(todo)} read back), "
+            f"{processes} process(es)"
+            + (f", 1 frame in {stride} of each flight" if stride > 1 else "")
+        )
+        if processes <= 1:
+            for task in todo:
+                bar.status(f"{task.name} {eval_key(task.split, task.satellite)}")
+                try:
+                    done[task.key] = run_task(task)
+                except Exception as err:
+                    failed(task, err)
+                flush()
+                bar.update(counts[task.key])
+        elif todo:
+            _run_pool(todo, processes, done, flush, failed, counts, bar)
+    for key in [k for k in done if k[2] == "swap"]:  # a swap whose true one failed
+        done.pop(key)
+    return out
+
+
+def _run_pool(todo, processes, done, flush, failed, counts, bar: Progress) -> None:
+    """Run ``todo`` in a spawn pool of ``processes`` workers; results into ``done`` (then
+    ``flush()``), errors to ``failed(task, err)``, in order of completion."""
+    ctx = multiprocessing.get_context("spawn")
+    pool = cf.ProcessPoolExecutor(processes, mp_context=ctx, initializer=_worker_init)
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # see runner.pool
+        try:
+            futures = {pool.submit(run_task, task): task for task in todo}
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        for future in cf.as_completed(futures):
+            task = futures[future]
+            try:
+                done[task.key] = future.result()
+            except Exception as err:
+                failed(task, err)
+            flush()
+            bar.update(counts[task.key], postfix=f"done {task.name} "
+                       f"{eval_key(task.split, task.satellite)}")  # fmt: skip
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            if process.is_alive():
+                process.terminate()
+        raise
+    pool.shutdown(wait=True)
+
+
+def _frames_of(task: ReferenceTask) -> int:
+    """Frames the task evaluates (from the split's pair table, no image read)."""
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.evaluate import pair_columns
+
+    dataset = PairDataset(task.data_root, task.split, verify="size")
+    return len(strided_rows(pair_columns(dataset).get("flight", range(len(dataset))), task.stride))
+
+
+def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[dict]:
+    """``results.csv`` rows of the references of every table spec: one per (table, reference,
+    split, satellite mode), the summary's metrics (timings left out), ``seed`` 0, ``role``
+    ``test``, ``satellite_input`` ``image``, ``reference`` its registry name and ``train_split``
+    the table's for the split (the constant row's: the rows sit beside the table's models)."""
+    from benchmark.references import get_reference_class
+
+    rows = []
+    for spec in specs:
+        if spec.kind != "table":
+            continue
+        for name in spec.references:
+            label = get_reference_class(name).label
+            for split in spec.all_eval_splits():
+                for satellite in SATELLITE_MODES:
+                    summary = results.summaries.get((name, split, satellite))
+                    if summary is None:
+                        continue
+                    metrics = {k: v for k, v in summary.items() if k not in TIMING_KEYS}
+                    rows.append(
+                        {"table": spec.name, "label": label, "paper_model": "", "x": None,
+                         "split": split, "satellite": satellite, "satellite_input": "image",
+                         "train_split": spec.train_split_for(split), "role": "test", "seed": 0,
+                         "reference": name, **metrics}
+                    )  # fmt: skip
+    return rows
+
+
+def reference_note(spec: TableSpec, results: ReferenceResults) -> str:
+    """The paragraph under a table with reference rows: what each is given, the frames it was
+    evaluated on, its failure rate and speed per split; ``""`` for a table without."""
+    if spec.kind != "table" or not spec.references:
+        return ""
+    lines = [
+        "",
+        "Non-learned rows (issue 21), evaluated like the models (the models' test frames unless "
+        "a stride is stated below, the same metrics, flight bootstrap and swap probe; no seed, "
+        "so one evaluation) and part of no claim about the heads. A frame where a reference "
+        "gives up (too few ground pixels, template cells or PnP inliers) gets the constant "
+        "predictor's pose and counts as failed. They are not evaluated on validation splits "
+        "(nothing is chosen on them): their *val* cells read `–`.",
+        "",
+    ]
+    for name in spec.references:
+        parts = []
+        for split in spec.all_eval_splits():
+            record = results.record(name, split, "true")
+            error = results.errors.get((name, split, "true")) or results.errors.get(
+                (name, split, "swap")
+            )
+            if record is None:
+                parts.append(f"`{split}` not run" + (f" ({error})" if error else ""))
+                continue
+            s = record["summary"]
+            stride = int(record.get("stride", 1))
+            frames = f"{record['frames']} frames" + (
+                f" (1 in {stride} of each flight)" if stride > 1 else ""
+            )
+            rate = s.get("failure_rate", math.nan)
+            speed = s.get("frames_per_s", math.nan)
+            parts.append(
+                f"`{split}` {frames}, failed {100 * rate:.0f}%"
+                + (f", {speed:.1f} frames/s in one process" if math.isfinite(speed) else "")
+                + (f"; swapped image not run ({error})" if error else "")
+            )
+        lines.append(f"- `{name}` ({reads_text(name)}): " + "; ".join(parts) + ".")
+    return "\n".join(lines) + "\n"
+
+
+def reads_text(name: str) -> str:
+    """Which true values reference ``name`` reads (``Reference.given``) and what it estimates."""
+    from benchmark.references import get_reference_class
+
+    given = get_reference_class(name).given
+    if given:
+        return f"reads the true {', '.join(given)}; estimates the rest of the pose from the images"
+    return "reads no true pose value; estimates the whole pose from the two images"
+
+
+def describe_references(names: Iterable[str]) -> list[str]:
+    """One sentence per reference: its row label (which says it is not learned), its registry
+    name and which true values it reads, for the README and the tracker's descriptions."""
+    from benchmark.references import get_reference_class
+
+    return [f"{get_reference_class(n).label}, `{n}`: {reads_text(n)}" for n in names]

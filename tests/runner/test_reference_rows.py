@@ -1,0 +1,293 @@
+"""The non-learned reference rows of the tables (issue 21, item 5): the spec field, the frame
+stride, evaluation with its cache on the smoke dataset, the rendered rows, and that no claim about
+the heads sees them."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from test_frames import Repro
+
+import benchmark.references as references_module
+from benchmark.evaluation.paired import swap_effect
+from benchmark.references import get_reference_class, list_references
+from benchmark.runner import reference_rows as rr
+from benchmark.runner.claims import evaluate_claims
+from benchmark.runner.findings import findings_markdown
+from benchmark.runner.outputs import REPORT_METRICS
+from benchmark.runner.report import NO_VAL, markdown_table, summarize
+from benchmark.runner.specs import SpecError, default_spec_dir, load_spec
+from benchmark.runner.spread import FRAME_METRICS, read_frames
+
+STD = "standard/test"
+TABLES = ("table1", "table2", "towns", "extended")
+SPEC_HEAD = """# Beyond the paper: reference rows under test.
+name: refs
+title: References under test
+kind: {kind}
+train_split: standard/train
+eval_splits: [standard/test]
+metrics: [dpsi_deg, dphi_deg]
+swap_metrics: [dpsi_deg, dphi_deg]
+variants:
+  - {{label: Pd/Re-Net, paper_model: Pd/Re-Net, attitude: pd_re_net}}
+"""
+
+
+def write_spec(tmp_path: Path, references: str, kind: str = "table") -> Path:
+    text = SPEC_HEAD.format(kind=kind) + f"references: {references}\n"
+    if kind == "sweep":
+        text += "sweep: h\nsweep_values: ['1']\n"
+    path = tmp_path / "refs.yaml"
+    path.write_text(text)
+    return path
+
+
+class TestSpecField:
+    @pytest.mark.parametrize("table", TABLES)
+    def test_the_four_tables_list_the_three_references(self, table):
+        spec = load_spec(default_spec_dir() / f"{table}.yaml")
+        assert spec.references == ("geometry_oracle", "gravity_template", "feature_pnp")
+        labels = rr.reference_labels(spec)
+        assert all("not learned" in label and "given" in label for label in labels)
+        assert "oracle" in labels[0].lower()
+
+    def test_good_names_in_order(self, tmp_path):
+        spec = load_spec(write_spec(tmp_path, "[feature_pnp, geometry_oracle]"))
+        assert spec.references == ("feature_pnp", "geometry_oracle")
+
+    def test_absent_is_none(self):
+        assert load_spec(default_spec_dir() / "table5.yaml").references == ()
+
+    @pytest.mark.parametrize(
+        ("value", "kind", "message"),
+        [
+            ("[geometry_oracle, sift_magic]", "table", r"references\[1\] 'sift_magic' is not a"),
+            ("geometry_oracle", "table", "references must be a list"),
+            ("[geometry_oracle, geometry_oracle]", "table", "lists a name twice"),
+            ("[geometry_oracle]", "sweep", "references are rows of a table; kind 'sweep'"),
+        ],
+    )
+    def test_bad_values_name_the_file_and_field(self, tmp_path, value, kind, message):
+        path = write_spec(tmp_path, value, kind)
+        with pytest.raises(SpecError, match=message) as err:
+            load_spec(path)
+        assert str(path) in str(err.value)
+        if "not a" in message:
+            assert all(name in str(err.value) for name in list_references())
+
+
+class TestStride:
+    def test_every_kth_frame_of_each_flight(self):
+        flights = ["a", "a", "a", "b", "b", "a", "c"]
+        assert rr.strided_rows(flights, 2) == [0, 2, 3, 6]  # a: 1st, 3rd; b: 1st; c: 1st
+        assert rr.strided_rows(flights, 1) == list(range(7))
+        assert rr.strided_rows(flights, 10) == [0, 3, 6]  # every flight keeps a frame
+
+    def test_stride_below_one(self):
+        with pytest.raises(ValueError, match="stride must be >= 1"):
+            rr.strided_rows([1, 2], 0)
+
+
+def oracle_spec(tmp_path: Path):
+    return load_spec(write_spec(tmp_path, "[geometry_oracle]"))
+
+
+@pytest.fixture()
+def counted(monkeypatch):
+    """Count the evaluations actually run (``run_task`` imports it from the package)."""
+    calls = []
+    real = references_module.evaluate_reference
+
+    def counting(reference, dataset, **kwargs):
+        calls.append((reference.name, dataset.satellite))
+        return real(reference, dataset, **kwargs)
+
+    monkeypatch.setattr(references_module, "evaluate_reference", counting)
+    return calls
+
+
+class TestEvaluateAndCache:
+    def test_written_then_read_back(self, tmp_path, smoke_dataset, counted):
+        spec, work = oracle_spec(tmp_path), tmp_path / "work"
+        first = rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+        assert sorted(counted) == [("geometry_oracle", "swap"), ("geometry_oracle", "true")]
+        csv, js = rr.reference_paths(work, "geometry_oracle", STD, "swap")
+        assert csv.name == "standard__test__swap.csv" and js.is_file()
+        record = json.loads(js.read_text())
+        assert record["given"] == list(get_reference_class("geometry_oracle").given)
+        assert record["stride"] == 1 and record["frames"] == len(pd.read_csv(csv))
+        # The swap effect as a model's: swap_effect of the two cached CSVs.
+        true_csv = rr.reference_paths(work, "geometry_oracle", STD, "true")[0]
+        expected = swap_effect(pd.read_csv(true_csv), pd.read_csv(csv))
+        for key, value in expected.items():
+            assert first.summaries["geometry_oracle", STD, "swap"][key] == pytest.approx(value)
+        # The model's predictions format: the bootstrap's reader takes it as a model's CSV.
+        frames = read_frames([true_csv, true_csv])
+        assert set(FRAME_METRICS) <= set(frames.columns) and "flight" in frames
+
+        counted.clear()
+        second = rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+        assert counted == []  # nothing evaluated again
+        assert second.summaries == first.summaries
+        pd.testing.assert_frame_equal(
+            second.frames["geometry_oracle", STD, "true"],
+            first.frames["geometry_oracle", STD, "true"],
+        )
+
+    def test_incomplete_or_other_stride_is_evaluated_again(
+        self, tmp_path, smoke_dataset, counted, monkeypatch
+    ):
+        spec, work = oracle_spec(tmp_path), tmp_path / "work"
+        rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+        # No JSON (killed before it was written): the true one again, and the swap one, whose
+        # swap effect compares with the new true frames.
+        rr.reference_paths(work, "geometry_oracle", STD, "true")[1].unlink()
+        counted.clear()
+        rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+        assert sorted(counted) == [("geometry_oracle", "swap"), ("geometry_oracle", "true")]
+        # Another stride for this profile: evaluated again, on 1 frame in 2 of each flight.
+        monkeypatch.setitem(rr.PROFILE_STRIDE, "smoke", 2)
+        counted.clear()
+        out = rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+        assert len(counted) == 2
+        record = out.record("geometry_oracle", STD, "true")
+        assert record["stride"] == 2
+        frame = out.frames["geometry_oracle", STD, "true"]
+        assert list(frame["index"]) == rr.strided_rows(_flights(smoke_dataset), 2)
+        assert "1 in 2 of each flight" in rr.reference_note(spec, out)
+
+    def test_an_error_costs_the_rows_not_the_report(self, tmp_path, smoke_dataset, monkeypatch):
+        def broken(reference, dataset, **kwargs):
+            raise RuntimeError("cv2 exploded\nsecond line")
+
+        monkeypatch.setattr(references_module, "evaluate_reference", broken)
+        spec = oracle_spec(tmp_path)
+        out = rr.evaluate_references([spec], smoke_dataset, tmp_path / "w", "smoke", quiet=True)
+        assert out.summaries == {} and rr.reference_rows([spec], out) == []
+        assert out.errors["geometry_oracle", STD, "true"] == "RuntimeError: cv2 exploded"
+        assert "not run (RuntimeError: cv2 exploded)" in rr.reference_note(spec, out)
+
+
+def _flights(root: Path) -> list:
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.evaluate import pair_columns
+
+    return list(pair_columns(PairDataset(root, STD, verify="size"))["flight"])
+
+
+@pytest.fixture(scope="module")
+def table1_references(tmp_path_factory, smoke_dataset):
+    """table1's three references evaluated on the smoke dataset (cached in a work directory)."""
+    spec = load_spec(default_spec_dir() / "table1.yaml")
+    work = tmp_path_factory.mktemp("ref-work")
+    return spec, rr.evaluate_references([spec], smoke_dataset, work, "smoke", quiet=True)
+
+
+class TestRenderedRows:
+    def test_rows_and_labels_in_the_table(self, table1_references):
+        spec, results = table1_references
+        rows = pd.DataFrame(rr.reference_rows([spec], results))
+        assert len(rows) == 3 * 2  # three references, true and swapped image, one split
+        assert set(rows["reference"]) == set(spec.references)
+        assert (rows["seed"] == 0).all() and (rows["role"] == "test").all()
+        assert not {"frames_per_s", "cpu_ms_per_frame"} & set(rows.columns)
+        summary = summarize(rows, [m for m in REPORT_METRICS if m in rows])
+        labels = rr.reference_labels(spec)
+        text = markdown_table(spec, summary, pd.DataFrame(), [], True, frozenset(), labels)
+        main, probe = text.split("Satellite-swap probe")
+        for label, name in zip(labels, spec.references, strict=True):
+            line = next(x for x in main.splitlines() if x.startswith(f"| {label} |"))
+            oracle = results.summaries[name, STD, "true"]
+            assert f"{oracle['dpsi_deg']:.2f}" in line and "not run" not in line
+            assert line.count(f" {NO_VAL} |") >= 2  # no validation split: not "not run"
+            line = next(x for x in probe.splitlines() if f"| {label} |" in x)
+            swap = results.summaries[name, STD, "swap"]
+            assert f"{swap['swap_dpsi_diff_deg']:+.2f}" in line
+        note = rr.reference_note(spec, results)
+        assert "part of no claim about the heads" in note
+        assert "reads the true position E, N, U, pitch, roll" in note
+        assert "reads no true pose value" in note
+
+    def test_kept_tables_read_the_cache(self, table1_references):
+        spec, results = table1_references
+        cold = rr.ReferenceResults(workdir=results.workdir)  # a later report, nothing evaluated
+        label = rr.reference_labels(spec)[1]
+        pd.testing.assert_frame_equal(
+            cold.frame_of(label, STD, "swap"), results.frames["gravity_template", STD, "swap"]
+        )
+        assert cold.frame_of("Pd/Re-Net", STD, "true") is None
+
+
+class TestNoClaimSeesThem:
+    def test_same_claims_with_and_without_reference_rows(self, tmp_path, table1_references):
+        """A synthetic reproduction (heads that win, lose and sit at the constant's level on
+        table1 and extended) decided twice: with the reference rows in the summaries and an
+        oracle's near-perfect predictions cached in the work directory, and without. Every
+        verdict, number and sentence is the same, and no claim names a reference."""
+        spec, results = table1_references
+        repro = Repro(tmp_path)
+        for table in ("table1", "extended"):
+            repro.add(table, "Pd/Re-Net", {STD: 5.0})
+            repro.add(table, "Re-Net-R", {STD: 12.0})
+            repro.add(table, "Pd-Net-E", {STD: "constant"})
+        store = repro.store()
+        rows = pd.DataFrame(
+            [{"table": t, "label": "Pd/Re-Net", "paper_model": "", "x": None, "split": STD,
+              "satellite": "true", "satellite_input": "image", "train_split": "standard/train",
+              "role": "test", "seed": 0, "dphi_deg": 5.0} for t in ("table1", "extended")]
+        )  # fmt: skip
+        without = {
+            t: summarize(rows[rows.table == t], ["dphi_deg"]) for t in ("table1", "extended")
+        }
+        refs = pd.DataFrame(rr.reference_rows([spec], results))
+        refs = pd.concat([refs, refs.assign(table="extended")], ignore_index=True)
+        everything = pd.concat([rows, refs], ignore_index=True)
+        with_refs = {
+            t: summarize(everything[everything.table == t], ["dphi_deg"])
+            for t in ("table1", "extended")
+        }
+        # An oracle in the work directory, far better than every head, in the models' format.
+        src = next((repro.workdir / "units").glob("table1-Pd_Re-Net-None-0/eval/*.csv"))
+        for name in spec.references:
+            dst = rr.reference_paths(repro.workdir, name, STD, "true")[0]
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            frame = pd.read_csv(src)
+            frame[list(FRAME_METRICS)] = 0.01
+            frame.to_csv(dst, index=False)
+            dst.with_suffix(".json").write_text(json.dumps({"reference": name, "frames": 60}))
+
+        a = evaluate_claims(without, store)
+        b = evaluate_claims(with_refs, repro.store())
+        assert [_digest(c) for c in a] == [_digest(c) for c in b]
+        assert findings_markdown(a) == findings_markdown(b)
+        assert any(c.verdict == "supported" for c in a)  # the claims did decide something
+        labels = rr.reference_labels(spec)
+        for c in b:
+            text = " ".join([c.claim, c.evidence, c.difference, json.dumps(c.facts, default=str)])
+            assert not any(label in text for label in labels)
+            assert "oracle" not in text.lower()
+        assert not set(labels) & (set(store.labels("table1")) | set(store.labels("extended")))
+
+
+def _digest(claim) -> tuple:
+    comps = [(c.where, c.verdict, _num(c.diff), _num(c.lo), _num(c.hi)) for c in claim.comparisons]
+    return claim.claim, claim.verdict, claim.evidence, claim.difference, comps, claim.excluded
+
+
+def _num(x: float) -> float | None:
+    return None if x is None or (isinstance(x, float) and math.isnan(x)) else round(x, 9)
+
+
+def test_the_tracker_descriptions_name_what_each_reference_is_given():
+    from benchmark.runner.descriptions import table_experiment
+
+    text = table_experiment(load_spec(default_spec_dir() / "table1.yaml"), "quick")
+    for name in ("geometry_oracle", "gravity_template", "feature_pnp"):
+        assert f"`{name}`: reads" in text
+    assert "not learned; given true position, pitch, roll" in text
+    assert "not learned" not in table_experiment(load_spec(default_spec_dir() / "fig5.yaml"), "q")
