@@ -1,7 +1,10 @@
 """``uavbench bench train``: training throughput per precision, against a plain reference loop.
 
-For each model (quick: 96 px, width 0.25; paper: 224 px, width 1.0; both Pd/Re-Net with AGTFM) it
-times full training steps (forward, Algorithm 1 loss, backward, optimiser update) of
+For each model (quick: 96 px, width 0.25; paper: 224 px, width 1.0; Pd/Re-Net) and each encoder of
+``--encoders`` (default both, side by side in the same rounds: ``googlenet``, the paper's Siamese
+GoogLeNet with AGTFM, ``--variant``; ``matching``, issue 21's matching encoder with its default
+options, variant ``/``, the width ignored) it times full training steps (forward, Algorithm 1
+loss plus the encoder's own loss, backward, optimiser update) of
 
 - plain: the same architecture and initial weights in the default memory format, every satellite
   image encoded (no sharing), float32: what a plain PyTorch loop would do;
@@ -14,13 +17,17 @@ times full training steps (forward, Algorithm 1 loss, backward, optimiser update
   weights bit for bit; ``loop.CPU_FOREACH``): the before/after of that change, side by side,
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
-(``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step, so
-machine load affects every column alike. It prints pairs/s, the ratio to plain and to our fp32,
-the step's convolution/matmul rate and its share of the ceiling of the same precision; with bf16
-beside fp32, a table of bf16/fp32 and bf16/plain per model (the issue's layout). On the CPU a line
+(``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step (both
+encoders' loops too), so machine load affects every column alike. It prints pairs/s, the ratio to
+plain and to our fp32, the step's counted rate and its share of the convolution ceiling of the
+same precision; per model, the matching encoder beside GoogLeNet (pairs/s and FLOPs per step,
+loop by loop) and each encoder's FLOPs by kind; with bf16 beside fp32, a table of bf16/fp32 and
+bf16/plain per model and encoder (the issue's layout). On the CPU a line
 says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and which ISA and kernels ran a
 training convolution in each precision (``bench_ceiling.cpu_bf16_line``).
 
+The batch (``batch_of``): random pixels, labels and ``context`` with the quick dataset's geometry
+(``benchmark.models.bench_inputs``: the matching encoder's templates land as on real pairs).
 The optimiser is the paper's SGD with momentum (lr 1e-3, as the issue measured) or, with
 ``--optimizer adam``, the quick profile's Adam (lr 3e-4, gradient norm clipped at 10), both built by
 ``make_optimizer`` as training builds them. ``--profile N`` adds, per "ours" loop, where one step's
@@ -29,7 +36,14 @@ time goes by kind of work (``bench_breakdown``) and torch.profiler's N top ops.
 FLOPs of a step are counted, not estimated: ``torch.utils.flop_counter.FlopCounterMode`` runs one
 whole step (forward and backward) and counts 2 x multiply-adds of every convolution and matrix
 product, including their input and weight gradients (about 3x the forward; the first convolution
-computes no input gradient). Normalisation, activations, pooling and the optimiser are not counted.
+computes no input gradient), with ``benchmark.models.flop_count``'s formulas for what torch
+miscounts or skips: complex matrix products (the matching encoder's DFT correlation: 8 real FLOPs
+per complex multiply-add, not 2), the spectra's complex elementwise products, and bilinear
+``grid_sample`` (the bird's-eye templates and the satellite grid). Normalisation, activations,
+pooling, softmax, the losses and the optimiser are not counted (FFTs neither: the matching
+encoder's default correlation is the DFT by matrix products). The share of the convolution
+ceiling compares every counted FLOP (complex GEMMs included) with the best training
+convolution's rate.
 """
 
 from __future__ import annotations
@@ -39,11 +53,13 @@ import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
 MODELS = {"quick": (96, 0.25), "paper": (224, 1.0)}
+ENCODERS = ("googlenet", "matching")
 # --optimizer: OptimConfig fields (benchmark.training.config); "adam" is the quick profile's
 # (benchmark.runner.profiles, which training may not import), "sgd" the paper's (Sec. 3.3).
 OPTIMIZERS: dict[str, dict[str, object]] = {
@@ -90,7 +106,8 @@ def loop_specs(
 class LoopResult:
     """One timed loop: ``pairs_per_s`` (median step), ``step_gflop`` (counted FLOPs of a step,
     in 10^9), ``gflops`` (counted FLOPs / median step time) and ``ceiling_share`` (``gflops`` /
-    the ceiling of this precision; None without a ceiling)."""
+    the ceiling of this precision; None without a ceiling); ``encoder`` the encoder's registry
+    name and ``gflop_by_kind`` the step's counted FLOPs per ``flop_count.KINDS`` (10^9)."""
 
     loop: str  # "plain fp32", "base fp32", "ours fp32", "ours bf16"
     precision: str
@@ -98,11 +115,15 @@ class LoopResult:
     step_gflop: float
     gflops: float
     ceiling_share: float | None
+    encoder: str = "googlenet"
+    gflop_by_kind: dict[str, float] = field(default_factory=dict)  # flop_count.KINDS, 10^9
 
 
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="uavbench bench train", description=__doc__.split("\n")[0])
     p.add_argument("--models", default="quick,paper", help="comma list of quick,paper")
+    p.add_argument("--encoders", default=",".join(ENCODERS), help="comma list of "
+                   f"{','.join(ENCODERS)} (default both, in the same rounds)")  # fmt: skip
     p.add_argument("--batch-size", type=int, default=20, help="pairs per step (paper: 20)")
     p.add_argument("--distinct-sat", type=int, default=4, help="distinct satellite images/batch")
     p.add_argument("--steps", type=int, default=5, help="timed steps per loop and model")
@@ -111,7 +132,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, help="override the image size of every model")
     p.add_argument("--width", type=float, help="override the width of every model")
     p.add_argument("--attitude", default="pd_re_net")
-    p.add_argument("--variant", default="a-f")
+    p.add_argument("--variant", default="a-f", help="GoogLeNet's variant (matching: '/')")
     p.add_argument("--device", default="auto", help="auto (CUDA, else MPS, else CPU), cpu, cuda, "
                    "cuda:N or mps")  # fmt: skip
     p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
@@ -133,23 +154,24 @@ def parser() -> argparse.ArgumentParser:
 
 def batch_of(
     size: int, batch: int, distinct: int, device: torch.device | None = None
-) -> dict[str, torch.Tensor]:
+) -> dict[str, Any]:
     """A random batch of ``batch`` pairs over ``distinct`` satellite images (same bytes for the
-    same arguments): ``uav, sat (B, 3, size, size)`` in [0, 1], ``sat_id (B,)``, ``R (B, 3, 3)``
-    rotations, ``T (B, 3)`` metres; on ``device`` (default CPU)."""
+    same arguments): ``uav, sat (B, 3, size, size)`` in [0, 1], ``sat_id (B,)``, labels
+    ``R (B, 3, 3)`` and ``T (B, 3)`` metres and the ``context`` dict (a pair encoder's geometry),
+    drawn from the quick dataset's ranges (``bench_inputs.synthetic_labels``); on ``device``
+    (default CPU)."""
+    from benchmark.models.bench_inputs import synthetic_labels
+
     g = torch.Generator().manual_seed(0)
     sats = torch.rand(distinct, 3, size, size, generator=g)
     sat_ids = torch.arange(batch) % distinct
-    R = torch.linalg.qr(torch.randn(batch, 3, 3, generator=g)).Q
-    R = R * torch.linalg.det(R).sign()[:, None, None]  # det +1
-    out = {
-        "uav": torch.rand(batch, 3, size, size, generator=g),
-        "sat": sats[sat_ids],
-        "sat_id": sat_ids,
-        "R": R,
-        "T": torch.randn(batch, 3, generator=g) * 50,
-    }
-    return {k: v.to(device) for k, v in out.items()} if device is not None else out
+    uav = torch.rand(batch, 3, size, size, generator=g)
+    R, T, context = synthetic_labels(batch, g)
+    out = {"uav": uav, "sat": sats[sat_ids], "sat_id": sat_ids, "R": R, "T": T}
+    if device is not None:
+        out = {k: v.to(device) for k, v in out.items()}
+        context = {k: v.to(device) for k, v in context.items()}
+    return {**out, "context": context}
 
 
 def make_step(
@@ -172,7 +194,10 @@ def make_step(
         synchronize(device)
         start = time.perf_counter()
         with autocast(device, precision):
-            out = model(batch["uav"], batch["sat"], batch["sat_id"] if share else None)
+            out = model(
+                batch["uav"], batch["sat"], batch["sat_id"] if share else None,
+                context=batch["context"],
+            )  # fmt: skip
         if precision != "fp32":
             out = outputs_to_float(out)  # losses in float32, as training computes them
         loss = model.loss(out, batch["R"], batch["T"])["total"]
@@ -190,19 +215,13 @@ def make_step(
 
 def step_flops(step: Callable[[], float]) -> dict[str, int]:
     """FLOPs (2 x multiply-adds, forward and backward) of one call of ``step`` (which then also
-    updates the weights: count before timing): ``total``, ``convolution`` (forward and both
-    gradients) and ``matmul`` (mm, addmm, bmm, ...: the dense layers)."""
-    from torch.utils.flop_counter import FlopCounterMode
+    updates the weights: count before timing): ``total`` and each kind of
+    ``benchmark.models.flop_count.KINDS``: ``convolution`` (forward and both gradients),
+    ``matmul`` (real mm, addmm, bmm, ...: the dense layers), ``dft`` (complex matrix products),
+    ``spectrum`` (complex elementwise products) and ``sampling`` (``grid_sample``)."""
+    from benchmark.models.flop_count import count_flops_by_kind
 
-    with FlopCounterMode(display=False) as counter:
-        step()
-    ops = counter.get_flop_counts().get("Global", {})
-    conv = sum(int(n) for op, n in ops.items() if "convolution" in str(op))
-    return {
-        "total": int(counter.get_total_flops()),
-        "convolution": conv,
-        "matmul": sum(int(n) for op, n in ops.items() if "convolution" not in str(op)),
-    }
+    return count_flops_by_kind(step)
 
 
 def count_step_flops(step: Callable[[], float]) -> int:
@@ -218,19 +237,28 @@ def optim_config(args: argparse.Namespace):
     return OptimConfig(**OPTIMIZERS[args.optimizer], batch_size=args.batch_size)  # type: ignore[arg-type]
 
 
-def build(size: int, width: float, args: argparse.Namespace, spec: LoopSpec, device):
-    """The benchmarked model (seed 0: every loop starts from the same weights) and its
-    optimiser, built by training's ``make_optimizer`` (``spec.foreach``)."""
+def build(
+    size: int,
+    width: float,
+    args: argparse.Namespace,
+    spec: LoopSpec,
+    device,
+    encoder: str = "googlenet",
+):
+    """The benchmarked model (seed 0: every loop of an encoder starts from the same weights) and
+    its optimiser, built by training's ``make_optimizer`` (``spec.foreach``). GoogLeNet takes
+    ``--variant``; the matching encoder has one level (variant ``/``) and its default options."""
     from benchmark.models import create_model
     from benchmark.training.config import TrainConfig
     from benchmark.training.loop import make_optimizer
 
     torch.manual_seed(0)
     m = create_model(
+        encoder=encoder,
         width=width,
         input_size=size,
         attitude=args.attitude,
-        variant=args.variant,
+        variant=args.variant if encoder == "googlenet" else "/",
         channels_last=spec.channels_last,
     )
     m.translation_head.set_statistics(torch.zeros(3), torch.full((3,), 50.0))
@@ -245,70 +273,81 @@ def measure(
     args: argparse.Namespace,
     device: torch.device,
     precisions: Sequence[str],
+    encoders: Sequence[str] = ("googlenet",),
 ) -> tuple[list[LoopResult], dict[str, float]]:
-    """Time the loops of one model side by side; ``(loops, ceiling GFLOP/s per precision)``."""
+    """Time the loops of one model side by side, every encoder's in the same rounds;
+    ``(loops, ceiling GFLOP/s per precision)``."""
     from benchmark.models.bench_ceiling import SHAPES, CeilingResult, conv_job
+    from benchmark.models.flop_count import KINDS
 
     batch = batch_of(size, args.batch_size, args.distinct_sat, device)
     clip = optim_config(args).grad_clip
     base = not getattr(args, "no_base", False)
     specs = loop_specs(precisions, device, not args.no_plain, base, args.optimizer)
-    loops: dict[str, tuple[str, Callable[[], float]]] = {}
-    for spec in specs:
-        model, opt = build(size, width, args, spec, device)
-        step = make_step(model, opt, batch, spec.share, device, spec.precision, clip)
-        loops[spec.name] = (spec.precision, step)
-    flops = {name: step_flops(step) for name, (_, step) in loops.items()}
+    loops: dict[tuple[str, str], tuple[str, Callable[[], float]]] = {}
+    for encoder in encoders:
+        for spec in specs:
+            model, opt = build(size, width, args, spec, device, encoder)
+            step = make_step(model, opt, batch, spec.share, device, spec.precision, clip)
+            loops[encoder, spec.name] = (spec.precision, step)
+    flops = {key: step_flops(step) for key, (_, step) in loops.items()}
     convs: dict[tuple[str, str], tuple[Callable[[], float], int]] = {}
     if not args.no_ceiling:
         for precision in precisions:
             for shape_name, shape in SHAPES.items():
                 convs[precision, shape_name] = conv_job(shape, device, precision,
                                                         args.ceiling_batch)  # fmt: skip
-    jobs = {**{k: v[1] for k, v in loops.items()}, **{k: v[0] for k, v in convs.items()}}
+    jobs = {**{k: v[1] for k, v in loops.items()}, **{("conv", *k): v[0] for k, v in convs.items()}}
     for _ in range(args.warmup + 1):  # +1: the conv jobs' first run picks kernels
         for run in jobs.values():
             run()
-    times: dict[object, list[float]] = {key: [] for key in jobs}
+    times: dict[tuple[str, ...], list[float]] = {key: [] for key in jobs}
     for _ in range(args.steps):  # round robin: load affects every loop alike
         for key, run in jobs.items():
             times[key].append(run())
     ceilings = {}
     for precision in precisions if convs else ():
         rates = {
-            shape: convs[precision, shape][1] / statistics.median(times[precision, shape]) / 1e9
+            shape: convs[precision, shape][1]
+            / statistics.median(times["conv", precision, shape])
+            / 1e9
             for shape in SHAPES
         }
         ceilings[precision] = CeilingResult.of(precision, rates).gflops
     results = []
-    for name, (precision, _) in loops.items():
-        seconds = statistics.median(times[name])
-        total = flops[name]["total"]
+    for (encoder, name), (precision, _) in loops.items():
+        seconds = statistics.median(times[encoder, name])
+        total = flops[encoder, name]["total"]
         gflops = total / seconds / 1e9
         share = gflops / ceilings[precision] if precision in ceilings else None
-        results.append(
-            LoopResult(name, precision, args.batch_size / seconds, total / 1e9, gflops, share)
-        )
+        kinds = {k: flops[encoder, name][k] / 1e9 for k in KINDS}
+        results.append(LoopResult(name, precision, args.batch_size / seconds, total / 1e9,
+                                  gflops, share, encoder, kinds))  # fmt: skip
     if getattr(args, "profile", 0):
         from benchmark.training.bench_breakdown import breakdown_line, profile_step
 
-        for name, (precision, step) in loops.items():
+        for (encoder, name), (precision, step) in loops.items():
             if name.startswith("ours"):
                 table, kinds = profile_step(step, args.profile)
-                print(f"profile of one step, {size} px width {width:g}, {name}:")
-                print(breakdown_line(kinds, flops[name], ceilings.get(precision)))
+                print(f"profile of one step, {size} px width {width:g}, {encoder} {name}:")
+                print(breakdown_line(kinds, flops[encoder, name], ceilings.get(precision)))
                 print(table)
     return results, ceilings
 
 
-def check_args(args: argparse.Namespace) -> list[str]:
-    """The model names of ``--models``; UsageError naming the bad flag otherwise."""
+def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
+    """``(model names, encoder names)`` of ``--models`` and ``--encoders``; UsageError naming the
+    bad flag otherwise."""
     from benchmark.errors import UsageError
 
     names = [m.strip() for m in args.models.split(",") if m.strip()]
     unknown = [m for m in names if m not in MODELS]
     if unknown or not names:
         raise UsageError(f"--models {args.models!r}: expected a comma list of {sorted(MODELS)}")
+    encoders = [e.strip() for e in args.encoders.split(",") if e.strip()]
+    if not encoders or len(set(encoders)) != len(encoders) or set(encoders) - set(ENCODERS):
+        raise UsageError(f"--encoders {args.encoders!r}: expected a comma list of distinct "
+                         f"{', '.join(ENCODERS)}")  # fmt: skip
     for name in ("batch_size", "distinct_sat", "steps"):
         if getattr(args, name) < 1:
             raise UsageError(f"--{name.replace('_', '-')} must be >= 1")
@@ -320,7 +359,7 @@ def check_args(args: argparse.Namespace) -> list[str]:
         raise UsageError("--ceiling-batch must be >= 1")
     if args.distinct_sat > args.batch_size:
         raise UsageError("--distinct-sat cannot exceed --batch-size")
-    return names
+    return names, encoders
 
 
 def resolve(args: argparse.Namespace) -> tuple[torch.device, list[str], list[str]]:
@@ -338,26 +377,28 @@ def resolve(args: argparse.Namespace) -> tuple[torch.device, list[str], list[str
 
 
 def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -> list[str]:
-    """One line per loop: pairs/s, x plain, x our fp32, GFLOP/s, % of the ceiling."""
-    by = {r.loop: r for r in results}
-    plain, fp32 = by.get("plain fp32"), by.get("ours fp32")
+    """One line per loop: encoder, pairs/s, x plain and x our fp32 (of the same encoder),
+    GFLOP/step, GFLOP/s, % of the ceiling. The matching encoder ignores the width (``-``)."""
+    by = {(r.encoder, r.loop): r for r in results}
     rows = []
     for r in results:
+        plain, fp32 = by.get((r.encoder, "plain fp32")), by.get((r.encoder, "ours fp32"))
         vs_plain = f"{r.pairs_per_s / plain.pairs_per_s:7.2f}x" if plain else f"{'-':>8s}"
         ours = r.loop.startswith(("ours", "base")) and fp32
         vs_fp32 = f"{r.pairs_per_s / fp32.pairs_per_s:7.2f}x" if ours else f"{'-':>8s}"
         share = f"{100 * r.ceiling_share:8.0f}%" if r.ceiling_share is not None else f"{'-':>9s}"
+        w = f"{width:5.2f}" if r.encoder == "googlenet" else f"{'-':>5s}"
         rows.append(
-            f"{name:7s} {size:4d} {width:5.2f} {r.loop:11s} {r.pairs_per_s:8.2f} {vs_plain} "
-            f"{vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} {share}"
+            f"{name:7s} {r.encoder:9s} {size:4d} {w} {r.loop:11s} {r.pairs_per_s:8.2f} "
+            f"{vs_plain} {vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} {share}"
         )
     return rows
 
 
-def change_line(name: str, results: list[LoopResult]) -> str | None:
-    """Before/after of issue 20's change (base fp32 -> ours fp32): pairs/s and share of the
-    ceiling; None without both rows."""
-    by = {r.loop: r for r in results}
+def change_line(name: str, results: list[LoopResult], encoder: str = "googlenet") -> str | None:
+    """Before/after of issue 20's change (base fp32 -> ours fp32) for ``encoder``: pairs/s and
+    share of the ceiling; None without both rows."""
+    by = {r.loop: r for r in results if r.encoder == encoder}
     base, ours = by.get("base fp32"), by.get("ours fp32")
     if base is None or ours is None:
         return None
@@ -365,35 +406,60 @@ def change_line(name: str, results: list[LoopResult]) -> str | None:
     if base.ceiling_share is not None and ours.ceiling_share is not None:
         shares = f", {100 * base.ceiling_share:.0f}% -> {100 * ours.ceiling_share:.0f}% of ceiling"
     return (
-        f"{'':7s} before -> after (base fp32 -> ours fp32: optimiser foreach): "
+        f"{'':7s} {encoder}: before -> after (base fp32 -> ours fp32: optimiser foreach): "
         f"{base.pairs_per_s:.2f} -> {ours.pairs_per_s:.2f} pairs/s "
         f"({ours.pairs_per_s / base.pairs_per_s:.2f}x{shares})"
     )
 
 
+def encoder_line(name: str, results: list[LoopResult]) -> str | None:
+    """The matching encoder beside GoogLeNet, loop by loop (same rounds): ratio of pairs/s and
+    of counted FLOPs per step; None without both encoders."""
+    by = {(r.encoder, r.loop): r for r in results}
+    parts = []
+    for r in results:
+        other = by.get(("googlenet", r.loop))
+        if r.encoder == "matching" and other is not None:
+            parts.append(
+                f"{r.loop} {r.pairs_per_s / other.pairs_per_s:.2f}x pairs/s, "
+                f"{r.step_gflop / other.step_gflop:.2f}x GFLOP/step"
+            )
+    if not parts:
+        return None
+    return f"{'':7s} matching / googlenet (same rounds): " + "; ".join(parts)
+
+
+def kinds_line(result: LoopResult) -> str:
+    """The counted GFLOP of one step by kind (``flop_count.KINDS``), kinds with none left out."""
+    kinds = ", ".join(f"{k} {v:.3f}" for k, v in result.gflop_by_kind.items() if v > 0)
+    return f"{'':7s} {result.encoder} {result.loop}: GFLOP/step by kind: {kinds or 'none'}"
+
+
 def bf16_table(rows: list[tuple[str, list[LoopResult]]]) -> list[str]:
-    """bf16 beside fp32 per model (the issue's layout): fp32 and bf16 pairs/s (ours), bf16/fp32,
-    bf16/plain; empty when no model has both."""
+    """bf16 beside fp32 per model and encoder (the issue's layout): fp32 and bf16 pairs/s (ours),
+    bf16/fp32, bf16/plain; empty when no model has both."""
     lines = []
     for name, results in rows:
-        by = {r.loop: r for r in results}
-        fp32, bf16, plain = by.get("ours fp32"), by.get("ours bf16"), by.get("plain fp32")
-        if fp32 is None or bf16 is None:
-            continue
-        vs_plain = f"{bf16.pairs_per_s / plain.pairs_per_s:9.2f}x" if plain else f"{'-':>10s}"
-        lines.append(
-            f"{name:7s} {fp32.pairs_per_s:12.2f} {bf16.pairs_per_s:12.2f} "
-            f"{bf16.pairs_per_s / fp32.pairs_per_s:9.2f}x {vs_plain}"
-        )
+        for encoder in dict.fromkeys(r.encoder for r in results):
+            by = {r.loop: r for r in results if r.encoder == encoder}
+            fp32, bf16, plain = by.get("ours fp32"), by.get("ours bf16"), by.get("plain fp32")
+            if fp32 is None or bf16 is None:
+                continue
+            vs_plain = f"{bf16.pairs_per_s / plain.pairs_per_s:9.2f}x" if plain else f"{'-':>10s}"
+            lines.append(
+                f"{name:7s} {encoder:9s} {fp32.pairs_per_s:12.2f} {bf16.pairs_per_s:12.2f} "
+                f"{bf16.pairs_per_s / fp32.pairs_per_s:9.2f}x {vs_plain}"
+            )
     if not lines:
         return []
-    head = f"{'model':7s} {'fp32 pairs/s':>12s} {'bf16 pairs/s':>12s} {'bf16/fp32':>10s} "
-    return ["bf16 beside fp32 (ours, same rounds):", head + f"{'bf16/plain':>10s}", *lines]
+    head = f"{'model':7s} {'encoder':9s} {'fp32 pairs/s':>12s} {'bf16 pairs/s':>12s} "
+    head += f"{'bf16/fp32':>10s} {'bf16/plain':>10s}"
+    return ["bf16 beside fp32 (ours, same rounds):", head, *lines]
 
 
 HEADER = (
-    f"{'model':7s} {'px':>4s} {'width':>5s} {'loop':11s} {'pairs/s':>8s} {'x plain':>8s} "
-    f"{'x fp32':>8s} {'GFLOP/step':>10s} {'GFLOP/s':>8s} {'%ceiling':>9s}"
+    f"{'model':7s} {'encoder':9s} {'px':>4s} {'width':>5s} {'loop':11s} {'pairs/s':>8s} "
+    f"{'x plain':>8s} {'x fp32':>8s} {'GFLOP/step':>10s} {'GFLOP/s':>8s} {'%ceiling':>9s}"
 )
 
 
@@ -412,12 +478,13 @@ def main(argv: Sequence[str]) -> int:
     from benchmark.models.precision_support import bf16_support_label
 
     args = parser().parse_args(list(argv))
-    names = check_args(args)
+    names, encoders = check_args(args)
     device, precisions, notes = resolve(args)
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     print(
-        f"bench train: {args.attitude} ({args.variant}), batch {args.batch_size} with "
+        f"bench train: {args.attitude} on {', '.join(encoders)} (googlenet variant "
+        f"{args.variant}), batch {args.batch_size} with "
         f"{args.distinct_sat} distinct satellite images, {args.steps} timed steps, optimizer "
         f"{args.optimizer}, device {device} ({accelerator_name(device)}), "
         f"{torch.get_num_threads()} torch threads; {load_text()}"
@@ -433,15 +500,16 @@ def main(argv: Sequence[str]) -> int:
     for name in names:
         size, width = MODELS[name]
         size, width = args.size or size, args.width or width
-        results, ceilings = measure(size, width, args, device, precisions)
+        results, ceilings = measure(size, width, args, device, precisions, encoders)
         measured.append((name, results))
         print("\n".join(format_rows(name, size, width, results)), flush=True)
         for precision, gflops in ceilings.items():
             print(f"{'':7s} conv ceiling {precision}: {gflops:.1f} GFLOP/s (best of "
                   "bench_ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
-        change = change_line(name, results)
-        if change:
-            print(change, flush=True)
+        lines = [change_line(name, results, encoder) for encoder in encoders]
+        lines += [encoder_line(name, results)]
+        lines += [kinds_line(r) for r in results if r.loop == f"ours {precisions[0]}"]
+        print("\n".join(line for line in lines if line), flush=True)
     for line in bf16_table(measured):
         print(line)
     print(f"end: {load_text()}")

@@ -6,7 +6,10 @@ children's) goes to one kind:
 - ``convolution``: oneDNN/ATen convolutions, forward and backward (``mkldnn_convolution``,
   ``convolution_backward``, the reference ``_slow_conv2d_*``, cuDNN's);
 - ``matmul``: ``mm``/``addmm``/``bmm``/``baddbmm`` (the dense layers: the heads' lattice decoders,
-  the fusion's linear layers);
+  the fusion's linear layers; the matching encoder's complex DFT products, which the profiler
+  names alike);
+- ``sampling``: ``grid_sampler_2d`` forward and backward (the matching encoder's bird's-eye
+  templates and satellite grid);
 - ``normalisation``: GroupNorm/BatchNorm forward and backward;
 - ``pooling``: max/average pooling forward and backward;
 - ``optimizer``: everything inside ``Optimizer.step``/``zero_grad`` and the gradient clipping
@@ -14,10 +17,11 @@ children's) goes to one kind:
 - ``other``: the rest (activations, elementwise arithmetic, copies, concatenation, indexing, the
   losses' small ops, the autograd engine's own bookkeeping).
 
-With the step's convolution and matmul FLOPs (``bench.step_flops``) this gives each one's achieved
-rate; the line puts the convolutions' rate beside the ceiling (``bench_ceiling``). The profiler
-adds a few microseconds per op, so the shares are those of a slightly slowed step: they locate
-the time, the timed rounds give the speed.
+With the step's convolution, matmul (real and complex: ``matmul`` + ``dft``) and sampling FLOPs
+(``bench.step_flops``) this gives each one's achieved rate; the line puts the convolutions' rate
+beside the ceiling (``bench_ceiling``). The matching encoder's complex elementwise products
+(``spectrum``) fall in ``other``. The profiler adds a few microseconds per op, so the shares are
+those of a slightly slowed step: they locate the time, the timed rounds give the speed.
 """
 
 from __future__ import annotations
@@ -27,7 +31,13 @@ from typing import Any
 
 import torch
 
-KINDS = ("convolution", "matmul", "normalisation", "pooling", "optimizer", "other")
+KINDS = ("convolution", "matmul", "sampling", "normalisation", "pooling", "optimizer", "other")
+# The FLOP kinds (benchmark.models.flop_count.KINDS) whose work each timed kind does.
+RATE_FLOPS = {
+    "convolution": ("convolution",),
+    "matmul": ("matmul", "dft"),
+    "sampling": ("sampling",),
+}
 CLIP_LABEL = "uavbench.clip_grad_norm"
 _CONV = ("convolution", "conv2d", "conv_depthwise")
 _MATMUL = {"aten::mm", "aten::addmm", "aten::bmm", "aten::baddbmm", "aten::_addmm_activation"}
@@ -43,6 +53,8 @@ def kind_of(name: str) -> str:
         return "convolution"
     if name in _MATMUL:
         return "matmul"
+    if "grid_sampler" in name:
+        return "sampling"
     if any(k in name for k in _NORM):
         return "normalisation"
     if "pool" in name:
@@ -88,15 +100,18 @@ def profile_step(step: Callable[[], float], rows: int) -> tuple[str, dict[str, f
 
 
 def breakdown_line(kinds: dict[str, float], flops: dict[str, int], ceiling: float | None) -> str:
-    """``kinds`` (:func:`time_by_kind`) as one line of percentages; convolution and matmul with
-    their achieved GFLOP/s (``flops``: ``bench.step_flops``), the convolutions' also as a share of
-    ``ceiling`` (GFLOP/s of the same precision; None: not measured)."""
-    total = sum(kinds[k] for k in KINDS) or float("nan")
+    """``kinds`` (:func:`time_by_kind`) as one line of percentages; convolution, matmul and
+    sampling with their achieved GFLOP/s (``flops``: ``bench.step_flops``; :data:`RATE_FLOPS`),
+    the convolutions' also as a share of ``ceiling`` (GFLOP/s of the same precision; None: not
+    measured)."""
+    total = sum(kinds.get(k, 0.0) for k in KINDS) or float("nan")
     parts = []
     for kind in KINDS:
-        text = f"{kind} {100 * kinds[kind] / total:.0f}%"
-        if kind in ("convolution", "matmul") and kinds[kind] > 0 and flops.get(kind):
-            rate = flops[kind] / kinds[kind] / 1e9
+        seconds = kinds.get(kind, 0.0)
+        text = f"{kind} {100 * seconds / total:.0f}%"
+        counted = sum(flops.get(k, 0) for k in RATE_FLOPS.get(kind, ()))
+        if seconds > 0 and counted:
+            rate = counted / seconds / 1e9
             conv = kind == "convolution" and ceiling
             extra = f", {100 * rate / ceiling:.0f}% of the conv ceiling" if conv else ""
             text += f" ({rate:.1f} GFLOP/s{extra})"

@@ -39,6 +39,8 @@ class TestKindOf:
             ("aten::addmm", "matmul"),
             ("aten::native_group_norm_backward", "normalisation"),
             ("aten::max_pool2d_with_indices", "pooling"),
+            ("aten::grid_sampler_2d", "sampling"),
+            ("aten::grid_sampler_2d_backward", "sampling"),
             ("aten::add_", "other"),
             ("aten::mul", "other"),
             ("Optimizer.step#SGD.step", "other"),  # only its descendants' context counts
@@ -59,6 +61,7 @@ class TestTimeByKind:
             Event("aten::addmm", 1500.0),
             Event("aten::native_group_norm", 700.0),
             Event("aten::max_pool2d_with_indices", 300.0),
+            Event("aten::grid_sampler_2d_backward", 400.0),
             Event("aten::relu_", 200.0),
             step,
             Event("aten::add_", 900.0, step),  # inside the optimiser: not "other"
@@ -70,6 +73,7 @@ class TestTimeByKind:
         expected = {
             "convolution": 0.010,
             "matmul": 0.0015,
+            "sampling": 0.0004,
             "normalisation": 0.0007,
             "pooling": 0.0003,
             "optimizer": (100 + 900 + 50 + 5 + 250) / 1e6,
@@ -77,7 +81,7 @@ class TestTimeByKind:
         }
         for kind in KINDS:
             assert got[kind] == pytest.approx(expected[kind], abs=1e-12), kind
-        assert got["ops"] == 9  # events named aten::
+        assert got["ops"] == 10  # events named aten::
         assert sum(got[k] for k in KINDS) == pytest.approx(
             sum(e.self_cpu_time_total for e in events) / 1e6
         )
@@ -95,6 +99,17 @@ class TestBreakdownLine:
         assert "matmul 10% (20.0 GFLOP/s)" in line
         assert "normalisation 10%, pooling 5%, optimizer 5%, other 20%" in line
         assert "of the conv ceiling" not in breakdown_line(kinds, flops, ceiling=None)
+
+    def test_complex_products_and_sampling_rates(self):
+        """The profiler names complex GEMMs (FLOP kind ``dft``) like real ones: their FLOPs join
+        the matmul time's; ``grid_sample``'s FLOPs give the sampling rate."""
+        kinds = {"convolution": 0.4, "matmul": 0.3, "sampling": 0.1, "normalisation": 0.0,
+                 "pooling": 0.0, "optimizer": 0.1, "other": 0.1, "ops": 10.0}  # fmt: skip
+        flops = {"convolution": 4_000_000_000, "matmul": 1_000_000_000, "dft": 8_000_000_000,
+                 "spectrum": 1, "sampling": 200_000_000}  # fmt: skip
+        line = breakdown_line(kinds, flops, ceiling=None)
+        # (1 + 8) GFLOP in 0.3 s = 30 GFLOP/s; 0.2 GFLOP in 0.1 s = 2 GFLOP/s.
+        assert "matmul 30% (30.0 GFLOP/s), sampling 10% (2.0 GFLOP/s), normalisation 0%" in line
 
 
 def test_real_step_finds_the_kinds():

@@ -1,5 +1,6 @@
 """``bench train`` runs end to end at a toy size; its FLOP count and ratios are checked against
-closed forms and the printed rates (the measured speeds themselves are not asserted)."""
+closed forms and the printed rates (the measured speeds themselves are not asserted), for the
+GoogLeNet and the matching encoder."""
 
 from __future__ import annotations
 
@@ -10,23 +11,29 @@ import pytest
 import torch
 from torch import nn
 
+from benchmark.data.dataset import CONTEXT_KEYS
 from benchmark.errors import UsageError
 from benchmark.models.bench_ceiling import conv_step_flops
+from benchmark.models.flop_count import KINDS as KINDS_OF_FLOPS
+from benchmark.models.matching_ops import fft_size
 from benchmark.training import bench
 from benchmark.training.bench import count_step_flops, main, step_flops
 from benchmark.training.bench_breakdown import KINDS
 
 TINY = ["--models", "quick", "--size", "32", "--width", "0.1", "--steps", "1", "--warmup", "0"]
 TINY += ["--batch-size", "4", "--distinct-sat", "2", "--threads", "1"]
+BOTH = [*TINY, "--encoders", "googlenet,matching"]
+TINY += ["--encoders", "googlenet"]
 ROW = re.compile(
-    r"^quick\s+32\s+0\.10\s+(plain fp32|base fp32|ours fp32|ours bf16)\s+([\d.]+)\s+([\d.]+x|-)\s+"
-    r"([\d.]+x|-)\s+([\d.]+)\s+([\d.]+)\s+(\d+%|-)$",
+    r"^quick\s+(googlenet|matching)\s+32\s+(?:0\.10|-)\s+(plain fp32|base fp32|ours fp32|ours bf16)"
+    r"\s+([\d.]+)\s+([\d.]+x|-)\s+([\d.]+x|-)\s+([\d.]+)\s+([\d.]+)\s+(\d+%|-)$",
     re.MULTILINE,
 )
 
 
-def rows(out: str) -> dict[str, tuple[str, ...]]:
-    return {m.group(1): m.groups()[1:] for m in ROW.finditer(out)}
+def rows(out: str, encoder: str = "googlenet") -> dict[str, tuple[str, ...]]:
+    """Loop name -> (pairs/s, x plain, x fp32, GFLOP/step, GFLOP/s, %ceiling) of ``encoder``."""
+    return {m.group(2): m.groups()[2:] for m in ROW.finditer(out) if m.group(1) == encoder}
 
 
 class TestBenchTrain:
@@ -52,7 +59,8 @@ class TestBenchTrain:
         assert change is not None, out
         assert [float(change.group(i)) for i in (1, 2)] == pytest.approx([base, fp32], abs=0.01)
         assert float(change.group(3)) == pytest.approx(fp32 / base, abs=0.02)
-        table = re.search(r"^quick\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)x\s+([\d.]+)x$", out, re.M)
+        table = re.search(r"^quick\s+googlenet\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)x\s+([\d.]+)x$",
+                          out, re.M)  # fmt: skip
         assert table is not None and "bf16 beside fp32" in out, out
         t_fp32, t_bf16, t_ratio, t_plain = (float(x) for x in table.groups())
         assert (t_fp32, t_bf16) == pytest.approx((fp32, bf16), abs=0.01)
@@ -150,13 +158,16 @@ class TestBenchTrain:
         argv += ["--profile", "3"]
         assert main(argv) == 0
         out = capsys.readouterr().out
-        assert "profile of one step, 32 px width 0.1, ours fp32:" in out and "Self CPU" in out
+        assert "profile of one step, 32 px width 0.1, googlenet ours fp32:" in out
+        assert "Self CPU" in out
 
     @pytest.mark.parametrize(
         "argv",
         [
             ["--profile", "-1"],
             ["--models", "huge"],
+            ["--encoders", "resnet"],
+            ["--encoders", "matching,matching"],
             ["--distinct-sat", "30"],
             ["--steps", "0"],
             ["--warmup", "-1"],
@@ -174,6 +185,74 @@ class TestBenchTrain:
     def test_cuda_without_cuda_names_the_build(self):
         with pytest.raises(UsageError, match="no CUDA device"):
             main(["--device", "cuda"])
+
+
+class TestMatchingEncoder:
+    def test_side_by_side_with_googlenet(self, capsys):
+        """Both encoders' rows in one run; the matching/googlenet line and the bf16 table repeat
+        the printed rates; the FLOPs by kind add up to the step's GFLOP."""
+        argv = [*BOTH, "--precision", "fp32,bf16", "--no-ceiling", "--no-base"]
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        goog, match = rows(out, "googlenet"), rows(out, "matching")
+        assert set(goog) == set(match) == {"plain fp32", "ours fp32", "ours bf16"}, out
+        assert re.search(r"^quick\s+matching\s+32\s+-\s+ours fp32", out, re.M)  # no width
+        line = next(x for x in out.splitlines() if "matching / googlenet" in x)
+        for loop in goog:
+            got = re.search(rf"{loop} ([\d.]+)x pairs/s, ([\d.]+)x GFLOP/step", line)
+            assert got is not None, line
+            rate = float(match[loop][0]) / float(goog[loop][0])
+            assert float(got.group(1)) == pytest.approx(rate, rel=0.02, abs=0.01)
+            step = float(match[loop][3]) / float(goog[loop][3])
+            assert float(got.group(2)) == pytest.approx(step, rel=0.01)
+        kinds = next(x for x in out.splitlines() if "matching ours fp32: GFLOP/step by kind" in x)
+        parts = dict(re.findall(r"(\w+) ([\d.]+)", kinds.split("by kind: ")[1]))
+        assert set(parts) == {"convolution", "matmul", "dft", "spectrum", "sampling"}, kinds
+        assert sum(map(float, parts.values())) == pytest.approx(float(match["ours fp32"][3]),
+                                                                abs=0.003)  # fmt: skip
+        bf16_row = r"^quick\s+(googlenet|matching)\s+([\d.]+)\s+([\d.]+)\s+[\d.]+x\s+[\d.]+x$"
+        table = re.findall(bf16_row, out, re.M)
+        assert [t[0] for t in table] == ["googlenet", "matching"], out
+        assert float(table[1][1]) == pytest.approx(float(match["ours fp32"][0]), abs=0.01)
+
+    def test_step_flops_are_the_closed_forms(self):
+        """One training step of the matching encoder (32 px, 4 pairs over 2 satellite images,
+        default options: 36 yaws, 8 channels, 25 x 25 templates on a 63 x 63 grid), kind by
+        kind against the shapes: both CNN trunks and the gravity convolution (forward, input and
+        weight gradients; no input gradient for the images), the DFT correlation's complex
+        GEMMs (forward, and the same GEMMs again for the gradients of their left operands), the
+        spectra's products and sums, and the bilinear sampling (forward and input gradient: the
+        sampling positions come from the context's priors in training, no gradient)."""
+        args = bench.parser().parse_args([*TINY, "--optimizer", "adam"])
+        cpu = torch.device("cpu")
+        spec = bench.loop_specs(["fp32"], cpu, plain=False, base=False, optimizer="adam")[-1]
+        model, opt = bench.build(32, 0.1, args, spec, cpu, "matching")
+        batch = bench.batch_of(32, 4, 2)
+        step = bench.make_step(model, opt, batch, spec.share, cpu, "fp32", 10.0)
+        step()  # builds the cached DFT matrices
+        got = step_flops(step)
+        b, k, c = 4, 36, 8
+        t, g = 25, 63
+        L = fft_size(g)
+        v, m = L // 2 + 1, g - t + 1
+
+        def conv(n, h, w, c_out, c_in, kernel):  # forward FLOPs of one convolution
+            return 2 * n * h * w * c_out * c_in * kernel * kernel
+
+        uav = 2 * conv(b, 32, 32, 16, 3, 3) + 3 * 3 * conv(b, 16, 16, 16, 16, 3)
+        uav += 3 * conv(b, 16, 16, 8, 16, 1) + 3 * conv(b, 8, 8, 16, 16, 3)  # out, gravity
+        sat = 2 * conv(2, 32, 32, 16, 3, 3) + 3 * 3 * conv(2, 16, 32, 16, 16, 3)
+        sat += 3 * conv(2, 16, 32, 8, 16, 1)  # 2 distinct images, pooled along rows only
+        assert got["convolution"] == uav + sat
+        gemms = (b * k * c) * (t * t * v + v * t * L) + (b * c) * (g * g * v + v * g * L)
+        gemms += (b * k) * (v * L * m + m * v * m)
+        assert got["dft"] == 2 * 8 * gemms
+        cells = b * k * v * L
+        forward = cells * (6 * c + 2 * (c - 1))
+        backward = c * (6 * cells + 6 * cells + 2 * (cells - b * v * L))  # both factors
+        assert got["spectrum"] == forward + backward
+        assert got["sampling"] == 16 * b * c * (k * t * t + g * g)
+        assert got["total"] == sum(got[kind] for kind in KINDS_OF_FLOPS)
 
 
 class TestCountStepFlops:
@@ -230,7 +309,9 @@ def test_optimizers_are_the_profiles():
 
 def test_batch_is_deterministic():
     a, b = bench.batch_of(32, 6, 3), bench.batch_of(32, 6, 3)
-    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert all(torch.equal(a[k], b[k]) for k in a if k != "context")
+    assert set(a["context"]) == set(CONTEXT_KEYS)
+    assert all(torch.equal(a["context"][k], b["context"][k]) for k in CONTEXT_KEYS)
     assert torch.equal(a["sat"][0], a["sat"][3]) and a["sat_id"].tolist() == [0, 1, 2, 0, 1, 2]
     det = torch.linalg.det(a["R"])
     assert torch.allclose(det, torch.ones(6), atol=1e-5)
