@@ -363,16 +363,33 @@ def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
 
 
 def resolve(args: argparse.Namespace) -> tuple[torch.device, list[str], list[str]]:
-    """``(device, precisions, notes)`` of ``--device`` / ``--precision`` (UsageError if bad)."""
+    """``(device, precisions, notes)`` of ``--device`` / ``--precision`` (UsageError if bad).
+
+    The bench measures bf16 by default wherever oneDNN has bf16 kernels, and anywhere on an
+    explicit ``--precision`` (measuring how slow it is is its job); training and ``model-info``
+    refuse bf16 on a CPU without native bf16 (``device.check_precision_supported``). Where the two
+    differ a note says so, with training's reason and its way out."""
     from benchmark.errors import UsageError
     from benchmark.models.device import resolve_device
-    from benchmark.models.precision_support import precision_plan
+    from benchmark.models.precision_support import (
+        ALLOW_SLOW_BF16_ENV,
+        bf16_unsupported_reason,
+        precision_plan,
+        slow_bf16_allowed,
+    )
 
     try:
         device = resolve_device(args.device)
         precisions, notes = precision_plan(device, args.precision)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    if "bf16" in precisions and device.type == "cpu" and not slow_bf16_allowed():
+        reason = bf16_unsupported_reason(device, native=True)
+        if reason is not None:
+            notes.append(
+                f"bf16 is measured for comparison only: training and model-info refuse "
+                f"precision=bf16 here unless {ALLOW_SLOW_BF16_ENV}=1 ({reason})"
+            )
     return device, precisions, notes
 
 

@@ -144,14 +144,36 @@ class TestBenchTrain:
     def test_default_precisions_follow_support(self, capsys, monkeypatch):
         from benchmark.models import precision_support
 
-        monkeypatch.setattr(precision_support, "bf16_unsupported_reason", lambda d: "no units")
+        monkeypatch.setattr(
+            precision_support, "bf16_unsupported_reason", lambda d, native=False: "no units"
+        )
         assert main([*TINY, "--no-ceiling", "--no-plain", "--no-base"]) == 0
         out = capsys.readouterr().out
         assert set(rows(out)) == {"ours fp32"}
         assert "bf16 skipped: no units" in out and "bf16 beside fp32" not in out
-        monkeypatch.setattr(precision_support, "bf16_unsupported_reason", lambda d: None)
+        monkeypatch.setattr(
+            precision_support, "bf16_unsupported_reason", lambda d, native=False: None
+        )
         assert main([*TINY, "--no-ceiling", "--no-plain", "--no-base"]) == 0
         assert set(rows(capsys.readouterr().out)) == {"ours fp32", "ours bf16"}
+
+    def test_bf16_without_native_units_is_noted_as_training_refuses_it(self, monkeypatch):
+        """On an AVX2-only CPU an explicit bf16 is measured, with training's refusal and its way
+        out as a note; with the allowance set, or fp32 only, no such note."""
+        from benchmark.models import precision_support
+
+        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx", "avx2", "fma"})
+        monkeypatch.delenv(precision_support.ALLOW_SLOW_BF16_ENV, raising=False)
+        args = bench.parser().parse_args([*TINY, "--precision", "fp32,bf16"])
+        _, precisions, notes = bench.resolve(args)
+        assert precisions == ["fp32", "bf16"]
+        note = next(n for n in notes if "for comparison only" in n)
+        assert "UAVBENCH_ALLOW_SLOW_BF16=1" in note and "needs avx512_bf16 or amx_bf16" in note
+        monkeypatch.setenv(precision_support.ALLOW_SLOW_BF16_ENV, "1")
+        assert not any("for comparison only" in n for n in bench.resolve(args)[2])
+        monkeypatch.delenv(precision_support.ALLOW_SLOW_BF16_ENV)
+        fp32 = bench.parser().parse_args([*TINY, "--precision", "fp32"])
+        assert not any("for comparison only" in n for n in bench.resolve(fp32)[2])
 
     def test_profile_prints_the_top_ops(self, capsys):
         argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]
