@@ -19,17 +19,19 @@ complete. A record is reused only when it was made with the same reference optio
 ``benchmark/references/*.py``); otherwise the evaluation runs again.
 
 Cost (measured on the quick dataset, 96 px, one core: about 50 ms a frame for the oracle, 75-100
-ms for the template, 35 ms for feature + PnP): the 3 x 3,480 frames of the quick tables' test
-splits, each with the true and the swapped image, take about 21 CPU-minutes. They run in
-:data:`MAX_PROCESSES` spawned processes (about 11 minutes on 2 cores, after the training, when
-the cores are free) on every frame, so the rows and the models' rows hold the same frames and a
-paired comparison needs no alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
+ms for the template, 30-35 ms for feature + PnP): the 3,480 frames of the quick tables' test
+splits, each with the true and the swapped image, take about 19 CPU-minutes for the three. They
+run in :data:`MAX_PROCESSES` spawned processes (about 10 minutes on 2 cores, after the training,
+when the cores are free), in chunks of :data:`CHUNK_FRAMES` frames (the progress moves and both
+processes stay busy to the end), on every frame: the rows hold the models' frames and a paired
+comparison with a model needs no alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
 ``stride``-th frame of each flight instead (every flight kept; the table note says so).
 """
 
 from __future__ import annotations
 
 import concurrent.futures as cf
+import functools
 import hashlib
 import json
 import math
@@ -66,6 +68,7 @@ REFERENCE_DIR = "references"  # under the reproduction's work directory
 MAX_PROCESSES = 2
 # Fewer frames than this to evaluate: in this process (spawning workers costs seconds each).
 PARALLEL_MIN_FRAMES = 400
+CHUNK_FRAMES = 100  # frames per worker task: 3-10 s each on the quick dataset
 # Frame stride by reproduction profile (default 1: every frame). ``paper``: extrapolated, not
 # measured: its 224 px test splits hold about 4x the quick frames at about 5x the pixels, so every
 # frame would take 20+ CPU-hours; every 8th frame of each flight keeps every flight.
@@ -136,19 +139,63 @@ class ReferenceTask:
         return self.name, self.split, self.satellite
 
 
-def run_task(task: ReferenceTask) -> tuple[dict[str, float], pd.DataFrame]:
-    """Evaluate one task (in this process or a worker): ``(summary, per-frame table)``; writes
-    the per-frame CSV to ``task.csv`` when given (the JSON record is the caller's, last)."""
-    from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import pair_columns
-    from benchmark.references import create_reference, evaluate_reference, fallback_pose
+@dataclass(frozen=True)
+class Chunk:
+    """Part of a :class:`ReferenceTask`: the items ``rows`` of its split, in order (a worker's
+    unit of work: a few seconds each, so the progress moves and both processes stay busy)."""
 
-    dataset = PairDataset(task.data_root, task.split, satellite=task.satellite, verify="size")
-    fallback = fallback_pose(PairDataset(task.data_root, task.train_split, verify="size"))
-    rows = strided_rows(pair_columns(dataset).get("flight", range(len(dataset))), task.stride)
+    task: ReferenceTask
+    rows: tuple[int, ...]
+
+
+def run_chunk(chunk: Chunk) -> tuple[dict[str, float], pd.DataFrame]:
+    """Evaluate one chunk (in this process or a worker): ``evaluate_reference``'s ``(summary,
+    per-frame table)`` of its rows. Every frame is estimated on its own, so the chunks of a task
+    put together are the task evaluated at once."""
+    from benchmark.references import create_reference, evaluate_reference
+
+    t = chunk.task
+    dataset = _dataset(t.data_root, t.split, t.satellite)
+    fallback = _fallback(t.data_root, t.train_split)
     return evaluate_reference(
-        create_reference(task.name), dataset, fallback=fallback, out_csv=task.csv, rows=rows
+        create_reference(t.name), dataset, fallback=fallback, rows=list(chunk.rows)
     )
+
+
+@functools.lru_cache(maxsize=4)
+def _dataset(root: str, split: str, satellite: str):
+    from benchmark.data import PairDataset
+
+    return PairDataset(root, split, satellite=satellite, verify="size")
+
+
+@functools.lru_cache(maxsize=4)
+def _fallback(root: str, train_split: str) -> tuple[np.ndarray, np.ndarray]:
+    from benchmark.references import fallback_pose
+
+    return fallback_pose(_dataset(root, train_split, "true"))
+
+
+def _task_rows(task: ReferenceTask) -> list[int]:
+    """The items a task evaluates (:func:`strided_rows` of the split's flights)."""
+    from benchmark.evaluation.evaluate import pair_columns
+
+    dataset = _dataset(task.data_root, task.split, "true")
+    return strided_rows(pair_columns(dataset).get("flight", range(len(dataset))), task.stride)
+
+
+def _assemble(parts: list[tuple[dict[str, float], pd.DataFrame]]) -> tuple[dict, pd.DataFrame]:
+    """The chunks of one task, in order, as ``evaluate_reference`` would return the whole:
+    the concatenated frame, its summary, the frames per second of the time spent evaluating and
+    the CPU milliseconds per frame."""
+    from benchmark.references import reference_summary
+
+    frame = pd.concat([f for _, f in parts], ignore_index=True)
+    elapsed = sum(len(f) / s["frames_per_s"] for s, f in parts if s.get("frames_per_s"))
+    summary = reference_summary(frame, elapsed or None)
+    cpu_ms = sum(s["cpu_ms_per_frame"] * len(f) for s, f in parts) / len(frame)
+    summary["cpu_ms_per_frame"] = cpu_ms
+    return summary, frame
 
 
 def _worker_init() -> None:
@@ -272,16 +319,18 @@ def evaluate_references(
     profile: str,
     quiet: bool = False,
     processes: int | None = None,
+    chunk_frames: int = CHUNK_FRAMES,
 ) -> ReferenceResults:
     """Evaluate (or read back from ``workdir``'s cache) every reference of ``specs`` on every
     test split of the tables that list it, true and swapped satellite image.
 
     ``profile``: the reproduction profile's name (its frame stride, :data:`PROFILE_STRIDE`);
     ``processes``: worker processes (default: up to :data:`MAX_PROCESSES` and the CPU count when
-    at least :data:`PARALLEL_MIN_FRAMES` frames are to be evaluated, else this process). Without
-    ``workdir`` nothing is cached. A progress bar (stderr) unless ``quiet``."""
+    at least :data:`PARALLEL_MIN_FRAMES` frames are to be evaluated, else this process), given
+    chunks of ``chunk_frames`` frames. Without ``workdir`` nothing is cached. A progress bar
+    (stderr) unless ``quiet``. An evaluation that raises is reported (``errors``, stderr) and its
+    rows are left out; the others go on."""
     from benchmark.data import list_splits
-    from benchmark.evaluation.paired import swap_effect
     from benchmark.references import default_train_split
     from benchmark.tracking import manifest_sha256
 
@@ -303,33 +352,64 @@ def evaluate_references(
             tasks[task.key] = task
     todo: list[ReferenceTask] = []
     for key, task in tasks.items():
-        expected = _record(task, {}, 0, manifest, code)
-        hit = _cached(task, expected)
+        hit = _cached(task, _record(task, {}, 0, manifest, code))
         true_redone = key[2] == "swap" and tasks[(*key[:2], "true")] in todo
         if hit is None or true_redone:  # a swap effect is computed against today's true frames
             todo.append(task)
         else:
             out.records[key], out.summaries[key], out.frames[key] = hit
-    counts = {t.key: _frames_of(t) for t in todo}
-    n_frames = sum(counts.values())
+    try:
+        chunks = [
+            Chunk(task, tuple(rows[i : i + chunk_frames]))
+            for task in todo
+            for rows in [_task_rows(task)]
+            for i in range(0, len(rows), chunk_frames)
+        ]
+        _run(chunks, tasks, out, processes, quiet, (manifest, code))
+    finally:
+        _dataset.cache_clear()  # the images of this process's evaluations are not kept
+        _fallback.cache_clear()
+    return out
+
+
+def _run(
+    chunks: list[Chunk],
+    tasks: dict[tuple[str, str, str], ReferenceTask],
+    out: ReferenceResults,
+    processes: int | None,
+    quiet: bool,
+    stamp: tuple[str, str],
+) -> None:
+    """Evaluate ``chunks`` (here or in a spawn pool) and record each finished task in ``out``:
+    its CSV, then its JSON record (``stamp``: dataset manifest and code digest)."""
+    from benchmark.evaluation.metrics import write_predictions_csv
+    from benchmark.evaluation.paired import swap_effect
+
+    n_frames = sum(len(c.rows) for c in chunks)
     if processes is None:
         cpus = os.cpu_count() or 1
-        processes = min(MAX_PROCESSES, cpus, len(todo)) if n_frames >= PARALLEL_MIN_FRAMES else 1
+        processes = min(MAX_PROCESSES, cpus, len(chunks)) if n_frames >= PARALLEL_MIN_FRAMES else 1
+    expected = {}
+    for c in chunks:
+        expected[c.task.key] = expected.get(c.task.key, 0) + 1
+    parts: dict[tuple[str, str, str], list[tuple[int, tuple]]] = {}
     done: dict[tuple[str, str, str], tuple[dict, pd.DataFrame]] = {}
 
     def finish(task: ReferenceTask) -> None:
-        """Record finished evaluations: a true one at once, a swap one once its true one is
-        here (its swap effect is the paired difference to it, from both CSVs as written)."""
         summary, frame = done.pop(task.key)
+        if task.csv is not None:
+            write_predictions_csv(frame, task.csv)
         if task.satellite == "swap":
+            # The paired difference to the true image's frames, both as written (so identical
+            # predictions differ by exactly 0), as the models' swap effect.
             true_frame = out.frames[(*task.key[:2], "true")]
-            if task.csv is not None:  # both as written, so identical predictions differ by 0
-                true_csv = reference_paths(workdir, task.name, task.split, "true")[0]
+            if task.csv is not None:
+                true_csv = Path(task.csv).with_name(Path(task.csv).name.replace("__swap", ""))
                 true_frame, frame = pd.read_csv(true_csv), pd.read_csv(task.csv)
             summary = {**summary, **swap_effect(true_frame, frame)}
         elif task.csv is not None:
-            frame = pd.read_csv(task.csv)  # as written: the same numbers as a resumed run reads
-        record = _record(task, summary, len(frame), manifest, code)
+            frame = pd.read_csv(task.csv)  # as written: what a later report reads back
+        record = _record(task, summary, len(frame), *stamp)
         if task.csv is not None:
             _write_json(Path(task.csv).with_suffix(".json"), record)
         out.records[task.key], out.summaries[task.key], out.frames[task.key] = (
@@ -337,7 +417,9 @@ def evaluate_references(
         )  # fmt: skip
 
     def flush() -> None:
-        for key in [k for k in done if k[2] == "true"] + [k for k in done if k[2] == "swap"]:
+        """A true evaluation is recorded when its chunks are in, a swap one once its true one
+        is recorded (or reported failed when that one failed)."""
+        for key in sorted(done, key=lambda k: k[2] != "true"):
             true_key = (*key[:2], "true")
             if key[2] == "swap" and true_key in out.errors:
                 done.pop(key)
@@ -345,56 +427,70 @@ def evaluate_references(
             elif key[2] == "true" or true_key in out.frames:
                 finish(tasks[key])
 
-    def failed(task: ReferenceTask, err: BaseException) -> None:
-        # One reference's error costs its rows, not the report of a finished reproduction.
-        first = (str(err).strip().splitlines() or [""])[0][:300]
-        out.errors[task.key] = f"{type(err).__name__}: {first}"
-        print(f"reference {task.name} {eval_key(task.split, task.satellite)} failed: "
-              f"{out.errors[task.key]}", file=sys.stderr)  # fmt: skip
+    def collect(chunk: Chunk, result=None, err: BaseException | None = None) -> None:
+        key = chunk.task.key
+        if key in out.errors:
+            return
+        if err is not None:
+            # One reference's error costs its rows, not the report of a finished reproduction.
+            first = (str(err).strip().splitlines() or [""])[0][:300]
+            out.errors[key] = f"{type(err).__name__}: {first}"
+            parts.pop(key, None)
+            print(f"reference {key[0]} {eval_key(*key[1:])} failed: {out.errors[key]}",
+                  file=sys.stderr)  # fmt: skip
+        else:
+            parts.setdefault(key, []).append((chunk.rows[0], result))
+            if len(parts[key]) == expected[key]:
+                done[key] = _assemble([r for _, r in sorted(parts.pop(key), key=lambda p: p[0])])
+        flush()
 
-    bar = Progress(n_frames, "references", unit="pair", enabled=not quiet and bool(todo))
-    with bar:
+    n_tasks = len(expected)
+    with Progress(n_frames, "references", unit="pair", enabled=not quiet and bool(chunks)) as bar:
+        stride = chunks[0].task.stride if chunks else 1
         bar.status(
-            f"{len(todo)} evaluation(s) to run ({len(tasks) - len(todo)} read back), "
+            f"{n_tasks} evaluation(s) to run ({len(tasks) - n_tasks} read back), "
             f"{processes} process(es)"
             + (f", 1 frame in {stride} of each flight" if stride > 1 else "")
         )
         if processes <= 1:
-            for task in todo:
-                bar.status(f"{task.name} {eval_key(task.split, task.satellite)}")
-                try:
-                    done[task.key] = run_task(task)
-                except Exception as err:
-                    failed(task, err)
-                flush()
-                bar.update(counts[task.key])
-        elif todo:
-            _run_pool(todo, processes, done, flush, failed, counts, bar)
-    for key in [k for k in done if k[2] == "swap"]:  # a swap whose true one failed
+            for chunk in chunks:
+                if chunk.task.key not in out.errors:
+                    try:
+                        collect(chunk, run_chunk(chunk))
+                    except Exception as err:
+                        collect(chunk, err=err)
+                bar.update(len(chunk.rows), postfix=_what(chunk))
+        elif chunks:
+            _run_pool(chunks, processes, collect, bar)
+    for key in [k for k in done if k[2] == "swap"]:  # never recorded: its true one failed
         done.pop(key)
-    return out
 
 
-def _run_pool(todo, processes, done, flush, failed, counts, bar: Progress) -> None:
-    """Run ``todo`` in a spawn pool of ``processes`` workers; results into ``done`` (then
-    ``flush()``), errors to ``failed(task, err)``, in order of completion."""
+def _what(chunk: Chunk) -> str:
+    t = chunk.task
+    return f"{t.name} {eval_key(t.split, t.satellite)}"
+
+
+def _run_pool(chunks: list[Chunk], processes: int, collect, bar: Progress) -> None:
+    """Run ``chunks`` in a spawn pool of ``processes`` workers; ``collect(chunk, result)`` or
+    ``collect(chunk, err=...)`` in this process, in order of completion."""
     ctx = multiprocessing.get_context("spawn")
     pool = cf.ProcessPoolExecutor(processes, mp_context=ctx, initializer=_worker_init)
     try:
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # see runner.pool
         try:
-            futures = {pool.submit(run_task, task): task for task in todo}
+            futures = {pool.submit(run_chunk, chunk): chunk for chunk in chunks}
         finally:
             signal.signal(signal.SIGINT, previous)
         for future in cf.as_completed(futures):
-            task = futures[future]
+            chunk = futures[future]
             try:
-                done[task.key] = future.result()
+                result = future.result()
             except Exception as err:
-                failed(task, err)
-            flush()
-            bar.update(counts[task.key], postfix=f"done {task.name} "
-                       f"{eval_key(task.split, task.satellite)}")  # fmt: skip
+                collect(chunk, err=err)
+            else:
+                collect(chunk, result)
+            bar.update(len(chunk.rows), postfix=_what(chunk))
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         for process in list((getattr(pool, "_processes", None) or {}).values()):
@@ -402,15 +498,6 @@ def _run_pool(todo, processes, done, flush, failed, counts, bar: Progress) -> No
                 process.terminate()
         raise
     pool.shutdown(wait=True)
-
-
-def _frames_of(task: ReferenceTask) -> int:
-    """Frames the task evaluates (from the split's pair table, no image read)."""
-    from benchmark.data import PairDataset
-    from benchmark.evaluation.evaluate import pair_columns
-
-    dataset = PairDataset(task.data_root, task.split, verify="size")
-    return len(strided_rows(pair_columns(dataset).get("flight", range(len(dataset))), task.stride))
 
 
 def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[dict]:
@@ -472,10 +559,10 @@ def reference_note(spec: TableSpec, results: ReferenceResults) -> str:
                 f" (1 in {stride} of each flight)" if stride > 1 else ""
             )
             rate = s.get("failure_rate", math.nan)
-            speed = s.get("frames_per_s", math.nan)
+            cpu = s.get("cpu_ms_per_frame", math.nan)
             parts.append(
                 f"`{split}` {frames}, failed {100 * rate:.0f}%"
-                + (f", {speed:.1f} frames/s in one process" if math.isfinite(speed) else "")
+                + (f", {cpu:.0f} ms of CPU a frame" if math.isfinite(cpu) else "")
                 + (f"; swapped image not run ({error})" if error else "")
             )
         lines.append(f"- `{name}` ({reads_text(name)}): " + "; ".join(parts) + ".")

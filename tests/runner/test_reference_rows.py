@@ -99,7 +99,7 @@ def oracle_spec(tmp_path: Path):
 
 @pytest.fixture()
 def counted(monkeypatch):
-    """Count the evaluations actually run (``run_task`` imports it from the package)."""
+    """Count the evaluations actually run (``run_chunk`` imports it from the package)."""
     calls = []
     real = references_module.evaluate_reference
 
@@ -160,6 +160,21 @@ class TestEvaluateAndCache:
         frame = out.frames["geometry_oracle", STD, "true"]
         assert list(frame["index"]) == rr.strided_rows(_flights(smoke_dataset), 2)
         assert "1 in 2 of each flight" in rr.reference_note(spec, out)
+
+    def test_chunks_put_together_are_one_evaluation(self, tmp_path, smoke_dataset, counted):
+        spec = oracle_spec(tmp_path)
+        whole = rr.evaluate_references([spec], smoke_dataset, None, "smoke", quiet=True)
+        counted.clear()
+        parts = rr.evaluate_references(
+            [spec], smoke_dataset, None, "smoke", quiet=True, chunk_frames=1
+        )
+        key = ("geometry_oracle", STD, "swap")
+        assert len(counted) == 2 * len(whole.frames[key]) > 2  # one call per frame
+        pd.testing.assert_frame_equal(parts.frames[key], whole.frames[key])
+        timings = set(rr.TIMING_KEYS)
+        for k, summary in whole.summaries.items():
+            got = {m: v for m, v in parts.summaries[k].items() if m not in timings}
+            assert got == pytest.approx({m: v for m, v in summary.items() if m not in timings})
 
     def test_an_error_costs_the_rows_not_the_report(self, tmp_path, smoke_dataset, monkeypatch):
         def broken(reference, dataset, **kwargs):
