@@ -137,7 +137,8 @@ def _input_example(cfg: TrainConfig):
     from benchmark.data import PairDataset
     from benchmark.tracking.models import pack_pair
 
-    data = PairDataset(cfg.data.root, cfg.data.train_split, verify=cfg.data.verify)
+    first = cfg.data.train_split.split("+")[0]  # several joined training splits: the first
+    data = PairDataset(cfg.data.root, first, verify=cfg.data.verify)
     items = [data[i] for i in range(min(EXAMPLE_PAIRS, len(data)))]
     uav = torch.stack([item["uav"] for item in items])
     sat = torch.stack([item["sat"] for item in items])

@@ -76,7 +76,9 @@ class Unit:
 
 def val_split_for(train_split: str, available: list[str]) -> str | None:
     """``X/val`` for ``X/train`` when the dataset has it (standard, frames and towns do; the
-    height splits do not)."""
+    height splits do not); for several joined splits (``standard/train+towns/train``), the
+    first one's."""
+    train_split = train_split.split("+")[0]
     if train_split.endswith("/train"):
         candidate = train_split[: -len("train")] + "val"
         if candidate in available:

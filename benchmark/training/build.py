@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import torch
-from torch.utils.data import Dataset, Subset
+from torch.utils.data import ConcatDataset, Dataset, Subset
 
 from benchmark.config import ConfigError
 from benchmark.training.config import TrainConfig
@@ -21,6 +21,12 @@ def _limit(dataset: Dataset, limit: int | None) -> Dataset:
     return Subset(dataset, range(limit))
 
 
+def train_splits(cfg: TrainConfig) -> list[str]:
+    """The splits ``data.train_split`` names: one, or several joined by ``+``
+    (``standard/train+towns/train``: their pairs in that order, one training set)."""
+    return cfg.data.train_split.split("+")
+
+
 def open_datasets(cfg: TrainConfig) -> tuple[Dataset, Dataset | None]:
     """``(train, val)`` ``PairDataset``s of ``cfg.data`` (val None when ``val_split`` is None)."""
     from benchmark.data import PairDataset
@@ -30,9 +36,8 @@ def open_datasets(cfg: TrainConfig) -> tuple[Dataset, Dataset | None]:
     root = Path(cfg.data.root)
     if not root.is_dir():
         raise ConfigError(f"data.root={cfg.data.root!r}: no such directory")
-    train_set = _limit(
-        PairDataset(root, cfg.data.train_split, verify=cfg.data.verify), cfg.data.limit_train
-    )
+    parts = [PairDataset(root, s, verify=cfg.data.verify) for s in train_splits(cfg)]
+    train_set = _limit(parts[0] if len(parts) == 1 else ConcatDataset(parts), cfg.data.limit_train)
     val_set = None
     if cfg.data.val_split is not None:
         val_set = _limit(

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     except FileNotFoundError as err:
         raise UsageError(f"data.root: {err}") from None
     available = list_splits(cfg.data.root)
-    wanted = {"data.train_split": cfg.data.train_split, "data.val_split": cfg.data.val_split}
+    wanted = {f"data.train_split {s}": s for s in cfg.data.train_split.split("+")}
+    wanted["data.val_split"] = cfg.data.val_split
     wanted.update({f"--eval-split {s}": s for s in eval_splits})
     for what, split in wanted.items():
         if split is not None and split not in available:
@@ -205,7 +206,8 @@ def _log_model(cfg, done, tracked) -> None:
     from benchmark.data import PairDataset
     from benchmark.tracking.models import PosePredictor, pack_pair
 
-    data = PairDataset(cfg.data.root, cfg.data.train_split, verify=cfg.data.verify)
+    first = cfg.data.train_split.split("+")[0]  # several joined training splits: the first
+    data = PairDataset(cfg.data.root, first, verify=cfg.data.verify)
     items = [data[i] for i in range(min(2, len(data)))]
     example = pack_pair(
         torch.stack([i["uav"] for i in items]), torch.stack([i["sat"] for i in items])

@@ -32,7 +32,7 @@ class DataConfig:
     """Which pairs to train on. ``root`` is a directory written by ``uavbench simulate``."""
 
     root: str = ""
-    train_split: str = "standard/train"
+    train_split: str = "standard/train"  # several joined by "+": one training set of all
     val_split: str | None = "standard/val"  # None: no validation pass
     limit_train: int | None = None  # first N training pairs only (smoke runs)
     limit_val: int | None = None

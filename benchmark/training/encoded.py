@@ -14,9 +14,10 @@ tested on), in float32, in batches of :data:`ENCODE_BATCH` (the per-pair feature
 on the batch: per-sample GroupNorm, per-pair correlation). A head trained on cached features
 and the same model run end to end on images give the same predictions to float32 rounding.
 
-Cache: ``<checkpoint dir>/encodings/<split>[__swap][__blank][__firstN].pt`` holding the
-features ``(N, F)``, the labels and the identity of what produced them (the checkpoint file's
-sha256, the dataset manifest's sha256); a file whose identity differs is recomputed and
+Cache: ``<checkpoint dir>/encodings/<options>/<split>[__swap][__blank][__firstN].pt`` (``options``:
+8 hex digits of the encoder's options, e.g. the matching protocol) holding the features
+``(N, F)``, the labels and the identity of what produced them (the checkpoint file's sha256, the
+dataset manifest's sha256, the encoder options); a file whose identity differs is recomputed and
 replaced (atomic write), so a retrained encoder or another dataset never reads stale features.
 """
 
@@ -25,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -83,8 +85,9 @@ def resolve_pretrained(cfg: TrainConfig) -> TrainConfig:
 def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
     """Load the ``encoder.*`` weights of ``cfg.pretrained.checkpoint`` into ``model.encoder``
     and freeze them (``requires_grad`` off: the optimiser never sees them). The checkpoint's
-    model must have the same encoder (name, options, variant, width, input size): a mismatch is
-    a ConfigError naming the field and both values. Returns the checkpoint's sha256."""
+    model must have the same encoder (name, options but the matching encoder's ``protocol``,
+    variant, width, input size): a mismatch is a ConfigError naming the field and both values.
+    Returns the checkpoint's sha256."""
     path = _checkpoint_path(cfg)
     if not getattr(model, "pair_encoder", False):
         raise ConfigError(
@@ -92,8 +95,15 @@ def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
             f"matching encoder); model.encoder={model.config.encoder!r} trains end to end"
         )
     ckpt = load_checkpoint(path)
-    theirs = ckpt.get("model_config") or {}
+    theirs = dict(ckpt.get("model_config") or {})
     ours = model.config.to_dict()
+    # The matching encoder's protocol only chooses its test-time inputs (both protocols train
+    # the matcher on the sensor priors and the gravity branch on the truth): one trained encoder
+    # serves both, so a gravity-aided head may sit on a vision-only encoder and vice versa.
+    for config in (theirs, ours):
+        config["encoder_options"] = {
+            k: v for k, v in (config.get("encoder_options") or {}).items() if k != "protocol"
+        }
     for name in _ENCODER_FIELDS:
         if theirs.get(name) != ours.get(name):
             raise ConfigError(
@@ -268,9 +278,13 @@ def encode_for_heads(
     sha256."""
     checkpoint = _checkpoint_path(cfg)
     base, _ = _base(dataset)
+    # The encoder's options (the matching protocol) change the features of the same weights.
+    options = json.dumps(model.config.encoder_options, sort_keys=True)
     identity = {
         "checkpoint_sha256": file_sha256(checkpoint),
         "manifest_sha256": file_sha256(Path(base.root) / "manifest.json"),
+        "encoder_options": options,
     }
-    return encode_dataset(model, dataset, checkpoint.parent / "encodings", identity,
+    tag = hashlib.sha256(options.encode()).hexdigest()[:8]
+    return encode_dataset(model, dataset, checkpoint.parent / "encodings" / tag, identity,
                           progress=progress)  # fmt: skip

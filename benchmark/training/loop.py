@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch.utils.data import DataLoader, Dataset, Subset
+from torch.utils.data import ConcatDataset, DataLoader, Dataset, Subset
 
 from benchmark.config import to_dict
 from benchmark.evaluation.evaluate import forward_batch
@@ -115,6 +115,8 @@ def epoch_permutation(n: int, seed: int, epoch: int) -> list[int]:
 def translation_labels(dataset: Dataset) -> torch.Tensor:
     """``(N, 3)`` metres: all ``T`` labels of ``dataset`` without decoding images when possible
     (``PairDataset`` keeps its labels in ``poses``; a ``Subset`` of one is indexed)."""
+    if isinstance(dataset, ConcatDataset):  # several training splits: their labels in order
+        return torch.cat([translation_labels(part) for part in dataset.datasets])
     base, idx = dataset, None
     if isinstance(dataset, Subset):
         base, idx = dataset.dataset, list(dataset.indices)

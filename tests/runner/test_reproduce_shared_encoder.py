@@ -64,7 +64,7 @@ def test_encoder_first_then_heads_on_its_features(tmp_path, smoke_dataset, share
         assert cfg["pretrained"]["key"] == enc
         assert cfg["model"]["encoder"] == "matching"
     cache = tmp_path / "runs" / "units" / enc / "train" / "encodings"
-    names = {p.stem for p in cache.glob("*.pt")}
+    names = {p.stem for p in cache.glob("*/*.pt")}
     assert {"standard__train", "standard__test", "standard__test__swap", "standard__val",
             "standard__train__blank"} <= names  # fmt: skip
     # every head unit's checkpoint holds the encoder's weights unchanged

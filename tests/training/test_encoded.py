@@ -100,7 +100,7 @@ class TestCache:
         first = encoded.encode_for_heads(model, cfg, dataset)
         again = encoded.encode_for_heads(model, cfg, dataset)
         assert len(calls) == 1 and torch.equal(first.features, again.features)
-        assert (checkpoint.parent / "encodings" / "standard__test.pt").is_file()
+        assert len(list((checkpoint.parent / "encodings").glob("*/standard__test.pt"))) == 1
         swapped = PairDataset(smoke_dataset, "standard/test", verify="size", satellite="swap")
         swap = encoded.encode_for_heads(model, cfg, swapped)
         assert len(calls) == 2 and not torch.equal(swap.features, first.features)
@@ -149,3 +149,43 @@ class TestErrorsAndIdentity:
         assert run_key(keyed, "m") == run_key(moved, "m") != run_key(other, "m")
         plain = dataclasses.replace(cfg, pretrained=PretrainedConfig())
         assert numbers_hash(plain) != numbers_hash(keyed)
+
+
+class TestProtocols:
+    def test_a_gravity_aided_head_sits_on_a_vision_only_encoder(self, smoke_dataset, pretrained,
+                                                                tmp_path):  # fmt: skip
+        from benchmark.data import PairDataset
+        from benchmark.training.build import image_size_of, model_factory
+        from benchmark.training.encoded import encode_for_heads, load_pretrained_encoder
+
+        dataset = PairDataset(smoke_dataset, "standard/test", verify="size")
+        feats = {}
+        for protocol in ("vision_only", "gravity_aided"):
+            cfg = _frozen_cfg(smoke_dataset, pretrained,
+                              f"model.encoder_options.protocol={protocol}")  # fmt: skip
+            model = model_factory(cfg, image_size_of(dataset))()
+            load_pretrained_encoder(model, cfg)
+            feats[protocol] = encode_for_heads(model, cfg, dataset).features
+        # The same weights: the matcher's inputs differ (priors against the gravity branch's
+        # prediction), so do the features; each protocol has its own cache file.
+        assert not torch.equal(feats["vision_only"], feats["gravity_aided"])
+
+
+class TestJoinedTrainingSplits:
+    def test_two_splits_train_as_one_set(self, smoke_dataset):
+        from benchmark.data import PairDataset
+        from benchmark.training.build import open_datasets
+        from benchmark.training.loop import translation_labels
+
+        cfg = load_train_config(
+            None, [f"data.root={smoke_dataset}", "data.train_split=standard/train+towns/train",
+                   "data.verify=size"],
+        )  # fmt: skip
+        train_set, _ = open_datasets(cfg)
+        a = PairDataset(smoke_dataset, "standard/train", verify="size")
+        b = PairDataset(smoke_dataset, "towns/train", verify="size")
+        assert len(train_set) == len(a) + len(b)
+        torch.testing.assert_close(train_set[len(a)]["T"], b[0]["T"])
+        labels = translation_labels(train_set)
+        assert labels.shape == (len(a) + len(b), 3)
+        torch.testing.assert_close(labels[len(a)], b[0]["T"].double())
