@@ -99,11 +99,19 @@ def model_line(unit: Unit) -> str:
 
 def unit_run(unit: Unit, readers: Iterable[str]) -> str:
     o = unit.cfg.optim
+    read_by = "; ".join(readers) or (
+        "no table directly: the units whose heads sit on its frozen encoder (their "
+        "`pretrained.key` is this unit's key)"
+    )
+    frozen = ""
+    if unit.cfg.pretrained.enabled:
+        frozen = (f" Heads only, on the frozen encoder of unit `{unit.cfg.pretrained.key}` "
+                  "(features computed once per split).")  # fmt: skip
     return (
         f"Training of one model: {model_line(unit)}; seed {unit.cfg.seed}, trained on "
         f"`{unit.cfg.data.train_split}` ({o.epochs} epochs, {o.name} lr {o.lr:g}, batch "
-        f"{o.batch_size}), evaluated on {', '.join(f'`{s}`' for s in unit.eval_splits)}.\n\n"
-        f"Read by: {'; '.join(readers)}."
+        f"{o.batch_size}), evaluated on {', '.join(f'`{s}`' for s in unit.eval_splits)}.{frozen}"
+        f"\n\nRead by: {read_by}."
     )
 
 

@@ -171,7 +171,8 @@ class Logbook:
         return UnitTracking(
             spec=self.tracker.spec(),
             experiment=experiment_name(self.profile, descriptions.UNITS_TABLE),
-            run_name=f"{unit.jobs[0].label} seed {unit.cfg.seed} ({unit.key[:8]})",
+            run_name=(f"{unit.jobs[0].label} seed {unit.cfg.seed} ({unit.key[:8]})" if unit.jobs
+                      else f"{unit.title} ({unit.key[:8]})"),  # a shared encoder: no table reads it
             run_key=unit.key,
             tags={k: v for k, v in tags.items() if v},
             description=descriptions.unit_run(unit, readers),

@@ -13,7 +13,8 @@ its width, the dataset its input size) or where it trains:
 - ``translation`` (default ``regression``), ``encoder`` (default: the profile's,
   ``benchmark.runner.profiles.ReproProfile.encoder``: the matching encoder in ``quick``, the
   paper's GoogLeNet in ``smoke`` and ``paper``; a row that names one keeps it, e.g. Fig. 9's
-  ``googlenet``), ``encoder_variant`` (``/``, ``a``, ``f``, ``a-f``; default ``/``),
+  ``googlenet``), ``encoder_variant`` (``/``, ``a``, ``f``, ``a-f``; default ``/``; GoogLeNet's
+  variants: a row on a profile encoder other than GoogLeNet runs it plain, ``/``),
   ``aux_weight`` (default 0.3).
 - ``attitude_options``, ``translation_options``, ``encoder_options``: mappings of constructor
   options of that head / encoder, any of them, e.g. ``attitude_options: {kappa: 5, hidden: 512}``,
@@ -101,12 +102,17 @@ class VariantSpec:
         updated by the row's own ``encoder_options``. Raises ValueError naming the head and its
         options when an option does not fit."""
         options = dict(self.encoder_options)
+        variant = self.encoder_variant
         if self.encoder is None:
             options = {**(encoder_options or {}), **options}
+            if encoder != "googlenet":
+                # The variants (SE attention, triple fusion) are GoogLeNet's: a row written for
+                # the paper's encoder (Table 5's "with AGTFM") runs the profile's encoder plain.
+                variant = "/"
         return ModelConfig(
             encoder=self.encoder or encoder,
             encoder_options=options,
-            variant=self.encoder_variant,
+            variant=variant,
             width=width,
             attitude=self.attitude,
             attitude_options=self.attitude_options,
