@@ -365,7 +365,11 @@ def evaluate_references(
             for rows in [_task_rows(task)]
             for i in range(0, len(rows), chunk_frames)
         ]
-        _run(chunks, tasks, out, processes, quiet, (manifest, code))
+        if chunks:
+            _run(chunks, tasks, out, processes, quiet, (manifest, code))
+        elif not quiet:
+            print(f"references: {len(tasks)} evaluation(s) read back from "
+                  f"{Path(workdir) / REFERENCE_DIR}", file=sys.stderr)  # fmt: skip
     finally:
         _dataset.cache_clear()  # the images of this process's evaluations are not kept
         _fallback.cache_clear()
