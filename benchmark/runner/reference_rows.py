@@ -564,6 +564,10 @@ def reference_note(spec: TableSpec, results: ReferenceResults) -> str:
             )
             rate = s.get("failure_rate", math.nan)
             cpu = s.get("cpu_ms_per_frame", math.nan)
+            fallback = record.get("train_split", "")
+            if fallback and fallback != spec.train_split_for(split) and rate > 0:
+                # Not this table's constant row: the split's own training family's mean pose.
+                frames += f" (failed frames: the mean pose of `{fallback}`)"
             parts.append(
                 f"`{split}` {frames}, failed {100 * rate:.0f}%"
                 + (f", {cpu:.0f} ms of CPU a frame" if math.isfinite(cpu) else "")

@@ -228,6 +228,15 @@ class TestRenderedRows:
         assert "reads the true position E, N, U, pitch, roll" in note
         assert "reads no true pose value" in note
 
+    def test_note_names_a_fallback_other_than_the_tables_constant(self):
+        spec = load_spec(default_spec_dir() / "table1.yaml")  # trains on standard/train
+        record = {"frames": 10, "stride": 1, "train_split": "towns/train",
+                  "summary": {"failure_rate": 0.5, "cpu_ms_per_frame": 40.0}}  # fmt: skip
+        results = rr.ReferenceResults(records={("feature_pnp", STD, "true"): record})
+        note = rr.reference_note(spec, results)
+        assert "10 frames (failed frames: the mean pose of `towns/train`), failed 50%" in note
+        assert "`standard/test` not run" in note  # the two others: no record
+
     def test_kept_tables_read_the_cache(self, table1_references):
         spec, results = table1_references
         cold = rr.ReferenceResults(workdir=results.workdir)  # a later report, nothing evaluated
