@@ -34,6 +34,7 @@ ALLOWED: dict[str, set[str]] = {
     "training": {
         *("geometry", "data", "models", "evaluation", "config", "progress", "errors"),
         "tracking",  # command.py only (see TRACKING_CLIENTS)
+        "locks",  # encoded.py: one unit encodes a split for a frozen encoder, the others wait
     },
 }
 # Modules that may reach the tracking interface: the runner, the CLI and `uavbench train`.
