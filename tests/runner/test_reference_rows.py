@@ -8,6 +8,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from test_frames import Repro
@@ -236,6 +237,23 @@ class TestRenderedRows:
         note = rr.reference_note(spec, results)
         assert "10 frames (failed frames: the mean pose of `towns/train`), failed 50%" in note
         assert "`standard/test` not run" in note  # the two others: no record
+
+    def test_cells_get_the_flight_bootstrap_of_the_reference_frames(self):
+        from benchmark.runner.outputs import _reference_interval
+
+        rng = np.random.default_rng(0)
+        frame = pd.DataFrame({"index": range(60), "flight": np.repeat(np.arange(12), 5),
+                              **{m: rng.gamma(2.0, 3.0, 60) for m in FRAME_METRICS}})  # fmt: skip
+        label = get_reference_class("geometry_oracle").label
+        results = rr.ReferenceResults(frames={("geometry_oracle", STD, "true"): frame})
+        part = pd.DataFrame([{"label": label, "split": STD, "satellite": "true",
+                              "reference": "geometry_oracle"}])  # fmt: skip
+        got = _reference_interval(part, ["dpsi_deg", "acc10"], results)
+        mean = frame["dpsi_deg"].mean()
+        assert got["interval"] == "flight×seed bootstrap" and got["n_flights"] == 12
+        assert got["dpsi_deg_lo"] < mean < got["dpsi_deg_hi"] and "acc10_lo" not in got
+        model_row = part.assign(reference=float("nan"), label="Pd/Re-Net")
+        assert _reference_interval(model_row, ["dpsi_deg"], results) is None
 
     def test_kept_tables_read_the_cache(self, table1_references):
         spec, results = table1_references
