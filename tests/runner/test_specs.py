@@ -21,7 +21,7 @@ PAPER_ITEMS = {
     "fig7",
     "fig9",
 }
-BEYOND_PAPER = {"leakage", "towns", "extended"}  # issues 9, 10
+BEYOND_PAPER = {"leakage", "towns", "extended", "encoders"}  # issues 9, 10, 21
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:
