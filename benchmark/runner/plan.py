@@ -183,10 +183,12 @@ def plan_units(
     the profile's shared encoders (one per seed, :class:`~benchmark.runner.profiles.SharedEncoder`)
     before all; ``workdir`` is where the units' checkpoints live (``<workdir>/units/<key>``):
     a unit on a shared encoder loads it from there."""
-    missing = sorted(
-        {s for spec in specs for job in spec.jobs() for s in (job.train_split, *job.eval_splits)}
-        - set(splits)
-    )
+    wanted = {
+        s for spec in specs for job in spec.jobs() for s in (job.train_split, *job.eval_splits)
+    }
+    if profile.shared_encoder is not None:
+        wanted.update(profile.shared_encoder.train_split.split("+"))
+    missing = sorted(wanted - set(splits))
     if missing:
         raise ValueError(f"{data_root}: the dataset has no split(s) {missing}; it has {splits}")
     units: dict[str, Unit] = {}
