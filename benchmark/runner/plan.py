@@ -12,6 +12,7 @@ with the same config and data gets the same key.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
@@ -207,6 +208,9 @@ def plan_units(
                     checkpoint = Path(workdir) / "units" / shared.key / "train" / CHECKPOINT
                     pretrained = PretrainedConfig(checkpoint=str(checkpoint), key=shared.key)
                     cfg = train_config(job, profile, seed, data_root, splits, pretrained)
+                    heads_optim = profile.shared_encoder.heads_optim
+                    if heads_optim is not None:
+                        cfg = dataclasses.replace(cfg, optim=heads_optim)
                     needs = (shared.key,)
                 key = unit_key(cfg, dataset_hash)
                 units.setdefault(key, Unit(key, cfg, needs=needs)).jobs.append(job)

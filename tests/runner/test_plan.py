@@ -154,7 +154,10 @@ class TestUnitConfigs:
         profile = PROFILES["quick"]
         for unit in plan(only=["table1"]):
             assert unit.cfg.model.width == profile.width
-            optim = profile.shared_encoder.optim if unit.shared_encoder else profile.optim
+            shared = profile.shared_encoder
+            optim = shared.optim if unit.shared_encoder else profile.optim
+            if unit.needs:  # heads on the shared encoder's frozen features
+                optim = shared.heads_optim or profile.optim
             assert unit.cfg.optim == optim
             assert unit.cfg.threads == 1 and unit.cfg.model.input_size is None
 

@@ -54,6 +54,18 @@ class TestSharedEncoderPlan:
             assert p.checkpoint == f"/work/runs/units/{p.key}/train/checkpoint.pt"
             assert unit.cfg.optim == SHARED.optim  # the heads train with the profile's optimiser
 
+    def test_heads_optimiser_for_the_frozen_rows_only(self):
+        heads = OptimConfig(name="adam", lr=3e-4, epochs=20)
+        shared = dataclasses.replace(SHARED.shared_encoder, heads_optim=heads)
+        units = plan(dataclasses.replace(SHARED, shared_encoder=shared))
+        for unit in units:
+            if unit.shared_encoder:
+                assert unit.cfg.optim == shared.optim
+            elif unit.needs:
+                assert unit.cfg.optim == heads
+            else:  # end to end (Fig. 9's GoogLeNet): the profile's
+                assert unit.cfg.optim == SHARED.optim
+
     def test_the_uav_only_control_sits_on_the_same_encoder(self):
         control = [u for u in plan() if u.cfg.model.satellite_input == "blank"]
         assert control and all(u.needs for u in control)
