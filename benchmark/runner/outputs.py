@@ -381,6 +381,34 @@ def _input_size(data_root: Path) -> int:
     return int(read_manifest(Path(data_root))["image_size"])
 
 
+def _optim_text(o) -> str:
+    return f"{o.epochs} epochs, {o.name} lr {o.lr:g} ({o.lr_schedule}), batch {o.batch_size}"
+
+
+def profile_protocol(profile: ReproProfile) -> str:
+    """How the profile's units train, in words: which encoder, end to end or heads on a frozen
+    shared encoder, and with which loss (the report's README names the protocol, issue 21)."""
+    googlenet = f"width {profile.width:g} GoogLeNet"
+    shared = profile.shared_encoder
+    if shared is None:
+        encoder = googlenet if profile.encoder == "googlenet" else f"the {profile.encoder} encoder"
+        return (
+            f"{encoder}, {_optim_text(profile.optim)}; every unit trains end to end (the matching "
+            "encoder with its own loss term, every other encoder by the heads' loss only, the "
+            "paper's protocol)."
+        )
+    heads = shared.heads_optim or profile.optim
+    return (
+        f"rows that name no encoder use the {profile.encoder} encoder, trained once per seed end "
+        f"to end on `{shared.train_split}` with {shared.attitude} and regression heads and the "
+        f"encoder's own loss (the NLL of its pose volume at the true pose and the gravity "
+        f"branch's error; {_optim_text(shared.optim)}); each such row then trains only its heads "
+        f"on that encoder's frozen features ({_optim_text(heads)}). Rows that name the paper's "
+        f"GoogLeNet (Fig. 9, the encoders table) train it end to end at {googlenet} by the heads' "
+        f"loss only, the paper's protocol ({_optim_text(profile.optim)})."
+    )
+
+
 def _readme(
     profile: ReproProfile,
     specs: list[TableSpec],
@@ -415,9 +443,7 @@ def _readme(
         )
     lines += [
         "",
-        f"Profile: width {profile.width:g} GoogLeNet, {profile.optim.epochs} epochs, "
-        f"{profile.optim.name} lr {profile.optim.lr:g} ({profile.optim.lr_schedule}), "
-        f"batch {profile.optim.batch_size}. Dataset profile "
+        f"Profile: {profile_protocol(profile)} Dataset profile "
         f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery).",
         "",
         "## Findings",

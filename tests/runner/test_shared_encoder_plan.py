@@ -86,3 +86,15 @@ class TestSharedEncoderPlan:
         units = plan(plain)
         assert not any(u.needs or u.cfg.pretrained.enabled for u in units)
         assert {u.cfg.model.encoder for u in units} == {"matching", "googlenet"}
+
+
+class TestProtocolInTheReport:
+    def test_the_readme_names_the_protocol(self):
+        from benchmark.runner.outputs import profile_protocol
+
+        quick = " ".join(profile_protocol(PROFILES["quick"]).split())
+        assert "matching encoder, trained once per seed end to end" in quick
+        assert "`standard/train+towns/train`" in quick and "frozen features (10 epochs" in quick
+        assert "GoogLeNet (Fig. 9, the encoders table) train it end to end" in quick
+        paper = profile_protocol(PROFILES["paper"])
+        assert paper.startswith("width 1 GoogLeNet, 30 epochs, sgd") and "end to end" in paper
