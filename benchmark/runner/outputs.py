@@ -244,6 +244,8 @@ def write_reports(
                 text = cost_table(
                     spec, profile, input_size, logbook, cost_cache, remeasure_costs, bar
                 )
+            if spec.kind != "cost":  # the units of today's tables and of those kept live
+                text = _with_protocol(text, table_protocol(spec.name, [*units, *plan.live_units]))
             md_path.write_text(text + failed_section(spec.name, units, results))
             written += paths
             if logbook is not None and spec in specs:
@@ -379,6 +381,40 @@ def _input_size(data_root: Path) -> int:
     from benchmark.data.format import read_manifest
 
     return int(read_manifest(Path(data_root))["image_size"])
+
+
+def table_protocol(table: str, units: list[Unit]) -> str:
+    """One sentence on how a table's rows were trained (issue 21: every table says it): heads on
+    a frozen shared encoder, or end to end (by the heads' loss only, or with the encoder's own
+    loss), naming the rows when a table mixes them. ``""`` when no unit of it was planned."""
+    groups: dict[str, dict[str, None]] = {}
+    for unit in units:
+        labels = [j.label for j in unit.jobs if j.table == table]
+        if not labels:
+            continue
+        m = unit.cfg.model
+        if unit.cfg.pretrained.enabled:
+            how = (f"heads only, on the frozen shared {m.encoder} encoder (trained once per seed "
+                   "end to end with its own loss; the README's Profile line)")  # fmt: skip
+        elif m.encoder == "matching" and m.encoder_options.get("volume_nll_weight", 1.0) != 0:
+            how = "end to end with the matching encoder's own loss beside the heads' loss"
+        else:
+            how = f"end to end ({m.encoder}) by the heads' loss only, the paper's protocol"
+        groups.setdefault(how, {}).update(dict.fromkeys(labels))
+    if not groups:
+        return ""
+    if len(groups) == 1:
+        return f"Training protocol: {next(iter(groups))}."
+    parts = [f"{how}: {', '.join(labels)}" for how, labels in groups.items()]
+    return "Training protocol: " + "; ".join(parts) + "."
+
+
+def _with_protocol(text: str, sentence: str) -> str:
+    """``text`` with ``sentence`` as a paragraph under its title line."""
+    if not sentence:
+        return text
+    title, _, rest = text.partition("\n")
+    return f"{title}\n\n{sentence}\n{rest}"
 
 
 def _optim_text(o) -> str:

@@ -98,3 +98,16 @@ class TestProtocolInTheReport:
         assert "GoogLeNet (Fig. 9, the encoders table) train it end to end" in quick
         paper = profile_protocol(PROFILES["paper"])
         assert paper.startswith("width 1 GoogLeNet, 30 epochs, sgd") and "end to end" in paper
+
+    def test_each_table_names_how_its_rows_trained(self):
+        from benchmark.runner.outputs import table_protocol
+
+        units = plan(only=("table1", "fig9"))
+        assert table_protocol("table1", units) == (
+            "Training protocol: heads only, on the frozen shared matching encoder (trained once "
+            "per seed end to end with its own loss; the README's Profile line)."
+        )
+        assert "by the heads' loss only, the paper's protocol" in table_protocol("fig9", units)
+        mixed = table_protocol("encoders", plan(only=("encoders",)))
+        assert "GoogLeNet a-f (AGTFM)" in mixed and "; heads only, on the frozen" in mixed
+        assert table_protocol("towns", units) == ""  # not planned
