@@ -31,7 +31,7 @@ from benchmark.evaluation.metrics import predictions_frame, summarize, write_pre
 from benchmark.evaluation.reference import mean_rotation
 from benchmark.runner.claims import NOT_RUN
 from benchmark.runner.execute import UnitResult, UnitTask, eval_key, split_filename
-from benchmark.runner.partial import BANNER_BEGIN, EARLIER, short_commit
+from benchmark.runner.partial import BANNER_BEGIN, BANNER_END, EARLIER, short_commit
 from benchmark.runner.specs import load_specs
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -156,17 +156,26 @@ class TestKeepTheEarlierTables:
         assert table_files(out) == before  # nothing removed
         results = pd.read_csv(out / "results.csv", dtype={"stale_from": str})
         stale = results[results["stale_from"].notna()]
-        assert set(stale["stale_from"]) == {commit}
+        # rows the committed report already kept from an even earlier run keep that commit;
+        # the others now come from the committed report's run
+        already = earlier.get("stale_from", pd.Series(dtype=str)).dropna().astype(str)
+        assert set(stale["stale_from"]) == {commit} | set(already)
         assert len(stale) == (earlier["table"] != "table1").sum()  # every other row kept
         assert set(results.loc[results["stale_from"].isna(), "table"]) == {"table1"}
         # the kept numbers are the committed ones, unchanged
         kept = stale.drop(columns="stale_from").reset_index(drop=True)
         expected = earlier[earlier["table"] != "table1"].reset_index(drop=True)
+        expected = expected.drop(columns=["stale_from"], errors="ignore")
         pd.testing.assert_frame_equal(kept[expected.columns], expected, check_dtype=False)
         for name in before - {"table1"}:
             text = (out / f"{name}.md").read_text()
-            assert text.startswith(BANNER_BEGIN) and f"`{short_commit(commit)}`" in text, name
+            # a table the committed report already kept from an earlier run names that run
+            own = already[earlier.loc[already.index, "table"] == name]
+            at = own.iloc[0] if len(own) else commit
+            assert text.startswith(BANNER_BEGIN) and f"`{short_commit(at)}`" in text, name
             committed_text = (COMMITTED / f"{name}.md").read_text()
+            if committed_text.startswith(BANNER_BEGIN):  # its banner is rewritten, the rest kept
+                committed_text = committed_text.split(BANNER_END, 1)[1]
             assert text.endswith(committed_text), name  # the rest as written then
         assert not (out / "table1.md").read_text().startswith(BANNER_BEGIN)
 
@@ -181,10 +190,15 @@ class TestKeepTheEarlierTables:
         assert by_number["1"] != EARLIER  # the sanity claim reads table1 only: decided today
         assert by_number["3"] == EARLIER  # Tables 1-2: table2 is from the earlier run
         partial = section(readme, "Partial rerun")
-        assert (
-            f"`table2`, `table3`, `table4`, `table5`, `towns` at `{short_commit(commit)}`: its "
-            "units were trained on another dataset" in partial
-        )
+        # one line per earlier run: the tables it kept, at its commit, and why
+        stale_at = {name: commit for name in set(earlier["table"]) - {"table1"}}  # no cost table
+        for row, at in already.items():
+            stale_at[earlier.loc[row, "table"]] = at
+        for at in set(stale_at.values()):
+            tail = f" at `{short_commit(at)}`: its units were trained on another dataset"
+            line = next(x for x in partial.splitlines() if tail in x)
+            listed = set(re.findall(r"`([\w]+)`", line.split(tail, 1)[0]))
+            assert listed == {n for n, c in stale_at.items() if c == at}, line
         # every table of the committed report: all of them (`uavbench reproduce`), or named
         # when a spec is newer than the committed report (the encoders table, issue 21)
         refresh = re.search(r"Refresh them with `uavbench reproduce(?: --only ([\w,]+))?`\.",
@@ -194,7 +208,9 @@ class TestKeepTheEarlierTables:
             assert set(refresh.group(1).split(",")) == set(before)
         record = json.loads((out / "provenance.json").read_text())
         assert record["earlier_tables"]["table2"]["git_commit"] == commit
-        committed_units = json.loads((COMMITTED / "provenance.json").read_text())["units"]
+        committed_record = json.loads((COMMITTED / "provenance.json").read_text())
+        # the committed report's own units, and those it already kept from an earlier run
+        committed_units = {**committed_record.get("earlier_units", {}), **committed_record["units"]}
         stale_units = set(stale["unit"].dropna())
         assert set(record["earlier_units"]) == stale_units & set(committed_units)
         assert all(record["earlier_units"][k] == committed_units[k] for k in stale_units)
@@ -211,7 +227,9 @@ class TestKeepTheEarlierTables:
         again = {p.name: p.read_text() for p in out.glob("*.md") if p.stem not in NOT_TABLES}
         assert again == first
         record = json.loads((out / "provenance.json").read_text())
-        assert {t["git_commit"] for t in record["earlier_tables"].values()} == {commit}
+        assert {t["git_commit"] for t in record["earlier_tables"].values()} == {commit} | set(
+            already
+        )
         assert_agrees(out)
 
 
