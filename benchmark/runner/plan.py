@@ -22,6 +22,7 @@ from benchmark.models.model_config import ModelConfig
 from benchmark.runner.profiles import ReproProfile
 from benchmark.runner.specs import Job, TableSpec
 from benchmark.training.config import DataConfig, PretrainedConfig, TrainConfig
+from benchmark.training.encoded import weight_options
 from benchmark.training.identity import run_key
 from benchmark.training.loop import CHECKPOINT
 
@@ -154,9 +155,7 @@ def _frozen(cfg: TrainConfig, profile: ReproProfile) -> bool:
     bird's-eye view and the heads see at test time, so one encoder serves both)."""
     if profile.shared_encoder is None or cfg.model.encoder != profile.encoder:
         return False
-    mine = {k: v for k, v in cfg.model.encoder_options.items() if k != "protocol"}
-    shared = {k: v for k, v in profile.encoder_options.items() if k != "protocol"}
-    return mine == shared
+    return weight_options(cfg.model.encoder_options) == weight_options(profile.encoder_options)
 
 
 def unit_key(cfg: TrainConfig, dataset_hash: str) -> str:

@@ -27,6 +27,7 @@ import dataclasses
 import hashlib
 import io
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,7 @@ __all__ = [
     "file_sha256",
     "load_pretrained_encoder",
     "resolve_pretrained",
+    "weight_options",
 ]
 
 ENCODE_BATCH = 32  # pairs per encoder batch when filling the cache
@@ -82,6 +84,13 @@ def resolve_pretrained(cfg: TrainConfig) -> TrainConfig:
     return dataclasses.replace(cfg, pretrained=dataclasses.replace(cfg.pretrained, key=key))
 
 
+def weight_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The encoder options that shape its trained weights: all but the matching encoder's
+    ``protocol``, which only chooses its test-time inputs (both protocols train the matcher on
+    the sensor priors and the gravity branch on the truth), so one trained encoder serves both."""
+    return {k: v for k, v in options.items() if k != "protocol"}
+
+
 def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
     """Load the ``encoder.*`` weights of ``cfg.pretrained.checkpoint`` into ``model.encoder``
     and freeze them (``requires_grad`` off: the optimiser never sees them). The checkpoint's
@@ -97,13 +106,9 @@ def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
     ckpt = load_checkpoint(path)
     theirs = dict(ckpt.get("model_config") or {})
     ours = model.config.to_dict()
-    # The matching encoder's protocol only chooses its test-time inputs (both protocols train
-    # the matcher on the sensor priors and the gravity branch on the truth): one trained encoder
-    # serves both, so a gravity-aided head may sit on a vision-only encoder and vice versa.
+    # A gravity-aided head may sit on a vision-only encoder and vice versa (weight_options).
     for config in (theirs, ours):
-        config["encoder_options"] = {
-            k: v for k, v in (config.get("encoder_options") or {}).items() if k != "protocol"
-        }
+        config["encoder_options"] = weight_options(config.get("encoder_options") or {})
     for name in _ENCODER_FIELDS:
         if theirs.get(name) != ours.get(name):
             raise ConfigError(
