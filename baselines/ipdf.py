@@ -64,7 +64,7 @@ import torch
 from torch import Tensor, nn
 
 from benchmark.geometry import quat_to_rotmat, rotmat_to_quat, rotvec_to_rotmat, super_fibonacci
-from benchmark.models import AttitudeHead, register_head
+from benchmark.models import AttitudeHead, GridDistribution, register_head
 from benchmark.models.heads import check_option
 
 DECODE_RADIUS = 3.5  # neighbourhood of the argmax, in grid spacings (8 pi^2 / N)^(1/3) rad
@@ -131,7 +131,7 @@ class _ReluScores(torch.autograd.Function):
 
 
 @register_head("ipdf")
-class ImplicitPDF(AttitudeHead):
+class ImplicitPDF(GridDistribution, AttitudeHead):
     """Args: in_features; hidden (256); layers (1, after the sum); frequencies (3); n_train
     (4096); n_eval (2^15); refine_steps (0); target_kappa (50, > 0).
 
@@ -141,7 +141,6 @@ class ImplicitPDF(AttitudeHead):
     """
 
     paper_name = "Implicit-PDF (Murphy et al. 2021)"
-    is_probabilistic = True
 
     def __init__(
         self,
@@ -240,7 +239,7 @@ class ImplicitPDF(AttitudeHead):
 
     def distribution(self, raw: dict[str, Tensor]) -> Tensor:
         """(B, n_eval) probabilities over the evaluation grid."""
-        return torch.softmax(self._eval_logits(raw), dim=-1)
+        return super().distribution(self._eval_logits(raw))
 
     def target_distribution(self, R: Tensor) -> Tensor:
         """(B, 3, 3) -> (B, n_eval): ``softmax_k(4 target_kappa (q . q_k)^2)``."""
@@ -268,7 +267,7 @@ class ImplicitPDF(AttitudeHead):
     def decode(self, raw: dict[str, Tensor]) -> Tensor:
         """(B, 3, 3): ``decode_distribution(distribution(raw))``, then ``refine_steps`` Adam steps
         of gradient ascent on the score."""
-        R0 = self.decode_distribution(self.distribution(raw))
+        R0 = super().decode(raw)  # GridDistribution: decode_distribution(distribution(raw))
         if self.refine_steps == 0:
             return R0
         embedding = raw["embedding"].detach()

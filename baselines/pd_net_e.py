@@ -68,7 +68,7 @@ import torch
 from torch import Tensor
 
 from benchmark.geometry import euler_to_rotmat, rotmat_to_euler
-from benchmark.models import AttitudeHead, register_head
+from benchmark.models import AttitudeHead, GridDistribution, register_head
 from benchmark.models.heads import check_option
 from benchmark.models.spherical import (
     LatticeDecoder,
@@ -81,12 +81,14 @@ from benchmark.models.spherical import (
 
 
 @register_head("pd_net_e")
-class PdNetE(AttitudeHead):
+class PdNetE(GridDistribution, AttitudeHead):
     """Args: in_features; n_bins (128); kappa (10, > 0); hidden (160); direction_weight (1, >= 0),
-    the weight of the Eq. 13 term (0: cross-entropy only, as 3D-RCNN)."""
+    the weight of the Eq. 13 term (0: cross-entropy only, as 3D-RCNN).
+
+    The softmax distribution over the bins and ``decode`` come from ``GridDistribution``; the
+    logits from a ``LatticeDecoder`` with three channels (yaw, pitch, roll) of ``n_bins``."""
 
     paper_name = "Pd-Net-E"
-    is_probabilistic = True
     # 2: the Eq. 13 direction term joined the cross-entropy. 3: pitch on the interval
     # [-pi/2, pi/2] (was a doubled circle), cross-entropy decoding of pitch, Haar log_prob.
     version = 3
@@ -132,10 +134,6 @@ class PdNetE(AttitudeHead):
         """(B, F) -> logits (B, 3, n_bins) for (yaw, pitch, roll)."""
         return self.decoder(features)
 
-    def distribution(self, raw: Tensor) -> Tensor:
-        """(B, 3, n_bins) probabilities over the bins of yaw, pitch, roll."""
-        return torch.softmax(raw, dim=-1)
-
     @staticmethod
     def _angles(R: Tensor) -> Tensor:
         return torch.stack(rotmat_to_euler(R), dim=-1)  # (B, 3) yaw, pitch, roll
@@ -157,9 +155,6 @@ class PdNetE(AttitudeHead):
         roll = torch.atan2(m[:, 2, 1], m[:, 2, 0])
         pitch = interval_mle(m[:, 1], self.kappa, -math.pi / 2, self.candidates, self.log_norm)
         return euler_to_rotmat(yaw, pitch, roll)
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
 
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
         target = self._target(self._angles(R_gt))

@@ -51,22 +51,14 @@ import math
 import torch
 from torch import Tensor
 
-from benchmark.geometry import (
-    discrete_vmf,
-    fibonacci_sphere,
-    rotmat_to_rotvec,
-    rotvec_to_rotmat,
-    spherical_mean,
-)
-from benchmark.models import AttitudeHead, register_head
-from benchmark.models.heads import check_lattice_options, check_option, mlp, nearest_grid_index
+from benchmark.geometry import rotmat_to_rotvec, rotvec_to_rotmat
+from benchmark.models import AttitudeHead, LatticeDirections, register_head
+from benchmark.models.heads import check_option, mlp, nearest_grid_index
 from benchmark.models.spherical import (
     angle_bins_loss,
     circle_resultant,
     interval_decoding_grid,
     interval_mle,
-    resultant_length,
-    single_direction_loss,
     unit_direction,
     von_mises_bins,
 )
@@ -80,12 +72,12 @@ def rotmat_to_axis_angle(R: Tensor) -> tuple[Tensor, Tensor]:
 
 
 @register_head("pd_net_rv")
-class PdNetRv(AttitudeHead):
+class PdNetRv(LatticeDirections, AttitudeHead):
     """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), angle_weight (1, >= 0),
-    n_angle_bins (128)."""
+    n_angle_bins (128). The axis lattice (options, grid, target, loss, expectation, spread) and
+    ``decode`` come from ``LatticeDirections``; one ``net`` gives both branches' logits."""
 
     paper_name = "Pd-Net-Rv"
-    is_probabilistic = True
     # 2: the angle branch predicts a distribution on [0, pi] (was a point estimate); log_prob
     # w.r.t. the normalised Haar measure (was the axis alone, per steradian).
     version = 2
@@ -101,12 +93,11 @@ class PdNetRv(AttitudeHead):
         n_angle_bins: int = 128,
     ) -> None:
         super().__init__(in_features)
-        self.kappa, self.alpha = check_lattice_options("pd_net_rv", n_points, kappa, alpha)
+        self.init_lattice(n_points, kappa, alpha)
         self.angle_weight = check_option(angle_weight, "angle_weight", "pd_net_rv", inclusive=True)
         if not isinstance(n_angle_bins, int) or isinstance(n_angle_bins, bool) or n_angle_bins < 4:
             raise ValueError(f"pd_net_rv: n_angle_bins must be an int >= 4, got {n_angle_bins!r}")
-        self.n_points, self.n_angle_bins = n_points, n_angle_bins
-        self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
+        self.n_angle_bins = n_angle_bins
         edges = math.pi * torch.arange(n_angle_bins + 1, dtype=torch.float64) / n_angle_bins
         centres = (edges[1:] + edges[:-1]) / 2
         self.register_buffer("centres", centres, persistent=False)
@@ -137,23 +128,20 @@ class PdNetRv(AttitudeHead):
     def target_distribution(self, R: Tensor) -> dict[str, Tensor]:
         axis, angle = rotmat_to_axis_angle(R)
         return {
-            "axis": discrete_vmf(axis, self.kappa, self.grid.to(R.dtype)),
+            "axis": self.direction_target(axis),
             "angle": self._angle_target(angle),
         }
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
-        axis = spherical_mean(dist["axis"], self.grid)
+        axis = self.direction_mean(dist["axis"])
         m = circle_resultant(dist["angle"], self.centres)
         angle = interval_mle(m, self.kappa, 0.0, self.candidates, self.log_norm)
         return rotvec_to_rotmat(axis * angle[..., None])
 
-    def decode(self, raw: dict[str, Tensor]) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
-
     def loss(self, raw: dict[str, Tensor], R_gt: Tensor) -> Tensor:
         axis, angle = rotmat_to_axis_angle(R_gt)
         p = torch.softmax(raw["logits"], dim=-1)
-        l_axis = single_direction_loss(p, axis, self.grid, self.kappa, self.alpha)
+        l_axis = self.direction_loss(p, axis)
         if self.angle_weight == 0:
             return l_axis.mean()
         t_angle = self._angle_target(angle)
@@ -174,7 +162,7 @@ class PdNetRv(AttitudeHead):
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:
         """(B,) mean of the axis' ``1 - |sum p x|`` and the angle's ``1 - |m|``, in [0, 1]."""
         dist = self.distribution(raw)
-        axis_var = 1 - resultant_length(dist["axis"], self.grid)
+        axis_var = self.direction_spread(dist["axis"])
         angle_var = 1 - torch.linalg.vector_norm(
             circle_resultant(dist["angle"], self.centres), dim=-1
         )

@@ -55,10 +55,9 @@ import math
 import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, fibonacci_sphere, spherical_mean
-from benchmark.models import TranslationHead, register_head
-from benchmark.models.heads import check_lattice_options, check_option, mlp
-from benchmark.models.spherical import resultant_length, single_direction_loss, unit_direction
+from benchmark.models import LatticeDirections, TranslationHead, register_head
+from benchmark.models.heads import check_option, mlp
+from benchmark.models.spherical import unit_direction
 
 _MIN_LENGTH = 1e-6  # standard units; below this the direction of u is undefined and e_z is used
 # Moments of |u| for u ~ N(0, I_3): the chi distribution with 3 degrees of freedom.
@@ -67,11 +66,12 @@ CHI3_STD = math.sqrt(3.0 - 8.0 / math.pi)
 
 
 @register_head("re_net_t")
-class ReNetT(TranslationHead):
-    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), scale_weight (1)."""
+class ReNetT(LatticeDirections, TranslationHead):
+    """Options: n_points (4096), kappa (10), alpha (8e7), hidden (160), scale_weight (1). The
+    direction lattice and ``decode`` come from ``LatticeDirections``; one ``net`` gives the
+    direction logits and the scale."""
 
     paper_name = "Re-Net-T"
-    is_probabilistic = True
     version = 3
 
     def __init__(
@@ -84,9 +84,8 @@ class ReNetT(TranslationHead):
         scale_weight: float = 1.0,
     ) -> None:
         super().__init__(in_features)
-        self.kappa, self.alpha = check_lattice_options("re_net_t", n_points, kappa, alpha)
+        self.init_lattice(n_points, kappa, alpha)
         self.scale_weight = check_option(scale_weight, "scale_weight", "re_net_t", inclusive=True)
-        self.register_buffer("grid", fibonacci_sphere(n_points), persistent=False)
         self.net = mlp(in_features, hidden, n_points + 1)
         # Statistics of |u| (standard units); defaults: the chi(3) moments of u ~ N(0, I).
         self.register_buffer("scale_mean", torch.tensor(CHI3_MEAN))
@@ -124,27 +123,23 @@ class ReNetT(TranslationHead):
         """{"direction": (B, n) vMF of the direction of u, "scale": (B,) standardised |u|}."""
         direction, s = self._split(T)
         return {
-            "direction": discrete_vmf(direction, self.kappa, self.grid.to(T.dtype)),
+            "direction": self.direction_target(direction),
             "scale": s,
         }
 
     def decode_distribution(self, dist: dict[str, Tensor]) -> Tensor:
         """(B, 3) metres: ``mean + std * max(|u|_hat, 0) * d_hat``."""
-        direction = spherical_mean(dist["direction"], self.grid)
+        direction = self.direction_mean(dist["direction"])
         s = dist["scale"]
         length = (self.scale_mean.to(s.dtype) + s * self.scale_std.to(s.dtype)).clamp_min(0.0)
         return self.unstandardize(direction * length[..., None])
 
-    def decode(self, raw: dict[str, Tensor]) -> Tensor:
-        """(B, 3) metres."""
-        return self.decode_distribution(self.distribution(raw))
-
     def loss(self, raw: dict[str, Tensor], T_gt: Tensor) -> Tensor:
         p = torch.softmax(raw["logits"], dim=-1)
         direction, s = self._split(T_gt)
-        l_dir = single_direction_loss(p, direction, self.grid, self.kappa, self.alpha)
+        l_dir = self.direction_loss(p, direction)
         return (l_dir + self.scale_weight * (raw["scale"] - s) ** 2).mean()
 
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:
         """(B,) spherical variance of the direction distribution (of u), in [0, 1]."""
-        return 1 - resultant_length(torch.softmax(raw["logits"], dim=-1), self.grid)
+        return self.direction_spread(torch.softmax(raw["logits"], dim=-1))

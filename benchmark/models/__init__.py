@@ -8,6 +8,8 @@ Public API (see DEVELOPERS.md, "Model contract")::
 
 from benchmark.models.encoder import VARIANTS, Encoder, VariantSpec, parse_variant
 from benchmark.models.head_bases import (
+    GridDistribution,
+    LatticeDirections,
     LatticeHead,
     RegressionAttitudeHead,
     RegressionTranslationHead,
@@ -45,7 +47,9 @@ __all__ = [
     "VARIANTS",
     "AttitudeHead",
     "Encoder",
+    "GridDistribution",
     "Head",
+    "LatticeDirections",
     "LatticeHead",
     "ModelConfig",
     "PairEncoder",

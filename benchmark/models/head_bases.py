@@ -1,6 +1,22 @@
 """Shared head bases: a head that derives from one of these declares its representation only.
 
-Two families of heads share their maths (issue 13):
+Two families of heads share their maths (issue 13), and every grid-distribution head shares the
+lattice setup (issue 22):
+
+``GridDistribution`` (mixin, probabilistic). ``is_probabilistic``; ``distribution(raw)`` the
+softmax of the logits over their last axis; ``decode(raw) = decode_distribution(distribution(raw))``
+(the contract's identity, stated once). Pd-Net-E (bins of three angles) and IPDF (an implicit
+function scored on a grid of rotations) use it as it is.
+
+``LatticeDirections`` (mixin of ``GridDistribution``). The lattice options ``n_points`` (>=
+``min_points``), ``kappa`` (> 0) and ``alpha`` (>= 0), checked under the head's registry name,
+and the ``grid`` buffer (``lattice(n_points)``, not saved: rebuilt from ``n_points``), set up by
+``init_lattice``; for one direction per sample on that grid: its target ``direction_target`` (the
+discrete vMF, Eq. 10), loss ``direction_loss`` (Eq. 13 + alpha Eq. 14), decoding
+``direction_mean`` (Eq. 9) and spread ``direction_spread`` (``1 - |sum p x|``). Pd-Net-Rv (the
+rotation axis beside an angle branch) and Re-Net-T (the translation's direction beside a scale)
+keep their own layers (one ``net``: state-dict keys ``net.*``, the layer sizes and the RNG draws
+of version 2/3) and take the rest from here.
 
 ``LatticeHead`` (attitude, probabilistic). The head predicts ``channels`` softmax distributions over
 an equal-area lattice of ``n_points`` unit vectors in R^d (DirectionNet, paper Eq. 9-15). The base
@@ -18,10 +34,10 @@ and the uncertainty ``1 - |sum p x|`` (mean over the channels). A subclass decla
 
 A one-channel lattice on S^3 (d = 4) is read as unit quaternions ``(w, x, y, z)``: there the base
 already supplies ``to_label`` (``quat_to_rotmat``) and ``log_density`` (``q`` and ``-q`` are one
-rotation: ``haar_log_density_s3``), so such a head declares ``lattice`` and ``encode`` only.
-and may override ``target(x, grid)`` (default the discrete vMF, Eq. 10), ``loss_resultant`` (the
-vector the Eq. 13 cosine compares with the label; default ``sum p x``), ``decode_distribution``
-and ``uncertainty``.
+rotation: ``haar_log_density_s3``), so such a head declares ``lattice`` and ``encode`` only. A
+subclass may override ``target(x, grid)`` (default the discrete vMF, Eq. 10), ``loss_resultant``
+(the vector the Eq. 13 cosine compares with the label; default ``sum p x``),
+``decode_distribution`` and ``uncertainty``.
 
 ``RegressionAttitudeHead`` / ``RegressionTranslationHead``. ``Linear(F, hidden) -> ReLU ->
 Linear(hidden, prod(raw_shape))`` (state-dict keys ``net.*``, option ``hidden`` = 1024) reshaped to
@@ -40,26 +56,95 @@ from typing import ClassVar
 import torch
 from torch import Tensor
 
-from benchmark.geometry import discrete_vmf, quat_to_rotmat, rotmat_to_quat, spherical_mean
-from benchmark.models.heads import AttitudeHead, TranslationHead, check_lattice_options, mlp
+from benchmark.geometry import (
+    discrete_vmf,
+    fibonacci_sphere,
+    quat_to_rotmat,
+    rotmat_to_quat,
+    spherical_mean,
+)
+from benchmark.models.heads import (
+    AttitudeHead,
+    Raw,
+    TranslationHead,
+    check_lattice_options,
+    mlp,
+)
 from benchmark.models.spherical import (
     LatticeDecoder,
     directionnet_loss,
     haar_log_density_s3,
     resultant_length,
+    single_direction_loss,
 )
 
 
-class LatticeHead(AttitudeHead):
+class GridDistribution:
+    """A head whose prediction is a softmax distribution on a grid (mixed in before the
+    ``AttitudeHead`` / ``TranslationHead`` it completes). A head with dict raws overrides
+    ``distribution``; every one defines ``decode_distribution``."""
+
+    is_probabilistic: ClassVar[bool] = True
+
+    def distribution(self, raw: Raw) -> Tensor:
+        """Logits ``(..., n)`` -> probabilities shaped like them, each row summing to 1."""
+        return torch.softmax(raw, dim=-1)
+
+    def decode_distribution(self, dist: Raw) -> Tensor:
+        raise NotImplementedError
+
+    def decode(self, raw: Raw) -> Tensor:
+        """``decode_distribution(distribution(raw))``: the contract's identity by construction."""
+        return self.decode_distribution(self.distribution(raw))
+
+
+class LatticeDirections(GridDistribution):
+    """The lattice options and the ``grid`` buffer, and one direction per sample on that grid
+    (module docstring). ``__init__`` of the head calls ``init_lattice`` after ``Head.__init__``."""
+
+    min_points: ClassVar[int] = 4
+    lattice = staticmethod(fibonacci_sphere)  # n -> (n, d) unit vectors, float32, equal cells
+    grid: Tensor
+    kappa: float
+    alpha: float
+    n_points: int
+
+    def init_lattice(self, n_points: int, kappa: float, alpha: float) -> None:
+        """Check ``n_points``, ``kappa``, ``alpha`` (errors name the head) and register ``grid``
+        ``(n_points, d)`` as a buffer that is not saved."""
+        owner = getattr(self, "name", "") or type(self).__name__
+        self.kappa, self.alpha = check_lattice_options(
+            owner, n_points, kappa, alpha, min_points=self.min_points
+        )
+        self.n_points = n_points
+        grid = self.lattice(n_points)
+        self.register_buffer("grid", grid, persistent=False)  # type: ignore[attr-defined]
+
+    def direction_target(self, direction: Tensor) -> Tensor:
+        """Unit ``(B, d)`` -> the discrete vMF ``(B, n)`` around it (Eq. 10)."""
+        return discrete_vmf(direction, self.kappa, self.grid.to(direction.dtype))
+
+    def direction_loss(self, p: Tensor, direction: Tensor) -> Tensor:
+        """``(B, n)`` probabilities, unit label ``(B, d)`` -> ``(B,)`` Eq. 13 + alpha Eq. 14."""
+        return single_direction_loss(p, direction, self.grid, self.kappa, self.alpha)
+
+    def direction_mean(self, p: Tensor) -> Tensor:
+        """``(..., n)`` -> the normalised expectation ``(..., d)`` (Eq. 9)."""
+        return spherical_mean(p, self.grid)
+
+    def direction_spread(self, p: Tensor) -> Tensor:
+        """``(..., n)`` -> spherical variance ``1 - |sum p x|`` ``(...)``, in [0, 1]."""
+        return 1 - resultant_length(p, self.grid)
+
+
+class LatticeHead(LatticeDirections, AttitudeHead):
     """Base of the lattice-distribution attitude heads (see the module docstring for the hooks).
 
     Args: in_features; n_points (4096, >= ``min_points``); kappa (10, > 0); alpha (8e7, >= 0,
     DirectionNet's units, see ``distribution_loss_scale``); hidden (160, decoder bottleneck).
     """
 
-    is_probabilistic = True
     channels: ClassVar[int] = 1
-    min_points: ClassVar[int] = 4
 
     def __init__(
         self,
@@ -70,11 +155,7 @@ class LatticeHead(AttitudeHead):
         hidden: int = 160,
     ) -> None:
         super().__init__(in_features)
-        owner = self.name or type(self).__name__
-        self.kappa, self.alpha = check_lattice_options(
-            owner, n_points, kappa, alpha, min_points=self.min_points
-        )
-        self.register_buffer("grid", self.lattice(n_points), persistent=False)
+        self.init_lattice(n_points, kappa, alpha)
         self.decoder = LatticeDecoder(in_features, self.channels, n_points, hidden)
 
     # -- the representation (subclasses) ---------------------------------------------------------
@@ -128,20 +209,13 @@ class LatticeHead(AttitudeHead):
         logits = self.decoder(features)
         return logits[:, 0] if self.channels == 1 else logits
 
-    def distribution(self, raw: Tensor) -> Tensor:
-        """Probabilities shaped like ``raw``, each row summing to 1 (softmax over the lattice)."""
-        return torch.softmax(raw, dim=-1)
-
     def target_distribution(self, R: Tensor) -> Tensor:
         """(B, 3, 3) -> the training target, shaped like ``distribution(raw)``."""
         return self.target(self.encode(R), self.grid.to(R.dtype))
 
     def decode_distribution(self, p: Tensor) -> Tensor:
         """Probabilities -> (B, 3, 3): the normalised expectation of each channel (Eq. 9)."""
-        return self.to_label(spherical_mean(p, self.grid))
-
-    def decode(self, raw: Tensor) -> Tensor:
-        return self.decode_distribution(self.distribution(raw))
+        return self.to_label(self.direction_mean(p))
 
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
         """``sum_c [1 - cos(m_c, x_c) + alpha * s * ||p_c - p*_c||^2]``, mean over the batch."""
