@@ -18,7 +18,9 @@ naming the head and every option it accepts; a value is converted to the type of
 (its annotation, else its default's type; strings are read as YAML scalars, so ``"512"`` -> 512);
 and a value equal to the constructor's default is dropped, so that "kappa 10" and "no kappa" are
 one model with one hash (Fig. 7's kappa 10 is Table 1's Pd/Re-Net). Option values themselves
-(e.g. ``kappa > 0``) are checked by the head when the model is built.
+(e.g. ``kappa > 0``) are checked by the head when the model is built. The typing is
+``benchmark.config.convert``, the converter of every config class, so an option and a config
+field read ``"true"``, ``"1e3"`` or ``"none"`` alike.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-from benchmark.config import parse_yaml_value
+from benchmark.config import convert, parse_scalar, split_optional
 
 PAPER_INPUT_SIZE = 224  # what create_model builds when neither config nor caller give a size
 SATELLITE_INPUTS = ("image", "blank")
@@ -43,9 +45,18 @@ LEGACY_FIELDS = {
     "encoder_kwargs": "encoder_options",
 }
 _ENCODER_ARGS = ("variant", "width", "input_size")  # passed by build_model, not options
-_TRUE = {"true", "yes", "on", "1"}
-_FALSE = {"false", "no", "off", "0"}
-_NONE = {"none", "null", "~"}
+_SCALARS = (bool, int, float, str)  # the option types convert is asked for; others stay as given
+__all__ = [
+    "LEGACY_FIELDS",
+    "PAPER_INPUT_SIZE",
+    "SATELLITE_INPUTS",
+    "ModelConfig",
+    "check_satellite_input",
+    "describe_options",
+    "normalize_options",
+    "option_parameters",
+    "parse_scalar",
+]
 
 
 def check_satellite_input(value: object, where: str = "ModelConfig") -> str:
@@ -57,55 +68,17 @@ def check_satellite_input(value: object, where: str = "ModelConfig") -> str:
     return str(value)
 
 
-def parse_scalar(text: str) -> Any:
-    """A string as a YAML scalar: ``"512"`` -> 512, ``"1e-3"`` -> 0.001 (YAML 1.1 would keep
-    it a string), ``"true"`` -> True, ``"null"`` -> None, anything else the string itself."""
-    value = parse_yaml_value(text)
-    return value if isinstance(value, (bool, int, float, type(None))) else text
-
-
-def _scalar_type(annotation: Any) -> tuple[type | None, bool]:
-    """``(bool|int|float|str or None, accepts None)`` for an annotation like ``float | None``."""
-    optional = False
-    origin = typing.get_origin(annotation)
-    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
-        args = typing.get_args(annotation)
-        optional = type(None) in args
-        rest = [a for a in args if a is not type(None)]
-        annotation = rest[0] if len(rest) == 1 else None
-    return (annotation if annotation in (bool, int, float, str) else None), optional
-
-
-def _coerce(value: Any, tp: type | None, optional: bool, what: str) -> Any:
-    """``value`` as ``tp`` (no silent truncation: 2.5 is not an int, 2 is not a bool)."""
-    if isinstance(value, str) and tp is not str:
-        if optional and value.strip().lower() in _NONE:
-            return None
-        if tp is bool and value.strip().lower() in _TRUE | _FALSE:
-            return value.strip().lower() in _TRUE
-        value = parse_scalar(value)
-    if value is None and (optional or tp is None):
-        return None
-    if tp is None:
-        return value
-    ok = False
-    if tp is bool:
-        ok = isinstance(value, bool) or (isinstance(value, int) and value in (0, 1))
-        value = bool(value) if ok else value
-    elif tp is int and not isinstance(value, bool):
-        ok = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
-        value = int(value) if ok else value
-    elif tp is float and not isinstance(value, bool):
-        ok = isinstance(value, (int, float))
-        value = float(value) if ok else value
-    elif tp is str:
-        ok = isinstance(value, (str, int, float)) and not isinstance(value, bool)
-        value = str(value) if ok else value
-    if not ok:
-        raise ValueError(
-            f"{what}={value!r}: expected {tp.__name__}{' or None' if optional else ''}"
-        )
-    return value
+def option_type(annotation: Any, default: Any) -> Any:
+    """What ``convert`` types an option by: the parameter's annotation when it is one of
+    bool/int/float/str (or that ``| None``), else the type of its default when that is one of
+    them, else ``Any`` (strings still read as YAML scalars); ``| None`` also when the default is
+    None."""
+    optional, inner = split_optional(annotation)
+    tp = inner if inner in _SCALARS else None
+    if tp is None and default not in (inspect.Parameter.empty, None):
+        tp = type(default) if type(default) in _SCALARS else None
+    tp = Any if tp is None else tp
+    return tp | None if optional or default is None else tp
 
 
 def option_parameters(
@@ -166,11 +139,10 @@ def normalize_options(
     for name in sorted(options):
         param, value = params[name], options[name]
         default = param.default
-        tp, optional = _scalar_type(hints.get(name))
-        if tp is None and default not in (inspect.Parameter.empty, None):
-            tp = type(default) if type(default) in (bool, int, float, str) else None
-        optional = optional or default is None
-        value = _coerce(value, tp, optional, f"{field_name}.{name}")
+        tp = option_type(hints.get(name), default)
+        if isinstance(value, str) and split_optional(tp)[1] is not str:
+            value = parse_scalar(value)  # "512" -> 512 also for an untyped option
+        value = convert(value, tp, f"{field_name}.{name}")
         if not _same(value, default):
             out[name] = value
     return out

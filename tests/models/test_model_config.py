@@ -11,6 +11,7 @@ import pickle
 import pytest
 import torch
 
+from benchmark.config import convert
 from benchmark.models import ModelConfig, create_model, get_head_class
 from benchmark.models.checkpoint import load_trained_model
 from benchmark.models.model_config import normalize_options, parse_scalar
@@ -103,6 +104,21 @@ class TestOptions:
         assert [parse_scalar(t) for t in ("5", "1e-3", "true", "null", "batch", "0.5")] == [
             5, 0.001, True, None, "batch", 0.5,
         ]  # fmt: skip
+
+    @pytest.mark.parametrize(
+        ("annotation", "text"),
+        [(int, "1e3"), (int, "1_000"), (float, "nan"), (bool, "on"), (bool, "No"),
+         (int | None, "null"), (str | None, "none"), (str, "512")],
+    )  # fmt: skip
+    def test_options_typed_like_config_fields(self, annotation, text):
+        """One converter (issue 22): an option reads a string as a config field of its type."""
+
+        def factory(in_features: int, x=None):
+            return None
+
+        factory.__annotations__["x"] = annotation  # a real type: this module's are strings
+        got = normalize_options(factory, {"x": text}, owner="f", field_name="o").get("x")
+        assert got == convert(text, annotation | None, "o.x") or (got != got and text == "nan")
 
     def test_var_keyword_heads_take_anything(self):
         def factory(in_features: int, **kwargs):  # a plug-in taking **kwargs
