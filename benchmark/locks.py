@@ -24,6 +24,14 @@ Releasing unlinks the file while still holding the lock; a process that opened t
 the unlink and then acquires the lock sees that the path no longer names the file it locked and
 starts again (the classic unlink race of lock files).
 
+Why not ``filelock`` (installed with torch, any version): it keeps no holder record (the message
+of a second invocation names pid, host and start, and a dead holder's lock is reported as taken
+over), and its lock file is its own: a record written into it goes around its API, and filelock
+3.x opens it with ``O_TRUNC`` on every attempt, so a waiting process would erase the holder's
+record. Its lock is also re-entrant in a process (ours refuses a second take, which would be our
+bug), and 4.x may fall back to a soft lock on a filesystem without ``flock``, where this module
+refuses to run unlocked. It would save ``_try_lock``'s ~25 lines.
+
 Imports nothing of ours (a leaf like ``benchmark.errors``), so every layer may use it.
 """
 

@@ -4,6 +4,12 @@ Conventions (DEVELOPERS.md): navigation frame ENU; body x right, y forward, z up
 ``R_b^n = Rz(yaw) Rx(pitch) Ry(roll)`` maps body vectors into the navigation frame. Quaternions are
 ``(w, x, y, z)``. Angles are radians. Every function is batched over leading dimensions ``...``,
 works in float32 and float64 and is differentiable wherever the map itself is smooth.
+
+Why not roma's maps (BSD-3, not installed; ``benchmark/geometry/so3.py`` says why not for the
+projection): its quaternions are ``(x, y, z, w)`` and its Euler angles take a convention string,
+so every call would be wrapped in a reorder; the paper's own maps (Eq. 3 ``rotmat_to_quat_paper``
+with its sign rule, Eq. 1's ``Rz Rx Ry`` order) are not in it; and the labels of every dataset and
+the targets of every head are computed here, so other rounding would change the numbers.
 """
 
 from __future__ import annotations
