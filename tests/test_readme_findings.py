@@ -1,8 +1,9 @@
 """The README's findings are the reproduction report's generated findings, verbatim (issue 10).
 
 ``reports/quick/README.md`` writes its "## Findings" section from the claim verdicts
-(``benchmark.runner.findings``); the top-level README quotes it between two markers. Prose cannot
-drift from the numbers: after a rerun, a stale quote fails this test until it is copied again.
+(``benchmark.runner.claims.findings``); the top-level README quotes it between two markers. Prose
+cannot drift from the numbers: after a rerun, a stale quote fails this test until it is copied
+again.
 """
 
 from __future__ import annotations

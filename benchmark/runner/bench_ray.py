@@ -77,9 +77,9 @@ def reproduce_once(args: argparse.Namespace, executor: str, data: Path, where: P
 
 
 def main(argv: list[str]) -> int:
-    from benchmark.runner.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
-    from benchmark.runner.profiles import get_repro_profile
-    from benchmark.runner.ray_executor import import_ray
+    from benchmark.runner.claims.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
+    from benchmark.runner.execute.ray_executor import import_ray
+    from benchmark.runner.plan.repro_profiles import get_repro_profile
     from benchmark.runner.reproduce import prepare_dataset
 
     args = parse_args(argv)

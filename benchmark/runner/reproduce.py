@@ -19,14 +19,23 @@ from pathlib import Path
 from benchmark.errors import UsageError
 from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
-from benchmark.runner.execute import UnitResult, UnitTask
-from benchmark.runner.invocations import LOCK, owner_tags, relevant_invocations, start_invocation
-from benchmark.runner.logbook import Logbook, write_config
-from benchmark.runner.partial import DEFAULT_STALE, STALE_MODES, MergePlan, plan_merge
-from benchmark.runner.plan import Unit, plan_units
-from benchmark.runner.profiles import PROFILES, ReproProfile, get_repro_profile
-from benchmark.runner.ray_executor import add_executor_arguments, check_executor, run_executor
-from benchmark.runner.specs import SpecError, load_specs
+from benchmark.runner.execute.ray_executor import (
+    add_executor_arguments,
+    check_executor,
+    run_executor,
+)
+from benchmark.runner.execute.worker import UnitResult, UnitTask
+from benchmark.runner.plan.invocations import (
+    LOCK,
+    owner_tags,
+    relevant_invocations,
+    start_invocation,
+)
+from benchmark.runner.plan.partial import DEFAULT_STALE, STALE_MODES, MergePlan, plan_merge
+from benchmark.runner.plan.repro_profiles import PROFILES, ReproProfile, get_repro_profile
+from benchmark.runner.plan.specs import SpecError, load_specs
+from benchmark.runner.plan.units import Unit, plan_units
+from benchmark.runner.report.logbook import Logbook, write_config
 
 HELP = "reproduce the paper's tables and figures: simulate, train, evaluate, track, report"
 
@@ -357,7 +366,7 @@ def _write_reports(
     while the units ran (their results are kept in the store) is one line with the fix instead
     of a traceback."""
     from benchmark.data.format import DatasetError
-    from benchmark.runner.outputs import write_reports
+    from benchmark.runner.report.outputs import write_reports
 
     data_root, out, workdir = paths
     try:

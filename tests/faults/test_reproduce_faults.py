@@ -19,9 +19,9 @@ import pytest
 from fault_tools import CLI, flip_byte
 
 from benchmark.cli import main
-from benchmark.runner import invocations as inv
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.logbook import END_REASON_TAG, Logbook, experiment_name
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan import invocations as inv
+from benchmark.runner.report.logbook import END_REASON_TAG, Logbook, experiment_name
 from benchmark.tracking import RUN_KEY_TAG, RunStatus, create_tracker
 
 ROOT = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
@@ -288,7 +288,7 @@ class TestFailedUnitsInReports:
     ):
         """Every unit fails (as when its data is damaged mid-run): exit 1, no traceback, the
         reports name the failed rows and their cells read ``failed``."""
-        from benchmark.runner import pool  # the default executor calls pool.run_unit
+        from benchmark.runner.execute import pool  # the default executor calls pool.run_unit
 
         def fails(task):
             return UnitResult(task.key, False, error="DatasetError: corrupted file x.npy")

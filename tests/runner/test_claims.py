@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from test_frames import SPLITS, Repro
 
-from benchmark.runner.claims import (
+from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EXCLUDED,
     NOT_RUN,
@@ -21,11 +22,9 @@ from benchmark.runner.claims import (
     Comparison,
     Evidence,
     combine,
-    evaluate_claims,
     head_family,
-    render_claims,
 )
-from benchmark.runner.claims_paper import (
+from benchmark.runner.claims.paper import (
     constant_claim,
     kappa_claim,
     pairwise_claim,
@@ -33,7 +32,7 @@ from benchmark.runner.claims_paper import (
     translation_claim,
     uncertainty_claim,
 )
-from benchmark.runner.claims_satellite import control_claim, satellite_claim
+from benchmark.runner.claims.satellite import control_claim, satellite_claim
 
 STD, GEN = "standard/test", "generalized/test"
 

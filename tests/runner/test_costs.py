@@ -12,7 +12,9 @@ import torch
 from benchmark.models.info import model_info
 from benchmark.models.model_config import ModelConfig
 from benchmark.progress import Progress
-from benchmark.runner.costs import (
+from benchmark.runner.plan.repro_profiles import get_repro_profile
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.report.costs import (
     cached_measure,
     cost_configs,
     cost_identity,
@@ -21,8 +23,6 @@ from benchmark.runner.costs import (
     cost_table,
     measure,
 )
-from benchmark.runner.profiles import get_repro_profile
-from benchmark.runner.specs import load_specs
 
 CFG = ModelConfig(attitude="re_net_r", variant="/", width=0.25, input_size=32)
 

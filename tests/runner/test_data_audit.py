@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
+from benchmark.runner.claims.data_audit import heading_cue_report, heading_cue_summary
 
 
 @pytest.fixture(scope="module")

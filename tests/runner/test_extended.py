@@ -11,10 +11,10 @@ import pandas as pd
 import pytest
 
 from benchmark.models import get_head_class, list_heads
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import PROFILES
-from benchmark.runner.report import extra_metrics_table, markdown_table
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.tables import extra_metrics_table, markdown_table
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test", "towns/train"]
 PAPER_METRICS = ["dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg"]

@@ -8,7 +8,8 @@ import numpy as np
 from test_claims import add_head
 from test_frames import Repro
 
-from benchmark.runner.claims import (
+from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EXCLUDED,
     NOT_RUN,
@@ -16,10 +17,8 @@ from benchmark.runner.claims import (
     UNRESOLVED,
     Claim,
     Comparison,
-    evaluate_claims,
-    render_claims,
 )
-from benchmark.runner.findings import findings_markdown, satellite_sentence
+from benchmark.runner.claims.findings import findings_markdown, satellite_sentence
 
 STD, GEN = "standard/test", "generalized/test"
 

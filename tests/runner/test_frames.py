@@ -18,10 +18,10 @@ from scipy.spatial.transform import Rotation
 
 from benchmark.evaluation.metrics import predictions_frame, write_predictions_csv
 from benchmark.geometry import SAT_R_N
-from benchmark.runner.execute import eval_key, split_filename
-from benchmark.runner.frames import FrameStore
-from benchmark.runner.plan import Unit
-from benchmark.runner.specs import Job, VariantSpec
+from benchmark.runner.claims.frame_errors import FrameStore
+from benchmark.runner.execute.worker import eval_key, split_filename
+from benchmark.runner.plan.specs import Job, VariantSpec
+from benchmark.runner.plan.units import Unit
 from benchmark.training.config import TrainConfig
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]

@@ -7,11 +7,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.logbook import HEADLINE, Logbook, experiment_name
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import PROFILES
-from benchmark.runner.specs import load_specs
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.logbook import HEADLINE, Logbook, experiment_name
 from benchmark.tracking import RunStatus, create_tracker
 
 SPLITS = [

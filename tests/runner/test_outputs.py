@@ -9,10 +9,11 @@ import json
 import pytest
 import torch
 
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import get_repro_profile
-from benchmark.runner.provenance_report import (
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan.repro_profiles import get_repro_profile
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.provenance import (
     VOLATILE,
     Difference,
     collect_provenance,
@@ -21,7 +22,6 @@ from benchmark.runner.provenance_report import (
     state_dict_sha256,
     write_provenance,
 )
-from benchmark.runner.specs import load_specs
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
 

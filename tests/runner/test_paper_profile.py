@@ -9,9 +9,9 @@ import torch
 from scipy.spatial.transform import Rotation
 from torch.utils.data import Dataset
 
-from benchmark.runner.plan import train_config
-from benchmark.runner.profiles import PROFILES
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import train_config
 from benchmark.training.build import model_factory
 from benchmark.training.loop import train
 

@@ -1,5 +1,5 @@
 """``--only`` reruns: the other tables are kept live, kept and marked as from an earlier run, or
-dropped (``benchmark.runner.partial``); the end-to-end check is ``test_partial_rerun.py``."""
+dropped (``benchmark.runner.plan.partial``); the end-to-end check is ``test_partial_rerun.py``."""
 
 from __future__ import annotations
 
@@ -10,27 +10,25 @@ import pytest
 
 import benchmark.data
 import benchmark.tracking
-from benchmark.runner.claims import NOT_RUN, Claim, safe_claim
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.findings import findings_markdown
-from benchmark.runner.outputs import results_frame
-from benchmark.runner.partial import (
+from benchmark.runner.claims.earlier import EarlierTableError, MergedFrameStore, mark_earlier_claims
+from benchmark.runner.claims.evidence import NOT_RUN, Claim, safe_claim
+from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan.partial import (
     BANNER_BEGIN,
     EARLIER,
     STALE_COLUMN,
-    EarlierTableError,
-    MergedFrameStore,
     earlier_results,
     in_spec_order,
-    mark_earlier_claims,
     mark_earlier_files,
     plan_merge,
     short_commit,
     strip_banner,
 )
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import get_repro_profile
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import get_repro_profile
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.outputs import results_frame
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
 SPLITS += [f"height{h}/{p}" for h in (600, 800, 1000, 1200, 1400) for p in ("train", "test")]

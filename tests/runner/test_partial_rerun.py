@@ -23,16 +23,16 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-import benchmark.runner.outputs as outputs_module
-import benchmark.runner.pool as pool_module
+import benchmark.runner.execute.pool as pool_module
+import benchmark.runner.report.outputs as outputs_module
 from benchmark.cli import main
 from benchmark.data.swap import SATELLITE_MODES
 from benchmark.evaluation.metrics import predictions_frame, summarize, write_predictions_csv
 from benchmark.evaluation.reference import mean_rotation
-from benchmark.runner.claims import NOT_RUN
-from benchmark.runner.execute import UnitResult, UnitTask, eval_key, split_filename
-from benchmark.runner.partial import BANNER_BEGIN, BANNER_END, EARLIER, short_commit
-from benchmark.runner.specs import load_specs
+from benchmark.runner.claims.evidence import NOT_RUN
+from benchmark.runner.execute.worker import UnitResult, UnitTask, eval_key, split_filename
+from benchmark.runner.plan.partial import BANNER_BEGIN, BANNER_END, EARLIER, short_commit
+from benchmark.runner.plan.specs import load_specs
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMITTED = ROOT / "reports" / "quick"

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.runner.plan import job_key, plan_units, val_split_for
-from benchmark.runner.profiles import PROFILES
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import job_key, plan_units, val_split_for
 
 SPLITS = (
     ["standard/train", "standard/val", "standard/test", "generalized/test"]

@@ -11,21 +11,15 @@ import pandas as pd
 import pytest
 from test_frames import SPLITS, Repro
 
-from benchmark.runner.claims import (
-    NOT_RUN,
-    SUPPORTED,
-    UNRESOLVED,
-    Evidence,
-    evaluate_claims,
-    render_claims,
-)
-from benchmark.runner.claims_ranking import (
+from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.evidence import NOT_RUN, SUPPORTED, UNRESOLVED, Evidence
+from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.claims.ranking import (
     ranking_claim,
     ranking_claims,
     ranking_markdown,
     ranking_sentence,
 )
-from benchmark.runner.findings import findings_markdown
 
 STD, GEN = "standard/test", "generalized/test"
 

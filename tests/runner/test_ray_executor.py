@@ -20,7 +20,7 @@ from interrupt_tools import ctrl_c_while_training
 from benchmark.cli import main
 from benchmark.errors import UsageError
 from benchmark.runner import reproduce as reproduce_module
-from benchmark.runner.ray_executor import (
+from benchmark.runner.execute.ray_executor import (
     INSTALL_LINE,
     add_executor_arguments,
     check_dataset_on_node,
@@ -146,9 +146,9 @@ def shared_ray():
 def planned(smoke_dataset):
     """The table's units, planned as ``reproduce`` plans them (no tracking)."""
     from benchmark.data import list_splits
-    from benchmark.runner.plan import plan_units
-    from benchmark.runner.profiles import get_repro_profile
-    from benchmark.runner.specs import load_specs
+    from benchmark.runner.plan.repro_profiles import get_repro_profile
+    from benchmark.runner.plan.specs import load_specs
+    from benchmark.runner.plan.units import plan_units
     from benchmark.tracking import manifest_sha256
 
     specs = load_specs(None, [TABLE])
@@ -158,7 +158,7 @@ def planned(smoke_dataset):
 
 
 def make_todo(units, workdir: Path):
-    from benchmark.runner.execute import UnitTask
+    from benchmark.runner.execute.worker import UnitTask
 
     return [(u, UnitTask(u.key, u.cfg, u.eval_splits, workdir / "units" / u.key)) for u in units]
 
@@ -175,7 +175,7 @@ def killed_once(victim: str, markers: Path):
             if attempt == 1:
                 import signal
 
-                import benchmark.runner.execute as execute
+                import benchmark.runner.execute.worker as execute
 
                 train_and_evaluate = execute.train_and_evaluate
 

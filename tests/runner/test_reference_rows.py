@@ -16,13 +16,13 @@ from test_frames import Repro
 import benchmark.references as references_module
 from benchmark.evaluation.paired import swap_effect
 from benchmark.references import get_reference_class, list_references
-from benchmark.runner import reference_rows as rr
-from benchmark.runner.claims import evaluate_claims
-from benchmark.runner.findings import findings_markdown
-from benchmark.runner.outputs import REPORT_METRICS
-from benchmark.runner.report import NO_VAL, markdown_table, summarize
-from benchmark.runner.specs import SpecError, default_spec_dir, load_spec
-from benchmark.runner.spread import FRAME_METRICS, read_frames
+from benchmark.runner.claims.evaluate import evaluate_claims
+from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.claims.spread import FRAME_METRICS, read_frames
+from benchmark.runner.execute import reference_rows as rr
+from benchmark.runner.plan.specs import SpecError, default_spec_dir, load_spec
+from benchmark.runner.report.outputs import REPORT_METRICS
+from benchmark.runner.report.tables import NO_VAL, markdown_table, summarize
 
 STD = "standard/test"
 TABLES = ("table1", "table2", "towns", "extended")
@@ -239,7 +239,7 @@ class TestRenderedRows:
         assert "`standard/test` not run" in note  # the two others: no record
 
     def test_cells_get_the_flight_bootstrap_of_the_reference_frames(self):
-        from benchmark.runner.outputs import _reference_interval
+        from benchmark.runner.report.outputs import _reference_interval
 
         rng = np.random.default_rng(0)
         frame = pd.DataFrame({"index": range(60), "flight": np.repeat(np.arange(12), 5),
@@ -326,7 +326,7 @@ def _num(x: float) -> float | None:
 
 
 def test_the_tracker_descriptions_name_what_each_reference_is_given():
-    from benchmark.runner.descriptions import table_experiment
+    from benchmark.runner.report.descriptions import table_experiment
 
     text = table_experiment(load_spec(default_spec_dir() / "table1.yaml"), "quick")
     for name in ("geometry_oracle", "gravity_template", "feature_pnp"):

@@ -15,24 +15,30 @@ import pandas as pd
 import pytest
 
 from benchmark.evaluation.paired import paired_bootstrap
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.outputs import REPORT_METRICS, results_frame
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import get_repro_profile
-from benchmark.runner.report import interval_note, load_paper, markdown_table, pick, summarize
-from benchmark.runner.specs import default_spec_dir, load_specs
-from benchmark.runner.spread import (
+from benchmark.runner.claims.spread import (
     FLIGHT_BOOT,
     cell_interval,
     read_frames,
     seed_flight_bootstrap,
 )
-from benchmark.runner.sweeps import (
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan.repro_profiles import get_repro_profile
+from benchmark.runner.plan.specs import default_spec_dir, load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.outputs import REPORT_METRICS, results_frame
+from benchmark.runner.report.sweeps import (
     series_label,
     sweep_figure,
     sweep_label,
     sweep_table,
     sweep_tick,
+)
+from benchmark.runner.report.tables import (
+    interval_note,
+    load_paper,
+    markdown_table,
+    pick,
+    summarize,
 )
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]

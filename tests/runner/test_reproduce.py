@@ -12,8 +12,8 @@ import pytest
 from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
-from benchmark.runner import profiles as profiles_module
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan import repro_profiles as profiles_module
+from benchmark.runner.plan.specs import load_specs
 
 
 def reproduce(tmp_path, dataset, *extra: str) -> int:
@@ -110,7 +110,7 @@ class TestReproduceSmoke:
     def test_provenance(self, full_run, smoke_dataset):
         import hashlib
 
-        from benchmark.runner.provenance_report import compare_provenance
+        from benchmark.runner.report.provenance import compare_provenance
 
         tmp, _ = full_run
         reports = tmp / "reports"

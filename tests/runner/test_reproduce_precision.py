@@ -15,7 +15,7 @@ import torch
 from benchmark.cli import main
 from benchmark.models import precision_support
 from benchmark.models.precision_support import cpu_bf16_level
-from benchmark.runner import outputs as outputs_module
+from benchmark.runner.report import outputs as outputs_module
 
 AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
 

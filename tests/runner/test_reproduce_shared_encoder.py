@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from benchmark.cli import main
-from benchmark.runner import profiles as profiles_module
-from benchmark.runner.profiles import SharedEncoder
+from benchmark.runner.plan import repro_profiles as profiles_module
+from benchmark.runner.plan.repro_profiles import SharedEncoder
 from benchmark.training.config import OptimConfig
 
 ONE_EPOCH = OptimConfig(name="adam", lr=1e-3, lr_schedule="constant", batch_size=8, epochs=1)
@@ -88,8 +88,8 @@ def test_encoder_first_then_heads_on_its_features(tmp_path, smoke_dataset, share
 def test_a_failed_encoder_fails_its_rows_without_running_them(
     tmp_path, smoke_dataset, shared_smoke, monkeypatch, capsys
 ):
-    from benchmark.runner import pool
-    from benchmark.runner.execute import UnitResult
+    from benchmark.runner.execute import pool
+    from benchmark.runner.execute.worker import UnitResult
 
     real = pool.run_unit
 

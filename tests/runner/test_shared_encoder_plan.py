@@ -9,9 +9,9 @@ from pathlib import Path
 
 from test_plan import SPLITS
 
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import PROFILES, SharedEncoder
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import PROFILES, SharedEncoder
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
 from benchmark.training.config import OptimConfig
 
 SHARED = dataclasses.replace(
@@ -90,7 +90,7 @@ class TestSharedEncoderPlan:
 
 class TestProtocolInTheReport:
     def test_the_readme_names_the_protocol(self):
-        from benchmark.runner.outputs import profile_protocol
+        from benchmark.runner.report.outputs import profile_protocol
 
         quick = " ".join(profile_protocol(PROFILES["quick"]).split())
         assert "matching encoder, trained once per seed end to end" in quick
@@ -100,7 +100,7 @@ class TestProtocolInTheReport:
         assert paper.startswith("width 1 GoogLeNet, 30 epochs, sgd") and "end to end" in paper
 
     def test_each_table_names_how_its_rows_trained(self):
-        from benchmark.runner.outputs import table_protocol
+        from benchmark.runner.report.outputs import table_protocol
 
         units = plan(only=("table1", "fig9"))
         assert table_protocol("table1", units) == (

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from benchmark.models.registry import list_heads
-from benchmark.runner.specs import SpecError, load_spec, load_specs
+from benchmark.runner.plan.specs import SpecError, load_spec, load_specs
 
 PAPER_ITEMS = {
     "table1",

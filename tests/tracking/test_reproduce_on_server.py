@@ -15,7 +15,7 @@ import pandas as pd
 import pytest
 
 from benchmark.cli import main
-from benchmark.runner import profiles as profiles_module
+from benchmark.runner.plan import repro_profiles as profiles_module
 
 EPOCHS = 2
 

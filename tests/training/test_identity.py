@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from benchmark.models import get_head_class
-from benchmark.runner.logbook import Logbook
-from benchmark.runner.plan import plan_units
-from benchmark.runner.profiles import PROFILES
-from benchmark.runner.specs import load_specs
+from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.plan.units import plan_units
+from benchmark.runner.report.logbook import Logbook
 from benchmark.tracking import RunStatus, create_tracker
 from benchmark.training import load_train_config, run_key, run_tags
 
@@ -75,7 +75,7 @@ class TestTags:
         assert json.loads(expected["head_options"]) == {"attitude": {}, "translation": {}}
 
         # What the reproduce logbook writes on the job's tracked run carries the same tags.
-        from benchmark.runner.execute import UnitResult
+        from benchmark.runner.execute.worker import UnitResult
 
         tracker = create_tracker("local", workdir=tmp_path)
         logbook = Logbook(tracker, "smoke", {"git_commit": "abc", "dataset_manifest": "m"})

@@ -1,21 +1,21 @@
 """The findings paragraph of a reproduction, written only from the claim verdicts and their numbers.
 
 Prose written by hand drifts from the numbers it summarises (issue 10); this text is generated
-from the :class:`~benchmark.runner.claims.Claim` objects the claims table is rendered from, so it
-says nothing the table does not: verdict counts, which claims hold and which do not (with the
+from the :class:`~benchmark.runner.claims.evidence.Claim` objects the claims table is rendered from,
+so it says nothing the table does not: verdict counts, which claims hold and which do not (with the
 differences and intervals exactly as the table prints them), which heads use the satellite image
 on which split, which representation wins each test split of the ``extended`` table
-(``benchmark.runner.claims_ranking``), and which heads were left out for not beating the constant
+(``benchmark.runner.claims.ranking``), and which heads were left out for not beating the constant
 predictor. After a partial rerun that kept tables from an earlier run, one line per earlier run
 names those tables and the claims that use them: *from an earlier run at <commit>, not
-re-decided* (``benchmark.runner.partial``).
+re-decided* (``benchmark.runner.plan.partial``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 
-from benchmark.runner.claims import (
+from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EXCLUDED,
     NOT_RUN,
@@ -24,8 +24,8 @@ from benchmark.runner.claims import (
     Claim,
     Comparison,
 )
-from benchmark.runner.claims_ranking import ranking_sentence
-from benchmark.runner.partial import EARLIER, short_commit
+from benchmark.runner.claims.ranking import ranking_sentence
+from benchmark.runner.plan.partial import EARLIER, short_commit
 
 ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN, EARLIER)
 SENTENCE_KINDS = ("satellite", "ranking")  # claims summarised by a sentence of their own

@@ -1,11 +1,12 @@
 """The paper's claims 1-10 (and the benchmark's sanity bar), each decided by paired statistics on
-the per-frame errors (evidence, participation and combination rules: ``benchmark.runner.claims``).
+the per-frame errors (evidence, participation and combination rules:
+``benchmark.runner.claims.evidence``).
 """
 
 from __future__ import annotations
 
 from benchmark.evaluation.paired import percentile_interval
-from benchmark.runner.claims import (
+from benchmark.runner.claims.evidence import (
     CONFIDENCE,
     DISTRIBUTION,
     EXCLUDED,
@@ -83,7 +84,7 @@ MATRIX_HEADS = {DISTRIBUTION: "pd_re_net", REGRESSION: "re_net_r"}
 
 def representation_claim(ev: Evidence) -> Claim:
     """The rotation matrix (Pd/Re-Net, Re-Net-R) beats every other head of its family (the
-    registry's, :func:`benchmark.runner.claims.head_family`) in Tables 1-2, on δφ."""
+    registry's, :func:`benchmark.runner.claims.evidence.head_family`) in Tables 1-2, on δφ."""
     claim = (
         "The rotation matrix beats the other representations (quaternion, rotation vector, Euler)"
     )

@@ -42,7 +42,7 @@ class SharedEncoder:
 @dataclass(frozen=True)
 class ReproProfile:
     """A reproduction's scale: the dataset profile, the encoder width every table row trains at
-    (the rest of the model comes from the row, ``benchmark.runner.specs``) and the optimiser
+    (the rest of the model comes from the row, ``benchmark.runner.plan.specs``) and the optimiser
     (``TrainConfig.optim`` of every unit)."""
 
     name: str
@@ -56,7 +56,7 @@ class ReproProfile:
     # precision other than fp32 is (a bf16 unit is another model).
     device: str = "auto"
     precision: str = "auto"
-    # The encoder of every row that names none (``benchmark.runner.specs.VariantSpec.encoder``)
+    # The encoder of every row that names none (``benchmark.runner.plan.specs.VariantSpec.encoder``)
     # and its options; rows that name an encoder (Fig. 9's GoogLeNet) keep theirs.
     encoder: str = "googlenet"
     encoder_options: dict[str, Any] = field(default_factory=dict)

@@ -11,10 +11,10 @@ the split's training split (``benchmark.references.default_train_split``) and ar
 
 Cache, per evaluation: ``<workdir>/references/<name>/<split_filename(split)>[__swap].csv`` (the
 per-frame predictions, the format of a model's ``units/<key>/eval/*.csv``, so
-``benchmark.evaluation.paired`` and ``benchmark.runner.spread`` read it as they read a model's;
-plus ``reference_failed`` and ``reference_score``) and ``.json`` beside it (the record: what was
-evaluated and its summary), written last and atomically: its presence means the evaluation is
-complete. A record is reused only when it was made with the same reference options, dataset
+``benchmark.evaluation.paired`` and ``benchmark.runner.claims.spread`` read it as they read a
+model's; plus ``reference_failed`` and ``reference_score``) and ``.json`` beside it (the record:
+what was evaluated and its summary), written last and atomically: its presence means the evaluation
+is complete. A record is reused only when it was made with the same reference options, dataset
 (manifest sha256), frame stride, fallback split and reference code (sha256 of
 ``benchmark/references/*.py``); otherwise the evaluation runs again.
 
@@ -47,8 +47,8 @@ import numpy as np
 import pandas as pd
 
 from benchmark.progress import Progress
-from benchmark.runner.execute import SATELLITE_MODES, eval_key, split_filename, worker_init
-from benchmark.runner.specs import TableSpec
+from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_filename, worker_init
+from benchmark.runner.plan.specs import TableSpec
 
 __all__ = [
     "MAX_PROCESSES",

@@ -1,10 +1,10 @@
 """``uavbench reproduce --executor ray``: each training unit a Ray task, locally or on a cluster.
 
-The contract is :func:`benchmark.runner.pool.execute_units`'s: ``todo`` holds
+The contract is :func:`benchmark.runner.execute.pool.execute_units`'s: ``todo`` holds
 ``(Unit, UnitTask)`` pairs, ``on_done(unit, UnitResult)`` runs in this (driver) process in order of
 completion, and the worker writes the same ``units/<key>/`` files through the same
-:func:`benchmark.runner.execute.run_unit` (one torch thread, as ``worker_init`` sets up), so the
-reports and ``results.csv`` are those of the process pool, number for number.
+:func:`benchmark.runner.execute.worker.run_unit` (one torch thread, as ``worker_init`` sets up), so
+the reports and ``results.csv`` are those of the process pool, number for number.
 
 - ``address=None``: a local Ray (``ray.init(address="local", num_cpus=...)``) is started for the
   run and shut down after it; an address (``ray start --head`` prints it) connects to that
@@ -38,8 +38,8 @@ from urllib.parse import urlsplit
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
-from benchmark.runner.execute import UnitResult, UnitTask, run_unit, worker_init
-from benchmark.runner.pool import execute_units
+from benchmark.runner.execute.pool import execute_units
+from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 
 INSTALL_LINE = 'pip install -e ".[ray]"'
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")

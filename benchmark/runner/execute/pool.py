@@ -1,8 +1,9 @@
 """The default executor of ``uavbench reproduce``: a local pool of spawned worker processes.
 
-The contract every executor keeps (see also :mod:`benchmark.runner.ray_executor`): ``todo`` holds
-``(unit, UnitTask)`` pairs; each task runs :func:`benchmark.runner.execute.run_unit` somewhere and
-``on_done(unit, UnitResult)`` is called in this (driver) process, in order of completion.
+The contract every executor keeps (see also :mod:`benchmark.runner.execute.ray_executor`): ``todo``
+holds ``(unit, UnitTask)`` pairs; each task runs :func:`benchmark.runner.execute.worker.run_unit`
+somewhere and ``on_done(unit, UnitResult)`` is called in this (driver) process, in order of
+completion.
 """
 
 from __future__ import annotations
@@ -12,8 +13,8 @@ import multiprocessing
 import signal
 
 from benchmark.progress import Progress
-from benchmark.runner.execute import UnitTask, run_unit, worker_init
-from benchmark.runner.plan import Unit
+from benchmark.runner.execute.worker import UnitTask, run_unit, worker_init
+from benchmark.runner.plan.units import Unit
 
 
 def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: bool) -> None:

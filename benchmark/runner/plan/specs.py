@@ -11,8 +11,8 @@ required; the other fields describe the model (``benchmark.models.ModelConfig``;
 its width, the dataset its input size) or where it trains:
 
 - ``translation`` (default ``regression``), ``encoder`` (default: the profile's,
-  ``benchmark.runner.profiles.ReproProfile.encoder``: the matching encoder in ``quick``, the
-  paper's GoogLeNet in ``smoke`` and ``paper``; a row that names one keeps it, e.g. Fig. 9's
+  ``benchmark.runner.plan.repro_profiles.ReproProfile.encoder``: the matching encoder in ``quick``,
+  the paper's GoogLeNet in ``smoke`` and ``paper``; a row that names one keeps it, e.g. Fig. 9's
   ``googlenet``), ``encoder_variant`` (``/``, ``a``, ``f``, ``a-f``; default ``/``; GoogLeNet's
   variants: a row on a profile encoder other than GoogLeNet runs it plain, ``/``),
   ``aux_weight`` (default 0.3).
@@ -41,8 +41,8 @@ true ones. Every trained model is evaluated both ways whatever the spec says.
 ``references`` (table level, ``kind: table`` only): non-learned rows shown beside the models, by
 registry name (``benchmark.references.list_references()``: ``geometry_oracle``,
 ``gravity_template``, ``feature_pnp``), each evaluated once per test split of the table with the
-true and the swapped satellite image (``benchmark.runner.reference_rows``). They take part in no
-claim about heads.
+true and the swapped satellite image (``benchmark.runner.execute.reference_rows``). They take part
+in no claim about heads.
 """
 
 from __future__ import annotations
@@ -363,7 +363,7 @@ def load_spec(path: str | Path) -> TableSpec:
 
 def default_spec_dir() -> Path:
     """``reports/configs`` of the working tree this package was loaded from."""
-    return Path(__file__).resolve().parents[2] / "reports" / "configs"
+    return Path(__file__).resolve().parents[3] / "reports" / "configs"
 
 
 # Names ``--only`` accepts besides table names: the paper's own tables and figures (specs with

@@ -13,9 +13,9 @@ the model's state dict in a canonical order (see :func:`state_dict_sha256`). Pre
 written with 10 significant digits and fixed line endings, so equal predictions give equal bytes.
 
 A report that keeps tables from an earlier run (``uavbench reproduce --only``, ``--stale keep``,
-``benchmark.runner.partial``) records where they come from: ``earlier_tables`` (per table the git
-commit, dataset manifest, date and reason) and ``earlier_units`` (the earlier report's digests of
-their units), so the digests of every number in the report stay in one record.
+``benchmark.runner.plan.partial``) records where they come from: ``earlier_tables`` (per table the
+git commit, dataset manifest, date and reason) and ``earlier_units`` (the earlier report's digests
+of their units), so the digests of every number in the report stay in one record.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ from typing import Any
 
 import torch
 
-from benchmark.runner.execute import UnitResult
-from benchmark.runner.plan import Unit
+from benchmark.runner.execute.worker import UnitResult
+from benchmark.runner.plan.units import Unit
 from benchmark.tracking import file_sha256, git_commit, manifest_sha256
 
 PROVENANCE_VERSION = 1
@@ -191,7 +191,7 @@ def provenance_markdown(record: Mapping[str, Any]) -> str:
         "# Provenance: digests to compare a rerun with",
         "",
         f"Written {record['written']} at git commit `{record['git_commit']}`. Compare two records "
-        "with `benchmark.runner.provenance_report.compare_provenance(a_json, b_json)`, which lists "
+        "with `benchmark.runner.report.provenance.compare_provenance(a_json, b_json)`, which lists "
         "every differing line (wall-clock fields ignored).",
         "",
         f"Dataset manifest sha256: `{record['dataset']['manifest_sha256']}` (the manifest lists "

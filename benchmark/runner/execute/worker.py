@@ -9,7 +9,7 @@ keys :func:`eval_key`: ``standard/test`` and ``standard/test/swap``), ``history.
 reproduction resumes where it stopped.
 
 Live tracking (:class:`UnitTracking`): the worker opens the unit's training run when training
-starts (``benchmark.runner.live.open_unit_run``: a FINISHED run of the unit is reused, an
+starts (``benchmark.runner.execute.live.open_unit_run``: a FINISHED run of the unit is reused, an
 interrupted one continues), logs each epoch's metrics as it ends, system metrics while it trains,
 then the evaluations, the dataset inputs and the model, and closes the run when evaluation ends,
 so its duration is the real one. Pool workers ignore SIGINT: on Ctrl-C the parent stops them and
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.data.swap import SATELLITE_MODES
-from benchmark.runner.live import UnitTracking, open_unit_run, track_unit
+from benchmark.runner.execute.live import UnitTracking, open_unit_run, track_unit
 from benchmark.training.config import TrainConfig
 from benchmark.training.pipeline import (
     EVAL_BATCH,

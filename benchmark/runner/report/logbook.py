@@ -4,8 +4,8 @@ Two kinds of runs, so the heavy data is stored once:
 
 - **training runs** (experiment ``uavbench-<profile>/training``): one per unit (trained model),
   opened by the worker when its training starts and closed when its evaluation ends
-  (``benchmark.runner.live``): per-epoch curves, system metrics, the dataset input, every split's
-  numbers, the predictions and the logged model;
+  (``benchmark.runner.execute.live``): per-epoch curves, system metrics, the dataset input, every
+  split's numbers, the predictions and the logged model;
 - **table rows** (experiment ``uavbench-<profile>/<table>``, one per table or figure): one parent
   run per reproduction (reused by the next invocation: tagged ``run_key = reproduce-<hash of
   profile, dataset, table>``) and under it one run per (row, sweep value, seed), with the real
@@ -16,9 +16,9 @@ Two kinds of runs, so the heavy data is stored once:
   ``training_run_id`` / ``model_uri`` pointing at the training run.
 
 Every experiment is tagged ``mlflow.experimentKind = custom_model_development`` and described
-(``benchmark.runner.descriptions``); every run has a description. :meth:`Logbook.finished` finds
-a row's finished run, so a second invocation neither retrains nor logs it again; Table 6 rows are
-keyed by a hash of their content and logged once.
+(``benchmark.runner.report.descriptions``); every run has a description. :meth:`Logbook.finished`
+finds a row's finished run, so a second invocation neither retrains nor logs it again; Table 6 rows
+are keyed by a hash of their content and logged once.
 """
 
 from __future__ import annotations
@@ -32,12 +32,12 @@ from pathlib import Path
 from typing import Any
 
 from benchmark.config import flatten
-from benchmark.runner import descriptions
-from benchmark.runner.execute import UnitResult, eval_keys
-from benchmark.runner.invocations import OWNER_TAGS, owner_lives
-from benchmark.runner.live import UnitTracking
-from benchmark.runner.plan import Unit, job_key
-from benchmark.runner.specs import Job, TableSpec
+from benchmark.runner.execute.live import UnitTracking
+from benchmark.runner.execute.worker import UnitResult, eval_keys
+from benchmark.runner.plan.invocations import OWNER_TAGS, owner_lives
+from benchmark.runner.plan.specs import Job, TableSpec
+from benchmark.runner.plan.units import Unit, job_key
+from benchmark.runner.report import descriptions
 from benchmark.tracking import RUN_KEY_TAG, DatasetRef, Run, RunInfo, RunStatus, Tracker
 from benchmark.training.identity import run_tags
 
@@ -154,8 +154,8 @@ class Logbook:
 
     # ------------------------------------------------------------------ training runs
     def unit_tracking(self, unit: Unit, *, log_model: bool = True) -> UnitTracking:
-        """How the worker training ``unit`` logs its training run (``benchmark.runner.live``);
-        ``log_model=False`` logs no model (``--no-models``)."""
+        """How the worker training ``unit`` logs its training run
+        (``benchmark.runner.execute.live``); ``log_model=False`` logs no model (``--no-models``)."""
         self._describe(descriptions.UNITS_TABLE)
         readers = [
             f"{job.table} ({job.label}{f' [{job.x}]' if job.x is not None else ''})"
@@ -171,8 +171,11 @@ class Logbook:
         return UnitTracking(
             spec=self.tracker.spec(),
             experiment=experiment_name(self.profile, descriptions.UNITS_TABLE),
-            run_name=(f"{unit.jobs[0].label} seed {unit.cfg.seed} ({unit.key[:8]})" if unit.jobs
-                      else f"{unit.title} ({unit.key[:8]})"),  # a shared encoder: no table reads it
+            run_name=(
+                f"{unit.jobs[0].label} seed {unit.cfg.seed} ({unit.key[:8]})"
+                if unit.jobs
+                else f"{unit.title} ({unit.key[:8]})"
+            ),  # a shared encoder: no table reads it
             run_key=unit.key,
             tags={k: v for k, v in tags.items() if v},
             description=descriptions.unit_run(unit, readers),

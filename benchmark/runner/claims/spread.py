@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.evaluation.paired import pooled_bootstrap
-from benchmark.runner.execute import eval_key, split_filename
+from benchmark.runner.execute.worker import eval_key, split_filename
 
 # Per-frame error columns of a predictions CSV whose mean is a table cell.
 FRAME_METRICS = ("dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg")

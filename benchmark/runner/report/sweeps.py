@@ -1,8 +1,8 @@
 """The sweep figures (paper Figs. 5, 6, 7, 9): their Markdown table and their plot.
 
 A row per (split, variant, sweep value) with the mean over seeds and its 95% interval (see
-``benchmark.runner.report.interval_note``), the validation split's numbers beside the test ones
-and, in the plot, each seed's own value beside the band of the interval.
+``benchmark.runner.report.tables.interval_note``), the validation split's numbers beside the test
+ones and, in the plot, each seed's own value beside the band of the interval.
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.runner.report import (
+from benchmark.runner.plan.specs import TableSpec
+from benchmark.runner.report.tables import (
     METRIC_LABELS,
     cell_text,
     format_value,
@@ -25,7 +26,6 @@ from benchmark.runner.report import (
     val_note,
     val_splits_of,
 )
-from benchmark.runner.specs import TableSpec
 
 # Axis labels of the sweep variables (``sweep:`` in a spec); others by :func:`sweep_label`'s rule.
 SWEEP_LABELS: dict[str, str] = {
@@ -78,7 +78,7 @@ def series_label(label: str, split: str, split_follows_x: bool) -> str:
 
 def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = None) -> str:
     """Markdown for a figure: one row per (split, variant, x), with validation columns as in
-    ``benchmark.runner.report.markdown_table``."""
+    ``benchmark.runner.report.tables.markdown_table``."""
     lines = [
         f"## {spec.title}",
         "",

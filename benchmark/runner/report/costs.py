@@ -25,10 +25,10 @@ import torch
 
 from benchmark.models.model_config import ModelConfig
 from benchmark.progress import Progress
-from benchmark.runner.logbook import Logbook
-from benchmark.runner.profiles import ReproProfile
-from benchmark.runner.report import load_paper, paper_value
-from benchmark.runner.specs import TableSpec, default_spec_dir
+from benchmark.runner.plan.repro_profiles import ReproProfile
+from benchmark.runner.plan.specs import TableSpec, default_spec_dir
+from benchmark.runner.report.logbook import Logbook
+from benchmark.runner.report.tables import load_paper, paper_value
 
 COST_FORMAT = 1  # bump when the measurement changes (then every cached file is stale)
 REPEATS, WARMUP = 10, 3
@@ -156,7 +156,7 @@ def cost_table(
     bar: Progress | None = None,
 ) -> str:
     """Table 6: size, MFLOPs and latency at the paper's configuration and at the profile's.
-    Measurements are cached in ``cache_dir`` (``benchmark.runner.costs``); only new ones are
+    Measurements are cached in ``cache_dir`` (``benchmark.runner.report.costs``); only new ones are
     logged (a cached one was logged when measured). ``bar`` shows which one is being measured."""
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
 

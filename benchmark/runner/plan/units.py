@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.models.model_config import ModelConfig
-from benchmark.runner.profiles import ReproProfile
-from benchmark.runner.specs import Job, TableSpec
+from benchmark.runner.plan.repro_profiles import ReproProfile
+from benchmark.runner.plan.specs import Job, TableSpec
 from benchmark.training.config import DataConfig, PretrainedConfig, TrainConfig
 from benchmark.training.encoded import weight_options
 from benchmark.training.identity import run_key
@@ -180,7 +180,8 @@ def plan_units(
     workdir: Path = Path("runs"),
 ) -> list[Unit]:
     """Deduplicated units in first-appearance order (so ``--only table1`` runs table 1 first),
-    the profile's shared encoders (one per seed, :class:`~benchmark.runner.profiles.SharedEncoder`)
+    the profile's shared encoders (one per seed,
+    :class:`~benchmark.runner.plan.repro_profiles.SharedEncoder`)
     before all; ``workdir`` is where the units' checkpoints live (``<workdir>/units/<key>``):
     a unit on a shared encoder loads it from there."""
     wanted = {

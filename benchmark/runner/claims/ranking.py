@@ -1,8 +1,8 @@
 """Which representation wins a beyond-the-paper comparison table (``extended``), per test split.
 
 On each test split of a ranked table, the heads that beat the constant (training-mean) predictor on
-the geodesic error δφ take part (the participation rule of ``benchmark.runner.claims``); the
-winner and the runner-up are the two with the lowest mean δφ (mean over seeds and frames). The
+the geodesic error δφ take part (the participation rule of ``benchmark.runner.claims.evidence``);
+the winner and the runner-up are the two with the lowest mean δφ (mean over seeds and frames). The
 claim "the winner beats the runner-up" is decided on their paired per-frame difference
 ``Δ = δφ(winner) − δφ(runner-up)`` with the 95% interval of the bootstrap over flights and, per
 model, seeds: supported (the win is beyond the seed and flight spread) when the interval lies below
@@ -16,7 +16,7 @@ table's own section print it verbatim.
 
 from __future__ import annotations
 
-from benchmark.runner.claims import (
+from benchmark.runner.claims.evidence import (
     EXCLUDED,
     MIN_FLIGHTS,
     NOT_RUN,

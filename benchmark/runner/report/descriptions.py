@@ -9,8 +9,8 @@ from __future__ import annotations
 import json
 from collections.abc import Iterable
 
-from benchmark.runner.plan import Unit
-from benchmark.runner.specs import Job, TableSpec
+from benchmark.runner.plan.specs import Job, TableSpec
+from benchmark.runner.plan.units import Unit
 
 UNITS_TABLE = "training"  # experiment uavbench-<profile>/training: one run per trained model
 
@@ -62,7 +62,7 @@ def not_learned(spec: TableSpec) -> str:
     each is not learned, and which true values it is given."""
     if spec.kind != "table" or not spec.references:
         return ""
-    from benchmark.runner.reference_rows import describe_references
+    from benchmark.runner.execute.reference_rows import describe_references
 
     return (
         " Beside the trained rows, non-learned rows with no run here (their numbers are in the "

@@ -1,10 +1,11 @@
 """The paper's conclusions, checked one by one by paired statistics on the test frames.
 
 Evidence. Every comparison "A beats B" is made on the per-frame error difference on the same test
-frames (``benchmark.runner.frames.FrameStore``): ``Δ = err(A) − err(B)``, each model's error first
-averaged over its training seeds. Its 95% interval is the percentile interval of a bootstrap that
-resamples whole flights (frames of a flight are correlated) and, independently for each model, its
-seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates, seed 0).
+frames (``benchmark.runner.claims.frame_errors.FrameStore``): ``Δ = err(A) − err(B)``, each model's
+error first averaged over its training seeds. Its 95% interval is the percentile interval of a
+bootstrap that resamples whole flights (frames of a flight are correlated) and, independently for
+each model, its seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates, seed
+0).
 
 Verdict of one comparison: **supported** when the interval excludes zero in the claimed direction,
 **contradicted** when it excludes zero in the other direction, **not resolved at this scale**
@@ -33,10 +34,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from benchmark.evaluation.paired import percentile_interval, pooled_replicates
-from benchmark.runner.frames import FrameErrors, FrameStore
+from benchmark.runner.claims.frame_errors import FrameErrors, FrameStore
 
 SUPPORTED, CONTRADICTED = "supported", "contradicted"
 UNRESOLVED, NOT_RUN, EXCLUDED = "not resolved at this scale", "not run", "excluded"
@@ -91,8 +91,8 @@ class Comparison:
 class Claim:
     """One checked claim. ``difference`` lists the participating comparisons
     (``where: Δ [lo, hi] unit symbol``), ``rule`` says what Δ is and when the claim holds;
-    ``comparisons`` and ``excluded`` are the structured evidence (``benchmark.runner.findings``
-    writes its sentences from them)."""
+    ``comparisons`` and ``excluded`` are the structured evidence
+    (``benchmark.runner.claims.findings`` writes its sentences from them)."""
 
     claim: str
     source: str
@@ -307,87 +307,3 @@ def safe_claim(build, claim: str, source: str) -> Claim:
         return build()
     except FileNotFoundError as err:
         return Claim(claim, source, NOT_RUN, str(err))
-
-
-def evaluate_claims(summaries: dict[str, pd.DataFrame], frames: FrameStore) -> list[Claim]:
-    """Every claim, in the report's order (1-10 the paper's, then the satellite claims, then which
-    representation wins each test split of the beyond-the-paper ``extended`` table).
-
-    ``summaries`` (per-table mean summaries, ``benchmark.runner.report.summarize``) are kept for
-    the report's context; every verdict is computed from ``frames``' per-frame errors.
-    """
-    from benchmark.runner.claims_paper import (
-        ablation_claim,
-        constant_claim,
-        kappa_claim,
-        pairwise_claim,
-        representation_claim,
-        translation_claim,
-        uncertainty_claim,
-    )
-    from benchmark.runner.claims_ranking import ranking_claims
-    from benchmark.runner.claims_satellite import control_claim, satellite_claims
-
-    ev = Evidence(frames)
-    angles = ["dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg"]
-    return [
-        constant_claim(ev),
-        representation_claim(ev),
-        pairwise_claim(ev, "For the rotation matrix, a distribution beats regression (every angle)",
-                       "Tables 1-2, δθ δγ δψ δφ (deg)", ("table1", "table2"), "Pd/Re-Net",
-                       "Re-Net-R", angles),
-        translation_claim(ev),
-        pairwise_claim(ev, "Pd/Re-Net stays more accurate than Re-Net-R at every satellite height",
-                       "Fig. 5, δφ (deg)", "fig5", "Pd/Re-Net", "Re-Net-R", ["dphi_deg"],
-                       sweep=True),
-        pairwise_claim(ev, "Pd/Re-Net stays more accurate than Re-Net-R at every view difference",
-                       "Fig. 6, δφ (deg)", "fig6", "Pd/Re-Net", "Re-Net-R", ["dphi_deg"],
-                       sweep=True),
-        kappa_claim(ev),
-        ablation_claim(ev),
-        pairwise_claim(ev, "On the flight-test analogue, Pd/Re-Net with AGTFM beats Re-Net",
-                       "Table 5, δE δN δU (m), δφ (deg)", "table5", "Pd/Re-Net with AGTFM",
-                       "Re-Net", ["dE_m", "dN_m", "dU_m", "dphi_deg"]),
-        uncertainty_claim(ev),
-        *satellite_claims(ev),
-        control_claim(ev),
-        *ranking_claims(ev),
-    ]  # fmt: skip
-
-
-def render_claims(claims: list[Claim]) -> str:
-    """Markdown table (#, claim, source, paired difference [95% interval], rule, verdict,
-    evidence) followed by the general verdict rule."""
-    lines = [
-        "| # | claim | source | paired difference [95% interval] | rule | verdict | evidence |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for i, c in enumerate(claims, 1):
-        cells = [
-            str(i),
-            c.claim,
-            c.source,
-            c.difference or "–",
-            c.rule or "–",
-            f"**{c.verdict}**",
-            c.evidence,
-        ]
-        lines.append("| " + " | ".join(x.replace("|", "\\|") for x in cells) + " |")
-    lines += ["", RULE_NOTE]
-    return "\n".join(lines)
-
-
-RULE_NOTE = (
-    "Each Δ is a per-frame paired difference on the same test frames, each model's error averaged "
-    "over its seeds; the interval is the 95% percentile interval of a bootstrap resampling whole "
-    f"flights and, per model, seeds ({N_BOOT} replicates). ✓ supported: the interval excludes zero "
-    "(or the stated threshold) on the claimed side; ✗ contradicted: it excludes it on the other "
-    "side, at the Bonferroni-corrected level when a claim has several comparisons (so a 95% "
-    "interval on the wrong side can still read ~); ~ not resolved at this scale (always so on a "
-    "split with fewer than "
-    f"{MIN_FLIGHTS} flights: a bootstrap over so few flights has no coverage). A head takes part "
-    "in a comparison only when it beats the constant predictor on that split and error (interval "
-    "below zero); excluded heads are listed "
-    "with their difference to the constant. "
-    f"Several comparisons: {COMBINE_RULE}."
-)

@@ -5,9 +5,10 @@ costs and the claim-by-claim summary ``README.md``.
 column ``satellite`` says whether the row was measured with each pair's true satellite image
 (``true``) or with another place's (``swap``, the satellite-swap probe); ``role`` is ``test`` or
 ``val`` (the unit's validation split, shown beside the test numbers); ``reference`` names the
-non-learned reference of a reference row (``benchmark.runner.reference_rows``; empty elsewhere);
-see ``benchmark.runner.report`` for the other columns. ``provenance.md`` / ``provenance.json``
-(``benchmark.runner.provenance_report``) hold the digests to compare a rerun with."""
+non-learned reference of a reference row (``benchmark.runner.execute.reference_rows``; empty
+elsewhere); see ``benchmark.runner.report.tables`` for the other columns. ``provenance.md`` /
+``provenance.json`` (``benchmark.runner.report.provenance``) hold the digests to compare a rerun
+with."""
 
 from __future__ import annotations
 
@@ -20,33 +21,15 @@ import pandas as pd
 import torch
 
 from benchmark.progress import Progress
-from benchmark.runner.claims import Claim, evaluate_claims, render_claims
-from benchmark.runner.claims_ranking import ranking_markdown
-from benchmark.runner.costs import cost_table
-from benchmark.runner.data_audit import heading_cue_report, heading_cue_summary
-from benchmark.runner.execute import SATELLITE_MODES, UnitResult, eval_key
-from benchmark.runner.findings import findings_markdown
-from benchmark.runner.frames import FrameStore
-from benchmark.runner.logbook import Logbook
-from benchmark.runner.partial import (
-    DEFAULT_STALE,
-    STALE_COLUMN,
-    EarlierTable,
-    MergedFrameStore,
-    MergePlan,
-    in_spec_order,
-    mark_earlier_claims,
-    mark_earlier_files,
-    plan_merge,
-)
-from benchmark.runner.plan import Unit
-from benchmark.runner.profiles import ReproProfile
-from benchmark.runner.provenance_report import (
-    collect_provenance,
-    provenance_summary,
-    write_provenance,
-)
-from benchmark.runner.reference_rows import (
+from benchmark.runner.claims.data_audit import heading_cue_report, heading_cue_summary
+from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claims
+from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.evidence import Claim
+from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.claims.frame_errors import FrameStore
+from benchmark.runner.claims.ranking import ranking_markdown
+from benchmark.runner.claims.spread import FRAME_METRICS, cell_interval, frame_interval
+from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
     describe_references,
     evaluate_references,
@@ -54,10 +37,33 @@ from benchmark.runner.reference_rows import (
     reference_note,
     reference_rows,
 )
-from benchmark.runner.report import extra_metrics_table, load_paper, markdown_table, summarize
-from benchmark.runner.specs import TableSpec, default_spec_dir
-from benchmark.runner.spread import FRAME_METRICS, cell_interval, frame_interval
-from benchmark.runner.sweeps import sweep_figure, sweep_table
+from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key
+from benchmark.runner.plan.partial import (
+    DEFAULT_STALE,
+    STALE_COLUMN,
+    EarlierTable,
+    MergePlan,
+    in_spec_order,
+    mark_earlier_files,
+    plan_merge,
+)
+from benchmark.runner.plan.repro_profiles import ReproProfile
+from benchmark.runner.plan.specs import TableSpec, default_spec_dir
+from benchmark.runner.plan.units import Unit
+from benchmark.runner.report.costs import cost_table
+from benchmark.runner.report.logbook import Logbook
+from benchmark.runner.report.provenance import (
+    collect_provenance,
+    provenance_summary,
+    write_provenance,
+)
+from benchmark.runner.report.sweeps import sweep_figure, sweep_table
+from benchmark.runner.report.tables import (
+    extra_metrics_table,
+    load_paper,
+    markdown_table,
+    summarize,
+)
 
 CONSTANT_LABEL = "Constant (train mean)"
 REPORT_METRICS = [
@@ -173,7 +179,7 @@ def write_reports(
     only (it says so).
 
     A reproduction of some tables only (``--only``) merges with what an earlier one wrote to
-    ``out`` (``merge``, default :func:`~benchmark.runner.partial.plan_merge` with ``stale``):
+    ``out`` (``merge``, default :func:`~benchmark.runner.plan.partial.plan_merge` with ``stale``):
     the other tables whose units are today's and whose predictions are in ``workdir`` are kept,
     rendered again from their rows and decided again with the re-run ones; the others, from an
     earlier run, are kept as written and marked in their files, ``results.csv`` (``stale_from``),
@@ -348,7 +354,7 @@ def _claims_section(
     claims table, decided on per-frame errors (``FrameStore`` over ``workdir``). Without a
     workdir there are no per-frame errors and both say so. A claim that needs a table kept from
     an earlier run (``plan.kept``) is not decided: it reads
-    :data:`~benchmark.runner.partial.EARLIER` (``MergedFrameStore``)."""
+    :data:`~benchmark.runner.plan.partial.EARLIER` (``MergedFrameStore``)."""
     if workdir is None:
         missing = (
             "Claims not evaluated: verdicts are decided on per-frame errors, and no work "
@@ -467,7 +473,7 @@ def _readme(
         "| started (UTC) | state | wall time | training runs executed | machine | git commit |",
         "|---|---|---|---|---|---|",
     ]
-    for r in runs:  # benchmark.runner.invocations.read_invocations
+    for r in runs:  # benchmark.runner.plan.invocations.read_invocations
         failed = f", {r['failed']} failed" if r.get("failed") else ""
         wall = f"{r['wall_s'] / 60:.1f} min"
         state = r.get("state", "finished")

@@ -3,8 +3,8 @@
 The claims compare two models on the *same* test frames (``benchmark.evaluation.paired``), so they
 need every frame's error, not the per-table means. A :class:`FrameStore` reads them from the files
 each unit wrote (``<workdir>/units/<unit.key>/eval/<split_filename(split)>[__swap].csv``, columns of
-``benchmark.evaluation.metrics.predictions_frame``; see ``benchmark.runner.execute``) and computes
-the constant (training-mean) predictor's per-frame errors from the dataset's labels
+``benchmark.evaluation.metrics.predictions_frame``; see ``benchmark.runner.execute.worker``) and
+computes the constant (training-mean) predictor's per-frame errors from the dataset's labels
 (``pairs.parquet``) with ``benchmark.evaluation.reference.constant_predictor``, the function
 behind the reported constant row.
 
@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.runner.execute import eval_key, split_filename
-from benchmark.runner.plan import Unit
-from benchmark.runner.specs import VariantSpec
+from benchmark.runner.execute.worker import eval_key, split_filename
+from benchmark.runner.plan.specs import VariantSpec
+from benchmark.runner.plan.units import Unit
 
 
 @dataclass(frozen=True)
@@ -75,8 +75,8 @@ class FrameStore:
     Args:
         workdir: the reproduction's work directory (holds ``units/<key>/eval/*.csv``).
         data_root: the dataset directory (for the constant predictor's labels and flight ids).
-        units: the planned units (``benchmark.runner.plan.plan_units``); a model is identified by
-            ``(table, label, x)`` of its jobs, its seeds by the units' ``cfg.seed``.
+        units: the planned units (``benchmark.runner.plan.units.plan_units``); a model is identified
+            by ``(table, label, x)`` of its jobs, its seeds by the units' ``cfg.seed``.
     """
 
     def __init__(self, workdir: str | Path, data_root: str | Path, units: Sequence[Unit]):

@@ -25,7 +25,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from benchmark.runner.invocations import OWNER_TAGS, owner_lives
+from benchmark.runner.plan.invocations import OWNER_TAGS, owner_lives
 from benchmark.tracking import (
     RUN_KEY_TAG,
     DatasetRef,

@@ -11,8 +11,9 @@ control) or ``none`` (the constant predictor); ``train_split`` the split a row w
 show it beside the test numbers).
 
 A cell is the mean over seeds. Its 95% interval is the flight x seed bootstrap of
-``benchmark.runner.spread`` when the caller passes per-frame errors (``summarize(..., resolve=)``),
-else the Student-t interval over seeds; with one seed and no per-frame errors, only the value.
+``benchmark.runner.claims.spread`` when the caller passes per-frame errors (``summarize(...,
+resolve=)``), else the Student-t interval over seeds; with one seed and no per-frame errors, only
+the value.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import numpy as np
 import pandas as pd
 
 from benchmark.evaluation.metrics import seed_interval
-from benchmark.runner.specs import TableSpec
+from benchmark.runner.claims.satellite import MIN_RISE_DEG
+from benchmark.runner.plan.specs import TableSpec
 
 METRIC_LABELS: dict[str, str] = {
     "dE_m": "δE (m)",
@@ -53,7 +55,6 @@ VAL_METRICS = ("dpsi_deg", "dphi_deg", "dE_m", "dN_m")
 NO_VAL = "–"  # a model whose training split has no validation split (the height splits)
 SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))
 ONE_FLIGHT = "one flight: no interval"
-MIN_RISE_DEG = 1.0  # smallest mean error rise under the swap that counts as using the image
 
 
 def interval95(values: np.ndarray) -> tuple[float, float, float]:
@@ -77,7 +78,7 @@ def summarize(
     ``<m>_lo``, ``<m>_hi`` (95% Student-t interval over seeds), ``n_seeds`` and ``interval``
     (``seed t`` or ``none``). ``resolve(part)``, given a row's results (one per seed), may return
     better bounds (``<m>_lo``/``<m>_hi``, ``interval``, ``n_flights``) that replace these, e.g.
-    :func:`benchmark.runner.spread.cell_interval`."""
+    :func:`benchmark.runner.claims.spread.cell_interval`."""
     rows = []
     keys = [k for k in GROUP_KEYS if k in results.columns]
     for group, part in results.groupby(keys, dropna=False, sort=False):
