@@ -14,7 +14,15 @@ from scipy.special import logsumexp, softmax
 
 from benchmark.geometry import fibonacci_sphere, rotmat_to_quat, special_orthogonalize
 from benchmark.geometry import super_fibonacci as s3_lattice
-from benchmark.models import LatticeHead, RegressionAttitudeHead, RegressionTranslationHead
+from benchmark.models import (
+    AttitudeHead,
+    GridDistribution,
+    LatticeDirections,
+    LatticeHead,
+    RegressionAttitudeHead,
+    RegressionTranslationHead,
+)
+from benchmark.models.heads import mlp
 
 F, N, B = 6, 256, 5
 
@@ -225,6 +233,58 @@ class TestLatticeHead:
         with pytest.raises(NotImplementedError, match="NoLabel must define log_density"):
             h.log_prob(raw, as_tensor(rotations()))
         h.loss(raw, as_tensor(rotations())).backward()  # the loss needs encode only
+
+
+class AxisAndTwist(LatticeDirections, AttitudeHead):
+    """One direction on the lattice beside a layer of its own (as Pd-Net-Rv, Re-Net-T)."""
+
+    def __init__(self, in_features, n_points=N, kappa=10.0, alpha=8e7, hidden=8):
+        super().__init__(in_features)
+        self.init_lattice(n_points, kappa, alpha)
+        self.net = mlp(in_features, hidden, n_points)
+
+    def forward(self, features):
+        return self.net(features)
+
+    def decode_distribution(self, p):  # the axis alone, angle 90 deg: enough for the contract
+        from benchmark.geometry import rotvec_to_rotmat
+
+        return rotvec_to_rotmat(self.direction_mean(p) * (math.pi / 2))
+
+
+class TestLatticeDirections:
+    """The mixins under Pd-Net-Rv, Re-Net-T (``LatticeDirections``), Pd-Net-E and IPDF
+    (``GridDistribution``) and ``LatticeHead`` (issue 22)."""
+
+    def test_grid_is_a_buffer_not_saved_and_the_layers_are_the_heads_own(self):
+        h = build(AxisAndTwist)
+        assert set(h.state_dict()) == {"net.0.weight", "net.0.bias", "net.2.weight", "net.2.bias"}
+        assert torch.equal(h.grid.float(), fibonacci_sphere(N)) and h.n_points == N
+        assert h.is_probabilistic and issubclass(LatticeHead, LatticeDirections)
+
+    def test_direction_helpers_are_the_discrete_vmf_and_its_moments(self):
+        h = build(AxisAndTwist)
+        x = torch.nn.functional.normalize(torch.randn(B, 3, dtype=torch.float64), dim=-1)
+        grid = h.grid.double().numpy()
+        target = h.direction_target(x)
+        np.testing.assert_allclose(target.numpy(), softmax(10.0 * x.numpy() @ grid.T, axis=-1))
+        resultant = target.numpy() @ grid
+        length = np.linalg.norm(resultant, axis=-1)
+        np.testing.assert_allclose(h.direction_mean(target).numpy(), resultant / length[:, None])
+        np.testing.assert_allclose(h.direction_spread(target).numpy(), 1 - length, atol=1e-12)
+        own = h.direction_loss(target, x)  # the target itself: only the Eq. 13 cosine is left
+        cosine = (resultant * x.numpy()).sum(-1) / length
+        np.testing.assert_allclose(own.numpy(), 1 - cosine, atol=1e-12)
+
+    def test_decode_is_decode_distribution_of_the_distribution(self):
+        h = build(AxisAndTwist)
+        raw = h(features())
+        assert torch.equal(h.decode(raw), h.decode_distribution(torch.softmax(raw, dim=-1)))
+        assert issubclass(AxisAndTwist, GridDistribution)
+
+    def test_bad_option_names_the_head(self):
+        with pytest.raises(ValueError, match="AxisAndTwist: kappa must be > 0"):
+            build(AxisAndTwist, kappa=0.0)
 
 
 class TestRegressionBases:
