@@ -20,44 +20,43 @@ the reproduction failed (its log's last lines are printed).
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
-HELP = "one-command check of an accelerator: smoke reproduction, train fp32 vs bf16, latency"
+
+@dataclass(frozen=True)
+class AcceleratorBenchConfig:
+    """``bench accelerator``: ``device`` and ``precision`` (comma list; None: fp32 and bf16 where
+    supported) by name for the bench and latency lines; the ``table`` of the smoke reproduction,
+    an existing smoke dataset ``data`` to reuse, ``keep`` its files there (None: a temporary
+    directory), ``reproduce``: run it at all; ``steps`` timed training steps, ``threads`` torch
+    threads (None: torch's), ``fast``: tiny bench and latency sizes."""
+
+    device: str = "auto"
+    precision: str | None = None
+    table: str = "table3"
+    data: Path | None = None
+    keep: Path | None = None
+    reproduce: bool = True
+    steps: int = 3
+    threads: int | None = None
+    fast: bool = False
 
 
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uavbench bench accelerator", description=__doc__)
-    p.formatter_class = argparse.RawDescriptionHelpFormatter
-    p.add_argument(
-        "--device", default="auto", help="auto, cpu, cuda, cuda:N or mps (bench/latency)"
-    )
-    p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
-                   "where supported)")  # fmt: skip
-    p.add_argument("--table", default="table3", help="the table the smoke reproduction makes")
-    p.add_argument("--data", type=Path, default=None, help="an existing smoke dataset to reuse")
-    p.add_argument("--keep", type=Path, default=None, help="keep the reproduction's files here")
-    p.add_argument("--no-reproduce", action="store_true", help="skip the smoke reproduction")
-    p.add_argument("--steps", type=int, default=3, help="timed training steps per loop")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    p.add_argument("--fast", action="store_true", help="tiny bench and latency sizes (tests)")
-    return p
-
-
-def run_reproduction(args: argparse.Namespace, root: Path) -> tuple[bool, list[str]]:
+def run_reproduction(config: AcceleratorBenchConfig, root: Path) -> tuple[bool, list[str]]:
     """Run the smoke reproduction under ``root``; ``(ok, lines)``."""
-    data = args.data if args.data is not None else root / "data"
+    data = config.data if config.data is not None else root / "data"
     argv = [
-        *(sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke"),
-        *("--only", args.table, "--jobs", "1", "--quiet", "--tracker", "mlflow"),
+        *(sys.executable, "-m", "benchmark", "reproduce", "--profile", "smoke"),
+        *("--only", config.table, "--jobs", "1", "--quiet", "--tracker", "mlflow"),
         *("--data", str(data), "--workdir", str(root / "runs"), "--out", str(root / "reports")),
         *("--tracking-uri", f"sqlite:///{root / 'mlflow.db'}"),
     ]
@@ -75,15 +74,15 @@ def run_reproduction(args: argparse.Namespace, root: Path) -> tuple[bool, list[s
     if code != 0:
         tail = log.read_text().splitlines()[-15:]
         return False, [
-            f"smoke reproduction ({args.table}): FAILED, exit {code} after {seconds:.0f} s; "
+            f"smoke reproduction ({config.table}): FAILED, exit {code} after {seconds:.0f} s; "
             f"last lines of {log}:",
             *(f"  {line}" for line in tail),
         ]
     where = run_devices(f"sqlite:///{root / 'mlflow.db'}")
-    report = root / "reports" / f"{args.table}.md"
+    report = root / "reports" / f"{config.table}.md"
     return True, [
-        f"smoke reproduction ({args.table}): ok in {seconds:.0f} s; trained models on {where}; "
-        f"report {report if args.keep else report.name}"
+        f"smoke reproduction ({config.table}): ok in {seconds:.0f} s; trained models on {where}; "
+        f"report {report if config.keep else report.name}"
     ]
 
 
@@ -111,20 +110,24 @@ def run_devices(uri: str) -> str:
     return " / ".join(f"{k} x{n}" for k, n in counts.items())
 
 
-def bench_lines(args: argparse.Namespace, device: torch.device, precisions: list[str]) -> list[str]:
+def bench_lines(
+    config: AcceleratorBenchConfig, device: torch.device, precisions: list[str]
+) -> list[str]:
     """``bench train`` at 224 px, width 1.0 (``--fast``: 48 px, width 0.25, batch 4) in each
     precision, and the conv ceiling; one line each."""
     from benchmark.training import bench
 
-    size, width, batch, sats = (48, 0.25, 4, 2) if args.fast else (224, 1.0, 20, 4)
-    train_args = bench.parser().parse_args(
-        [
-            *("--batch-size", str(batch), "--distinct-sat", str(sats)),
-            *("--steps", str(args.steps), "--warmup", "1", "--no-plain", "--no-base"),
-            *(["--ceiling-batch", "2"] if args.fast else []),
-        ]
+    size, width, batch, sats = (48, 0.25, 4, 2) if config.fast else (224, 1.0, 20, 4)
+    train = bench.TrainBenchConfig(
+        batch_size=batch,
+        distinct_sat=sats,
+        steps=config.steps,
+        warmup=1,
+        plain=False,
+        base=False,
+        ceiling_batch=2 if config.fast else None,
     )
-    results, ceilings = bench.measure(size, width, train_args, device, precisions)
+    results, ceilings = bench.measure(size, width, train, device, precisions)
     by = {r.precision: r for r in results}
     lines = []
     for r in results:
@@ -146,13 +149,13 @@ def bench_lines(args: argparse.Namespace, device: torch.device, precisions: list
         lines.append(
             f"paper profile estimate: {pairs / best.pairs_per_s / 3600:.1f} h of training at "
             f"{best.pairs_per_s:.2f} pairs/s ({best.precision}, 15 million pair-steps, one "
-            "process)" + (" [--fast: tiny model, not the paper's]" if args.fast else "")
+            "process)" + (" [--fast: tiny model, not the paper's]" if config.fast else "")
         )
     return lines
 
 
 def latency_lines(
-    args: argparse.Namespace, device: torch.device, precisions: list[str]
+    config: AcceleratorBenchConfig, device: torch.device, precisions: list[str]
 ) -> list[str]:
     """Median inference latency per pair (batch 1, eval, decoding included) per precision."""
     import statistics
@@ -160,7 +163,7 @@ def latency_lines(
     from benchmark.models import create_model
     from benchmark.models.info import measure_latency
 
-    size, width, repeats = (48, 0.25, 2) if args.fast else (224, 1.0, 10)
+    size, width, repeats = (48, 0.25, 2) if config.fast else (224, 1.0, 10)
     lines = []
     for precision in precisions:
         torch.manual_seed(0)
@@ -173,19 +176,15 @@ def latency_lines(
     return lines
 
 
-def main(argv: list[str]) -> int:
-    from benchmark.errors import UsageError
+def bench_accelerator(config: AcceleratorBenchConfig) -> int:
+    """Run the check of ``config`` and print a line per figure; exit code 0, or 1 when the
+    reproduction failed (UsageError: a device or precision this machine lacks)."""
     from benchmark.models.device import accelerator_name
     from benchmark.training.bench import load_text, resolve
 
-    args = parser().parse_args(argv)
-    if args.steps < 1:
-        raise UsageError("--steps must be >= 1")
-    if args.data is not None and not args.data.is_dir():
-        raise UsageError(f"--data {args.data}: not a directory (a smoke dataset expected)")
-    device, precisions, notes = resolve(args)
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    device, precisions, notes = resolve(config.device, config.precision)
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
     cuda = torch.version.cuda or "no"
     print(
         f"accelerator check: {device} ({accelerator_name(device)}); torch {torch.__version__}, "
@@ -199,16 +198,19 @@ def main(argv: list[str]) -> int:
     for note in notes:
         print(note)
     ok = True
-    if not args.no_reproduce:
-        root = args.keep or Path(tempfile.mkdtemp(prefix="uavbench-accel-"))
+    if config.reproduce:
+        root = config.keep or Path(tempfile.mkdtemp(prefix="uavbench-accel-"))
         root.mkdir(parents=True, exist_ok=True)
         try:
-            ok, lines = run_reproduction(args, root)
+            ok, lines = run_reproduction(config, root)
         finally:
-            if args.keep is None:
+            if config.keep is None:
                 shutil.rmtree(root, ignore_errors=True)
         print("\n".join(lines), flush=True)
-    for line in [*bench_lines(args, device, precisions), *latency_lines(args, device, precisions)]:
+    for line in [
+        *bench_lines(config, device, precisions),
+        *latency_lines(config, device, precisions),
+    ]:
         print(line, flush=True)
     print(f"end: {load_text()}")
     return 0 if ok else 1

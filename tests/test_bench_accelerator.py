@@ -7,16 +7,20 @@ import re
 
 import pytest
 
-from benchmark.bench import TARGET_HELP, TARGETS
-from benchmark.bench_accelerator import main
+from benchmark.commands.bench import TARGET_HELP, TARGETS, run_target
 from benchmark.errors import UsageError
+
+
+def main(argv: list[str]) -> int:
+    return run_target("accelerator", argv)
+
 
 FAST = ["--fast", "--device", "cpu", "--precision", "fp32,bf16", "--steps", "1", "--threads", "1"]
 
 
 def test_registered_as_bench_targets():
-    assert TARGETS["accelerator"] == "benchmark.bench_accelerator:main"
-    assert TARGETS["ceiling"] == "benchmark.models.bench_ceiling:main"
+    assert TARGETS["accelerator"] == "benchmark.commands.bench_accelerator"
+    assert TARGETS["ceiling"] == "benchmark.commands.bench_ceiling"
     assert set(TARGETS) == set(TARGET_HELP)
 
 

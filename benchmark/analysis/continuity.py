@@ -17,7 +17,6 @@ than the smooth variation (see :func:`find_jumps`). The closed-form Eq. 6 predic
 
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,8 +32,6 @@ from benchmark.geometry import (
     rotmat_to_euler,
     rotmat_to_quat_paper,
 )
-
-HELP = "reproduce paper Fig. 2: continuity of attitude representations vs heading"
 
 REPRESENTATIONS: dict[str, list[str]] = {
     "quaternion (Eq. 3)": ["q0", "q1", "q2", "q3"],
@@ -183,56 +180,54 @@ def plot(table: pd.DataFrame, jumps: list[Jump], title: str, path: Path) -> None
     plt.close(fig)
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--pitch", type=float, default=-20.0, help="pitch theta, deg (paper: -20)")
-    parser.add_argument("--roll", type=float, default=-10.0, help="roll gamma, deg (paper: -10)")
-    parser.add_argument(
-        "--step", type=float, default=0.1, help="heading step of the table, deg (jumps are refined)"
-    )
-    parser.add_argument(
-        "--attitude",
-        choices=("uav", "relative"),
-        default="uav",
-        help="uav: R_b^n as in the paper's analysis; relative: the label R_uav^sat (Eq. 2)",
-    )
-    parser.add_argument("--out", type=Path, default=Path("reports/continuity"), help="output dir")
+@dataclass(frozen=True)
+class ContinuityConfig:
+    """A heading sweep at ``pitch`` and ``roll`` (degrees, finite, within +-90) every ``step``
+    degrees of the UAV attitude (``attitude="uav"``) or the relative label (``"relative"``),
+    written to ``out``."""
+
+    pitch: float = -20.0
+    roll: float = -10.0
+    step: float = 0.1
+    attitude: str = "uav"
+    out: Path = Path("reports/continuity")
 
 
-def run(args: argparse.Namespace) -> int:
+def continuity_report(config: ContinuityConfig) -> int:
+    """Sweep, find and refine the jumps, write ``continuity_<attitude>.{csv,png,md}`` and the
+    jumps' CSV into ``config.out``, print the summary; exit code 0 (UsageError: a bad step)."""
     from benchmark.errors import UsageError
 
-    for name in ("pitch", "roll"):
-        value = getattr(args, name)
-        if not math.isfinite(value) or abs(value) > 90:
-            raise UsageError(f"--{name} must be a finite angle in [-90, 90] deg, got {value}")
     try:
-        table = sweep(math.radians(args.pitch), math.radians(args.roll), args.step, args.attitude)
+        table = sweep(
+            math.radians(config.pitch), math.radians(config.roll), config.step, config.attitude
+        )
     except ValueError as err:
         raise UsageError(str(err)) from err
     jumps = find_jumps(table)
-    threshold = eq6_threshold_deg(math.radians(args.pitch), math.radians(args.roll))
-    args.out.mkdir(parents=True, exist_ok=True)
-    stem = f"continuity_{args.attitude}"
-    table.to_csv(args.out / f"{stem}.csv", index=False, float_format="%.9g")
+    threshold = eq6_threshold_deg(math.radians(config.pitch), math.radians(config.roll))
+    config.out.mkdir(parents=True, exist_ok=True)
+    stem = f"continuity_{config.attitude}"
+    table.to_csv(config.out / f"{stem}.csv", index=False, float_format="%.9g")
     jump_table = pd.DataFrame([j.__dict__ for j in jumps])
-    jump_table.to_csv(args.out / f"{stem}_jumps.csv", index=False, float_format="%.6g")
-    what = "R_b^n" if args.attitude == "uav" else "R_uav^sat"
-    title = f"{what} vs heading, pitch {args.pitch:g} deg, roll {args.roll:g} deg"
-    plot(table, jumps, title, args.out / f"{stem}.png")
+    jump_table.to_csv(config.out / f"{stem}_jumps.csv", index=False, float_format="%.6g")
+    what = "R_b^n" if config.attitude == "uav" else "R_uav^sat"
+    title = f"{what} vs heading, pitch {config.pitch:g} deg, roll {config.roll:g} deg"
+    plot(table, jumps, title, config.out / f"{stem}.png")
 
-    pitch, roll = math.radians(args.pitch), math.radians(args.roll)
+    pitch, roll = math.radians(config.pitch), math.radians(config.roll)
     biggest: dict[float, Jump] = {}  # one refinement per jump location, on its largest component
     for j in jumps:
         if j.representation.startswith("q") and j.size > biggest.get(j.heading_deg, j).size - 1e-12:
             biggest[j.heading_deg] = j
-    half = args.step / 2
+    half = config.step / 2
     quat_jumps = sorted(
-        round(refine_jump(pitch, roll, args.attitude, j.component, at - half, at + half), 4)
+        round(refine_jump(pitch, roll, config.attitude, j.component, at - half, at + half), 4)
         for at, j in biggest.items()
     )
     case = table["eq3_case"].to_numpy()
     changes = np.nonzero(case != np.roll(case, -1))[0]
-    step = args.step
+    step = config.step
     after = np.roll(case, -1)
     boundaries = [
         (round(float(table["heading_deg"][k] + step / 2), 3), f"{case[k]}->{after[k]}")
@@ -241,7 +236,7 @@ def run(args: argparse.Namespace) -> int:
     lines = [
         f"# Continuity of attitude representations ({what})",
         "",
-        f"pitch {args.pitch:g} deg, roll {args.roll:g} deg, heading step {step:g} deg",
+        f"pitch {config.pitch:g} deg, roll {config.roll:g} deg, heading step {step:g} deg",
         "",
         f"Eq. 6 closed form: |psi| = {threshold:.3f} deg (the paper reads the jump at -63.03 deg "
         "for pitch -20, roll -10)",
@@ -255,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
         where = sorted({round(j.heading_deg, 2) for j in jumps if j.representation == rep})
         lines.append(f"| {rep} | {', '.join(f'{w:g}' for w in where) or 'none'} |")
     summary = "\n".join(lines) + "\n"
-    (args.out / f"{stem}.md").write_text(summary)
+    (config.out / f"{stem}.md").write_text(summary)
     print(summary)
-    print(f"wrote {args.out / stem}.{{csv,png,md}} and {stem}_jumps.csv")
+    print(f"wrote {config.out / stem}.{{csv,png,md}} and {stem}_jumps.csv")
     return 0

@@ -17,7 +17,6 @@ level), so a variable that a library ignores shows up instead of passing silentl
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -26,9 +25,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchmark.errors import UsageError
+from benchmark.machine import cpu_model
 
 # One library per setting; the values that switch its run-time dispatch off.
 _PROBE = r"""
@@ -138,47 +139,41 @@ def render_manifest(
     return json.loads(data), hashlib.sha256(data).hexdigest()
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="uavbench bench isa",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("--profile", default="smoke", help="dataset profile (default: smoke)")
-    p.add_argument("--size", type=int, default=None, help="standard pairs (simulate --size)")
-    p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1))
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument(
-        "--only",
-        nargs="+",
-        default=None,
-        help="settings to run besides default (numpy openblas numba torch opencv arrow libjpeg "
-        "all); default: every one",
-    )
-    p.add_argument("--strict", action="store_true", help="exit 1 if any digest differs")
-    return p
+@dataclass(frozen=True)
+class IsaBenchConfig:
+    """``bench isa``: render ``profile`` (``size`` standard pairs, None: the profile's; dataset
+    ``seed``) with ``workers`` processes once per setting (``only``: these besides default;
+    None: every one); ``strict``: exit 1 when a digest differs."""
+
+    profile: str = "smoke"
+    size: int | None = None
+    workers: int = 2
+    seed: int = 0
+    only: tuple[str, ...] | None = None
+    strict: bool = False
 
 
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+def bench_isa(config: IsaBenchConfig) -> int:
+    """Render and compare (printing a row per setting); exit code 0, or 1 with ``strict`` and a
+    differing digest. UsageError: an unknown profile or setting, no workers."""
     from benchmark.data.profiles import PROFILES
 
-    if args.profile not in PROFILES:
+    if config.profile not in PROFILES:
         raise UsageError(
-            f"bench isa: unknown --profile {args.profile!r}; one of {sorted(PROFILES)}"
+            f"bench isa: unknown --profile {config.profile!r}; one of {sorted(PROFILES)}"
         )
-    if args.workers < 1:
-        raise UsageError(f"bench isa: --workers must be >= 1, got {args.workers}")
+    if config.workers < 1:
+        raise UsageError(f"bench isa: --workers must be >= 1, got {config.workers}")
     settings = lower_isa_settings()
     rows = {"default": {}, **settings, "all": lower_isa_env()}
-    if args.only is not None:
-        unknown = sorted(set(args.only) - set(rows))
+    if config.only is not None:
+        unknown = sorted(set(config.only) - set(rows))
         if unknown:
             raise UsageError(f"bench isa: unknown --only {unknown}; expected some of {list(rows)}")
-        rows = {k: v for k, v in rows.items() if k == "default" or k in args.only}
-    cpu = _cpu_model()
+        rows = {k: v for k, v in rows.items() if k == "default" or k in config.only}
+    cpu = cpu_model()
     print(
-        f"uavbench bench isa: profile {args.profile}, {args.workers} workers; CPU {cpu}; "
+        f"uavbench bench isa: profile {config.profile}, {config.workers} workers; CPU {cpu}; "
         f"glibc {platform.libc_ver()[1]}"
     )
     results: dict[str, tuple[dict, str]] = {}
@@ -189,10 +184,10 @@ def main(argv: list[str]) -> int:
             results[name] = render_manifest(
                 Path(tmp) / name,
                 env,
-                profile=args.profile,
-                workers=args.workers,
-                seed=args.seed,
-                size=args.size,
+                profile=config.profile,
+                workers=config.workers,
+                seed=config.seed,
+                size=config.size,
             )
             wall = time.perf_counter() - t0
             same = "same" if results[name][1] == results["default"][1] else "DIFFERS"
@@ -209,14 +204,4 @@ def main(argv: list[str]) -> int:
             differ = True
             print(f"{name}: files differing from default: {', '.join(sorted(files))}")
     print("all digests equal" if not differ else "digests differ: the bytes depend on the CPU")
-    return 1 if differ and args.strict else 0
-
-
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+    return 1 if differ and config.strict else 0

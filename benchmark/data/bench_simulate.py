@@ -12,7 +12,6 @@ printed separately rather than amortised. Targets (issue 3, 2 cores): >= 150 pai
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import math
 import os
@@ -27,26 +26,6 @@ import numpy as np
 import pandas as pd
 
 TARGETS_PAIRS_PER_S = {96: 150.0, 224: 30.0}
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="uavbench bench simulate",
-        description=__doc__,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    p.add_argument("--sizes", type=int, nargs="+", default=[96, 224])
-    p.add_argument(
-        "--pairs",
-        type=int,
-        default=None,
-        help="pairs rendered per size (default: 800 below 150 px, else 240)",
-    )
-    p.add_argument("--style", default="oxford", help="city style rendered (default: oxford)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--strict", action="store_true", help="exit 1 if a target is missed")
-    return p
 
 
 def bench_poses(city, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
@@ -80,15 +59,30 @@ def _bench_cities(style: str, seed: int, cache: Path) -> dict[tuple[str, str], A
     return {(style, "now"): build_city(style, seed, cache_dir=cache)}
 
 
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+@dataclasses.dataclass(frozen=True)
+class SimulateBenchConfig:
+    """``bench simulate``: ``workers`` rendering processes, image ``sizes`` (px), ``pairs`` per
+    size (None: 800 below 150 px, else 240), the city ``style`` and ``seed``; ``strict``: exit 1
+    when a target is missed."""
+
+    workers: int = 1
+    sizes: tuple[int, ...] = (96, 224)
+    pairs: int | None = None
+    style: str = "oxford"
+    seed: int = 0
+    strict: bool = False
+
+
+def bench_simulate(config: SimulateBenchConfig) -> int:
+    """Measure and print; exit code 0, or 1 with ``strict`` and a missed target (UsageError:
+    bad sizes or counts)."""
     from benchmark.data.simulate import single_thread_env
     from benchmark.errors import UsageError
 
     if (
-        args.workers < 1
-        or any(s < 8 for s in args.sizes)
-        or (args.pairs is not None and args.pairs < 1)
+        config.workers < 1
+        or any(s < 8 for s in config.sizes)
+        or (config.pairs is not None and config.pairs < 1)
     ):
         raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
     single_thread_env()
@@ -97,36 +91,36 @@ def main(argv: list[str]) -> int:
     from benchmark.sim import build_city, city_seed
 
     print(
-        f"uavbench bench simulate: {args.workers} workers, {os.cpu_count()} cores, "
-        f"style {args.style}"
+        f"uavbench bench simulate: {config.workers} workers, {os.cpu_count()} cores, "
+        f"style {config.style}"
     )
     with tempfile.TemporaryDirectory(prefix="uavbench-bench-") as tmp:
         cache = Path(tmp) / "cities"
-        seed = city_seed(args.seed, args.style)
+        seed = city_seed(config.seed, config.style)
         t0 = time.perf_counter()
-        city = build_city(args.style, seed, cache_dir=cache)
+        city = build_city(config.style, seed, cache_dir=cache)
         build_s = time.perf_counter() - t0
         t0 = time.perf_counter()
-        city = build_city(args.style, seed, cache_dir=cache)
+        city = build_city(config.style, seed, cache_dir=cache)
         load_s = time.perf_counter() - t0
         cache_mb = sum(f.stat().st_size for f in cache.rglob("*") if f.is_file()) / 1e6
         print(
-            f"city build ({args.style}, from scratch, {city.n_lights} illumination states): "
+            f"city build ({config.style}, from scratch, {city.n_lights} illumination states): "
             f"{build_s:.2f} s; load from cache: {load_s:.2f} s; cache {cache_mb:.0f} MB"
         )
 
         failed = False
-        for size in args.sizes:
-            n = args.pairs or (800 if size < 150 else 240)
+        for size in config.sizes:
+            n = config.pairs or (800 if size < 150 else 240)
             base = PROFILES["paper" if size >= 150 else "quick"]
-            shard = max(8, math.ceil(n / (args.workers * 6)))
+            shard = max(8, math.ceil(n / (config.workers * 6)))
             profile = dataclasses.replace(base, image_size=size, shard_size=shard)
-            poses = bench_poses(city, n, args.seed)
-            poses["city"] = args.style
+            poses = bench_poses(city, n, config.seed)
+            poses["city"] = config.style
             sat_rows = pd.DataFrame(
                 [
                     dict(
-                        city=args.style,
+                        city=config.style,
                         variant="now",
                         E=float(city.flight_centres[0][0]),
                         N=float(city.flight_centres[0][1]),
@@ -140,8 +134,8 @@ def main(argv: list[str]) -> int:
             ctx = RenderContext(
                 Path(tmp) / f"out{size}",
                 profile,
-                args.seed,
-                {(args.style, "now"): city},
+                config.seed,
+                {(config.style, "now"): city},
                 poses,
                 sat_rows,
             )
@@ -149,8 +143,8 @@ def main(argv: list[str]) -> int:
             render_sat_rows(ctx, sat_rows)  # also compiles/loads the renderer in this process
             sat_s = time.perf_counter() - t0
             tasks = [("uav", k) for k in range(math.ceil(n / shard))]
-            factory = partial(_bench_cities, args.style, seed, cache)
-            with RenderPool(ctx, args.workers, factory) as pool:
+            factory = partial(_bench_cities, config.style, seed, cache)
+            with RenderPool(ctx, config.workers, factory) as pool:
                 t0 = time.perf_counter()
                 pool.warm_up()  # worker start-up (imports, city load) is not rendering
                 startup_s = time.perf_counter() - t0
@@ -171,4 +165,4 @@ def main(argv: list[str]) -> int:
                 f"worker start-up {startup_s:.1f} s (not counted)"
             )
             sys.stdout.flush()
-    return 1 if failed and args.strict else 0
+    return 1 if failed and config.strict else 0

@@ -1,6 +1,6 @@
 """``uavbench bench verify DATASET``: what checksum verification by default costs, side by side.
 
-    python -m benchmark.data.bench_verify data/quick [--split standard/train] [--repeats 5]
+    uavbench bench verify data/quick [--split standard/train] [--repeats 5]
 
 Opens ``PairDataset(DATASET, split)`` (and checks every file of the dataset) with
 
@@ -16,7 +16,6 @@ directory, so the user's cache is neither read nor changed.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import tempfile
@@ -25,49 +24,42 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uavbench bench verify", description=__doc__.split("\n")[0])
-    p.add_argument("dataset", type=Path, help="a finished dataset directory")
-    p.add_argument("--split", default="standard/train", help="split to open (default: %(default)s)")
-    p.add_argument("--repeats", type=int, default=5, help="later opens timed (median; default 5)")
-    return p
-
-
 def _time(fn: Callable[[], object]) -> float:
     t0 = time.perf_counter()
     fn()
     return time.perf_counter() - t0
 
 
-def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+def bench_verify(dataset: Path, split: str = "standard/train", repeats: int = 5) -> int:
+    """Time the ways of opening ``dataset`` (``split``; median of ``repeats`` later opens) and
+    print them; exit code 0 (UsageError: ``repeats`` < 1)."""
     from benchmark.data import PairDataset
     from benchmark.data import integrity as integ
     from benchmark.data.format import read_manifest
     from benchmark.errors import UsageError
 
-    if args.repeats < 1:
+    if repeats < 1:
         raise UsageError("bench verify: --repeats must be >= 1")
-    manifest = read_manifest(args.dataset)
+    manifest = read_manifest(dataset)
     names = list(manifest["files"])
     total_mb = sum(int(e["bytes"]) for e in manifest["files"].values()) / 1e6
 
     def open_split(mode: str) -> Callable[[], object]:
-        return lambda: PairDataset(args.dataset, args.split, verify=mode)
+        return lambda: PairDataset(dataset, split, verify=mode)
 
     def check_all(mode: str) -> Callable[[], object]:
-        return lambda: integ.check_files(args.dataset, manifest, names, mode=mode)
+        return lambda: integ.check_files(dataset, manifest, names, mode=mode)
 
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         os.environ["UAVBENCH_VERIFY_CACHE"] = tmp
-        for what, make in (("open " + args.split, open_split), ("all files", check_all)):
+        for what, make in (("open " + split, open_split), ("all files", check_all)):
             integ._MEMO.clear()
-            size = statistics.median(_time(make("size")) for _ in range(args.repeats))
+            size = statistics.median(_time(make("size")) for _ in range(repeats))
             first = _time(make("sha256"))
-            same = statistics.median(_time(make("sha256")) for _ in range(args.repeats))
+            same = statistics.median(_time(make("sha256")) for _ in range(repeats))
             fresh = []
-            for _ in range(args.repeats):
+            for _ in range(repeats):
                 integ._MEMO.clear()  # as a new process: read the cache file, stat every file
                 fresh.append(_time(make("sha256")))
             full = _time(make("full"))
@@ -75,8 +67,8 @@ def main(argv: list[str]) -> int:
                 f.unlink()  # the next target starts from an empty cache too
             rows.append((what, size, first, same, statistics.median(fresh), full))
     print(
-        f"uavbench bench verify: {args.dataset} ({len(names)} files, {total_mb:.0f} MB), "
-        f"median of {args.repeats} later opens"
+        f"uavbench bench verify: {dataset} ({len(names)} files, {total_mb:.0f} MB), "
+        f"median of {repeats} later opens"
     )
     head = ("target", "size", "sha256 1st", "later", "later(new proc)", "full", "1st/later",
             "later/size")  # fmt: skip
@@ -87,9 +79,3 @@ def main(argv: list[str]) -> int:
         print(f"{what:28s}" + "".join(f"{c:>16s}" for c in cells))
     print(f"hashing rate (full check of all files): {total_mb / rows[-1][5]:.0f} MB/s")
     return 0
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))

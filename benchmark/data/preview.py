@@ -10,25 +10,13 @@ satellite image are lit at independent times of day.
 
 from __future__ import annotations
 
-import argparse
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from benchmark.errors import UsageError
-
-HELP = "write a contact sheet PNG of UAV/satellite pairs with their poses"
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", type=Path, help="dataset directory written by simulate")
-    parser.add_argument("--split", default="standard/train", help="split (default: standard/train)")
-    parser.add_argument("--n", type=int, default=8, help="number of pairs (default: 8)")
-    parser.add_argument(
-        "--out", type=Path, default=None, help="PNG path (default: DATASET/preview_<split>.png)"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="which pairs: seed of the pick")
 
 
 def sat_pixel(
@@ -127,25 +115,36 @@ def pick_indices(n_items: int, n: int, seed: int) -> list[int]:
     return sorted(rng.choice(n_items, size=min(n, n_items), replace=False).tolist())
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class PreviewConfig:
+    """A contact sheet of ``n`` pairs of ``split`` of ``dataset`` picked with ``seed``, written
+    to ``out`` (None: ``DATASET/preview_<split>.png``)."""
+
+    dataset: Path
+    split: str = "standard/train"
+    n: int = 8
+    out: Path | None = None
+    seed: int = 0
+
+
+def preview(config: PreviewConfig) -> int:
+    """Write the contact sheet of ``config``; exit code 0 (UsageError: no such split/dataset)."""
     from benchmark.data.dataset import PairDataset, list_splits
     from benchmark.data.format import DatasetError
 
-    if args.n < 1:
-        raise UsageError(f"--n must be >= 1, got {args.n}")
     try:
-        splits = list_splits(args.dataset)
-        if args.split not in splits:
-            raise UsageError(f"unknown split {args.split!r}; {args.dataset} has {splits}")
-        ds = PairDataset(args.dataset, args.split, verify="size")
+        splits = list_splits(config.dataset)
+        if config.split not in splits:
+            raise UsageError(f"unknown split {config.split!r}; {config.dataset} has {splits}")
+        ds = PairDataset(config.dataset, config.split, verify="size")
     except DatasetError as err:
         raise UsageError(str(err)) from err
-    out = args.out or args.dataset / f"preview_{args.split.replace('/', '_')}.png"
-    indices = pick_indices(len(ds), args.n, args.seed)
+    out = config.out or config.dataset / f"preview_{config.split.replace('/', '_')}.png"
+    indices = pick_indices(len(ds), config.n, config.seed)
     title = (
-        f"{args.dataset.name} [{args.split}] {len(ds)} pairs, "
+        f"{config.dataset.name} [{config.split}] {len(ds)} pairs, "
         f"{ds.manifest['image_size']} px; red: UAV position and heading"
     )
     contact_sheet(ds, indices, out, title)
-    print(f"wrote {out} ({len(indices)} pairs of {args.split})")
+    print(f"wrote {out} ({len(indices)} pairs of {config.split})")
     return 0

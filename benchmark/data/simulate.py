@@ -16,15 +16,13 @@ over. Disk full and permission errors end in one line naming the path and the fi
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.data.profiles import PROFILES, get_profile
+from benchmark.data.profiles import Profile
 from benchmark.errors import UsageError
-
-HELP = "render the UAV/satellite pair dataset (profiles smoke/quick/paper; resumable, parallel)"
 
 
 def default_out(profile: str, size: int | None, seed: int) -> Path:
@@ -41,72 +39,39 @@ def single_thread_env() -> None:
         os.environ.setdefault(var, "1")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--profile",
-        choices=sorted(PROFILES),
-        default="quick",
-        help="dataset profile (default: quick)",
-    )
-    parser.add_argument(
-        "--size",
-        type=int,
-        default=None,
-        help="pairs in the standard split (other sets scale along)",
-    )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="dataset directory (default: data/<profile>[-n<size>][-s<seed>])",
-    )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=os.cpu_count() or 1,
-        help="rendering processes (default: all cores)",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed (default: 0)")
-    parser.add_argument(
-        "--city-cache",
-        type=Path,
-        default=None,
-        help="where built cities are cached (default: $UAVBENCH_CACHE or ~/.cache/uavbench/cities)",
-    )
-    parser.add_argument(
-        "--no-wait",
-        action="store_true",
-        help="exit 2 if another process is rendering into --out (default: wait for it)",
-    )
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+@dataclass(frozen=True)
+class SimulateConfig:
+    """One ``uavbench simulate`` call: the ``profile`` (sized), dataset ``seed``, output
+    directory, rendering ``workers``, the city cache (None: the default), whether to wait for
+    another process rendering into ``out`` and whether to show a progress bar."""
+
+    profile: Profile
+    seed: int
+    out: Path
+    workers: int
+    city_cache: Path | None = None
+    wait: bool = True
+    progress: bool = True
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.size is not None and args.size < 3:
-        raise UsageError(f"--size must be >= 3 pairs (train, val, test), got {args.size}")
-    if args.workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {args.workers}")
-    if args.seed < 0:
-        raise UsageError(f"--seed must be >= 0, got {args.seed}")
-    try:
-        profile = get_profile(args.profile, args.size)
-    except ValueError as err:
-        raise UsageError(str(err)) from err
-    out = args.out if args.out is not None else default_out(args.profile, args.size, args.seed)
+def simulate(config: SimulateConfig) -> int:
+    """Render (or resume, or confirm) the dataset of ``config``; print what was done; exit code
+    0. UsageError for a directory of another dataset, a busy lock or a disk error."""
     single_thread_env()
     from benchmark.data.format import DatasetError, os_error_message
     from benchmark.data.writer import ConfigMismatchError, simulate_dataset
     from benchmark.locks import LockBusyError
 
+    out, profile = config.out, config.profile
     try:
         stats = simulate_dataset(
             out,
             profile,
-            args.seed,
-            workers=args.workers,
-            cache_dir=args.city_cache,
-            progress=not args.quiet,
-            wait=not args.no_wait,
+            config.seed,
+            workers=config.workers,
+            cache_dir=config.city_cache,
+            progress=config.progress,
+            wait=config.wait,
         )
     except (ConfigMismatchError, LockBusyError, DatasetError) as err:
         raise UsageError(str(err)) from err
@@ -119,7 +84,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{out}: replaced {len(stats['replaced'])} corrupted shard(s): "
               + ", ".join(stats["replaced"]), file=sys.stderr)  # fmt: skip
     if stats["state"] == "complete":
-        print(f"{out}: already complete (profile {profile.name}, seed {args.seed}); nothing to do")
+        print(
+            f"{out}: already complete (profile {profile.name}, seed {config.seed}); nothing to do"
+        )
     else:
         n = stats["rendered_uav"] + stats["rendered_sat"]
         rate = n / stats["render_s"] if stats["render_s"] > 0 else float("nan")
@@ -127,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
             f"{out}: {stats['state']}; cities {stats['cities_s']:.1f} s, "
             f"plan {stats['plan_s']:.1f} s, "
             f"rendered {stats['rendered_uav']} UAV + {stats['rendered_sat']} satellite images in "
-            f"{stats['render_s']:.1f} s ({rate:.1f} img/s, {args.workers} workers)",
+            f"{stats['render_s']:.1f} s ({rate:.1f} img/s, {config.workers} workers)",
             file=sys.stdout,
         )
     return 0

@@ -13,7 +13,6 @@ for a path that is not a dataset at all. Files found good are recorded in the ve
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import dataclass
@@ -27,8 +26,6 @@ from benchmark.data.integrity import check_files
 from benchmark.data.profiles import PROFILES, Profile, get_profile
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
-
-HELP = "check every file of a dataset against its manifest (sha256, shapes, counts); exit 1 if bad"
 
 
 @dataclass(frozen=True)
@@ -149,11 +146,6 @@ def verify_dataset(root: str | Path, *, progress: bool = False) -> list[Problem]
     return problems
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", type=Path, help="dataset directory (written by simulate)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
 def _fix(root: Path) -> str:
     """The simulate call from the manifest, else from config.json (written first)."""
     for name in (MANIFEST, CONFIG):
@@ -164,12 +156,14 @@ def _fix(root: Path) -> str:
     return f"the command that rendered {root}"
 
 
-def run(args: argparse.Namespace) -> int:
+def verify_and_report(root: Path, *, progress: bool = True) -> int:
+    """Verify the dataset at ``root`` in full and print the verdict: exit code 0 (all good) or 1
+    (each problem and the fix on stderr); UsageError when ``root`` is no dataset or on a disk
+    error."""
     from benchmark.data.format import os_error_message
 
-    root: Path = args.dataset
     try:
-        problems = verify_dataset(root, progress=not args.quiet)
+        problems = verify_dataset(root, progress=progress)
         n = len(read_manifest(root)["files"])
     except DatasetError as err:
         if not (root / CONFIG).is_file() or not (root / MANIFEST).is_file():

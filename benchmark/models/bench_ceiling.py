@@ -258,36 +258,33 @@ def cpu_bf16_line(precisions: tuple[str, ...] = ("fp32", "bf16")) -> str:
     )
 
 
-def main(argv: list[str]) -> int:
-    """``uavbench bench ceiling [--device D] [--precision fp32,bf16] [--repeats N]``."""
-    import argparse
-
+def bench_ceiling(
+    device_name: str = "auto",
+    precision: str | None = None,
+    repeats: int = 3,
+    batch: int | None = None,
+    threads: int | None = None,
+) -> int:
+    """Measure and print the ceiling on the device named ``device_name`` (``"auto"``
+    allowed) in each precision of the comma list ``precision`` (None: fp32 and, where the device
+    supports it, bf16), ``repeats`` timed runs per shape of ``batch`` images (None: 24) on
+    ``threads`` torch threads (None: torch's); exit code 0."""
     from benchmark.models.device import resolve_device
     from benchmark.models.precision_support import precision_plan
 
-    p = argparse.ArgumentParser(prog="uavbench bench ceiling", description=__doc__.split("\n")[0])
-    p.add_argument("--device", default="auto", help="auto, cpu, cuda, cuda:N or mps")
-    p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
-                   "where the device supports bf16)")  # fmt: skip
-    p.add_argument("--repeats", type=int, default=3, help="timed runs per shape (median)")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    p.add_argument("--batch", type=int, default=None, help="images per convolution (default 24)")
-    args = p.parse_args(argv)
-    if args.repeats < 1 or (args.batch is not None and args.batch < 1):
-        p.error("--repeats and --batch must be >= 1")
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
-    precisions, notes = precision_plan(device, args.precision)
+    if threads is not None:
+        torch.set_num_threads(threads)
+    device = resolve_device(device_name)
+    precisions, notes = precision_plan(device, precision)
     if device.type == "cpu":
         print(cpu_bf16_line(("fp32", "bf16")))
     for note in notes:
         print(note)
-    for precision in precisions:
-        r = measure_ceiling(device, precision, args.repeats, args.batch)
+    for name in precisions:
+        r = measure_ceiling(device, name, repeats, batch)
         shapes = ", ".join(f"{k} {v:.1f}" for k, v in r.per_shape.items())
         print(
-            f"conv ceiling {precision}: {r.gflops:.1f} GFLOP/s ({r.best_shape}; {shapes}) on "
+            f"conv ceiling {name}: {r.gflops:.1f} GFLOP/s ({r.best_shape}; {shapes}) on "
             f"{device}, {torch.get_num_threads()} thread(s)"
         )
     return 0

@@ -11,10 +11,10 @@ Each time is the median of ``--repeats`` runs after one warm-up run.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from scipy.spatial.transform import Rotation
@@ -32,33 +32,33 @@ def _median_time(fn: Callable[[], object], repeats: int) -> float:
     return statistics.median(times)
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="uavbench bench model", description=__doc__)
-    p.add_argument("--head", default="pd_re_net")
-    p.add_argument("--variant", default="a-f")
-    p.add_argument("--width", type=float, default=1.0)
-    p.add_argument("--size", type=int, default=224)
-    p.add_argument("--batch", type=int, default=20, help="pairs per batch (paper: 20)")
-    p.add_argument("--sats", type=int, default=2, help="distinct satellite images in the batch")
-    p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--threads", type=int, default=1)
-    args = p.parse_args(argv)
-    if min(args.batch, args.sats, args.repeats, args.threads) < 1 or args.sats > args.batch:
-        p.error("need batch, sats, repeats, threads >= 1 and sats <= batch")
-    return args
+@dataclass(frozen=True)
+class ModelBenchConfig:
+    """``bench model``: the model (attitude ``head``, GoogLeNet ``variant``, ``width``, ``size``
+    px), ``batch`` pairs over ``sats`` distinct satellite images (``sats <= batch``), the median
+    of ``repeats`` runs on ``threads`` torch threads."""
+
+    head: str = "pd_re_net"
+    variant: str = "a-f"
+    width: float = 1.0
+    size: int = 224
+    batch: int = 20
+    sats: int = 2
+    repeats: int = 3
+    threads: int = 1
 
 
-def main(argv: list[str]) -> int:
-    args = parse_args(argv)
-    torch.set_num_threads(args.threads)
+def bench_model(config: ModelBenchConfig) -> int:
+    """Time and print the two optimisations of ``config``'s model; exit code 0."""
+    torch.set_num_threads(config.threads)
     torch.manual_seed(0)
-    kwargs = {"variant": args.variant, "width": args.width, "input_size": args.size}
-    kwargs["attitude"] = args.head
+    kwargs = {"variant": config.variant, "width": config.width, "input_size": config.size}
+    kwargs["attitude"] = config.head
     model = create_model(**kwargs)
-    n, s = args.batch, args.size
+    n, s = config.batch, config.size
     uav = torch.rand(n, 3, s, s)
-    ids = torch.arange(n) % args.sats
-    sat = torch.rand(args.sats, 3, s, s)[ids]
+    ids = torch.arange(n) % config.sats
+    sat = torch.rand(config.sats, 3, s, s)[ids]
     R = torch.tensor(Rotation.random(n, random_state=0).as_matrix(), dtype=torch.float32)
     T = torch.randn(n, 3) * 100
     optimizer = torch.optim.SGD(model.parameters(), lr=1e-6, momentum=0.9)
@@ -70,22 +70,22 @@ def main(argv: list[str]) -> int:
         loss.backward()
         optimizer.step()
 
-    plain = _median_time(lambda: train_step(None), args.repeats)
-    shared = _median_time(lambda: train_step(ids), args.repeats)
+    plain = _median_time(lambda: train_step(None), config.repeats)
+    shared = _median_time(lambda: train_step(ids), config.repeats)
 
     def eval_forward(m: torch.nn.Module) -> None:
         with torch.inference_mode():
             m.eval()(uav, sat, ids)
 
-    fast = _median_time(lambda: eval_forward(model), args.repeats)
+    fast = _median_time(lambda: eval_forward(model), config.repeats)
     torch.manual_seed(0)
     contiguous = create_model(**kwargs, channels_last=False)
-    slow = _median_time(lambda: eval_forward(contiguous), args.repeats)
+    slow = _median_time(lambda: eval_forward(contiguous), config.repeats)
 
     print(
-        f"model: {args.head}, variant {args.variant!r}, width {args.width:g}, {s} px; batch {n} "
-        f"pairs over {args.sats} satellite images; {args.threads} thread(s), "
-        f"median of {args.repeats}"
+        f"model: {config.head}, variant {config.variant!r}, width {config.width:g}, {s} px; "
+        f"batch {n} pairs over {config.sats} satellite images; {config.threads} thread(s), "
+        f"median of {config.repeats}"
     )
     print(
         f"train step   plain {plain:.2f} s, shared satellite {shared:.2f} s: {plain / shared:.2f}x"

@@ -23,14 +23,14 @@ tensors already on the CPU are not copied.
 from __future__ import annotations
 
 import contextlib
-import platform
 import re
 from contextlib import AbstractContextManager
-from pathlib import Path
+from dataclasses import dataclass
 
 import torch
 
 from benchmark.config import ConfigError
+from benchmark.machine import cpu_model
 
 DEVICE_CHOICES = "'auto', 'cpu', 'cuda', 'cuda:N' or 'mps'"
 PRECISIONS = ("auto", "fp32", "bf16", "fp16")
@@ -116,6 +116,33 @@ def check_precision_supported(precision: str, device: torch.device) -> None:
     raise PrecisionUnsupportedError(f"precision=bf16: {reason}; use precision=fp32 or auto")
 
 
+@dataclass(frozen=True)
+class Placement:
+    """Where and in what precision a model computes, resolved once (by the command) and passed
+    down: ``device`` a ``torch.device`` this machine has, ``precision`` ``"fp32"``, ``"bf16"``
+    or ``"fp16"`` (never ``"auto"``)."""
+
+    device: torch.device
+    precision: str
+
+    def __post_init__(self) -> None:
+        if self.precision not in DTYPES and self.precision != "fp32":
+            raise ValueError(f"Placement precision must be resolved, got {self.precision!r}")
+
+
+def resolve_placement(
+    device: str = "auto", precision: str = "auto", *, check: bool = True
+) -> Placement:
+    """``device`` and ``precision`` names (``"auto"`` allowed) resolved on this machine; with
+    ``check``, bf16 where this machine cannot run it is refused (:func:`check_precision_supported`).
+    ValueError (a ``PrecisionUnsupportedError`` for the precision) naming what is missing."""
+    where = resolve_device(device)
+    resolved = resolve_precision(precision, where)
+    if check:
+        check_precision_supported(resolved, where)
+    return Placement(where, resolved)
+
+
 def autocast(device: torch.device, precision: str) -> AbstractContextManager[object]:
     """The mixed-precision context for a forward pass: ``torch.autocast`` with the device's type
     and the 16-bit dtype, or a no-op for fp32. Compute losses outside it (in float32)."""
@@ -138,16 +165,6 @@ def accelerator_name(device: torch.device) -> str:
     if device.type == "mps":
         return "Apple MPS"
     return cpu_model()
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
 
 
 def to_device(batch: dict[str, torch.Tensor], device: torch.device) -> dict[str, torch.Tensor]:

@@ -24,25 +24,22 @@ options are set as in ``uavbench train``: ``--set attitude_options.hidden=512``
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import time
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from torch import nn
 
 from benchmark.models.bench_inputs import synthetic_labels
+from benchmark.models.device import Placement
 from benchmark.models.flop_count import count_flops_by_kind
-from benchmark.models.model_config import parse_scalar
 from benchmark.models.pair import PoseModel, create_model
 
 OPTION_FIELDS = ("attitude_options", "translation_options", "encoder_options")
 
-HELP = "parameters, size, MFLOPs and CPU latency per pair of a model (paper Table 6)"
 
 # Paper Table 6 (for reference in the printout).
 PAPER_TABLE6 = {"Re-Net": (65.60, 24.43), "Pd/Re-Net with AGTFM": (95.60, 90.96)}
@@ -144,24 +141,16 @@ def model_info(
     repeats: int = 10,
     warmup: int = 3,
     options: Mapping[str, Mapping[str, Any]] | None = None,
-    device: str = "cpu",
-    precision: str = "fp32",
+    placement: Placement | None = None,
 ) -> ModelInfo:
     """Measure one model; ``options`` maps ``attitude_options`` / ``translation_options`` /
     ``encoder_options`` to the options of that head or encoder (``ModelConfig``). FLOPs are
-    counted on the CPU; the latency is measured on ``device`` in ``precision``
-    (``benchmark.models.device`` names; ``auto`` resolved). Defaults: the CPU in fp32 (Table 6)."""
-    from benchmark.models.device import (
-        accelerator_name,
-        check_precision_supported,
-        resolve_device,
-        resolve_precision,
-    )
+    counted on the CPU; the latency is measured on ``placement`` (resolved and checked by the
+    caller: ``device.resolve_placement``). Default: the CPU in fp32 (Table 6)."""
+    from benchmark.models.device import accelerator_name
 
-    where = resolve_device(device)
-    precision = resolve_precision(precision, where)
-    # As training and evaluation: bf16 on a CPU without native bf16 only when allowed.
-    check_precision_supported(precision, where)
+    placement = placement or Placement(torch.device("cpu"), "fp32")
+    where, precision = placement.device, placement.precision
     model = create_model(
         encoder=encoder,
         variant=variant,
@@ -222,80 +211,3 @@ def _where(info: ModelInfo) -> str:
     else:
         where = f"{info.device} ({info.accelerator})"
     return where if info.precision == "fp32" else f"{where}, {info.precision} autocast"
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--head", default="pd_re_net", help="attitude head (default pd_re_net)")
-    parser.add_argument("--translation", default="regression", help="translation head")
-    parser.add_argument("--encoder", default="googlenet", help="encoder (default googlenet)")
-    parser.add_argument("--variant", default="a-f", help="'/', 'a', 'f' or 'a-f' (default a-f)")
-    parser.add_argument("--width", type=float, default=1.0, help="width multiplier (default 1.0)")
-    parser.add_argument("--size", type=int, default=224, help="input side in px (default 224)")
-    parser.add_argument("--repeats", type=int, default=10, help="timed runs (default 10)")
-    parser.add_argument("--warmup", type=int, default=3, help="untimed runs first (default 3)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument(
-        "--device", default="cpu", help="latency on: cpu (default, Table 6), auto, cuda[:N], mps"
-    )
-    parser.add_argument(
-        "--precision",
-        choices=("auto", "fp32", "bf16", "fp16"),
-        default="fp32",
-        help="autocast precision of the timed passes (default fp32)",
-    )
-    parser.add_argument("--json", action="store_true", help="print one JSON object instead")
-    parser.add_argument(
-        "--set",
-        dest="options",
-        action="append",
-        default=[],
-        metavar="FIELD.OPTION=VALUE",
-        help="a head or encoder option, e.g. --set attitude_options.hidden=512 (fields: "
-        f"{', '.join(OPTION_FIELDS)}; repeatable)",
-    )
-
-
-def parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
-    """``["attitude_options.hidden=512"]`` -> ``{"attitude_options": {"hidden": 512}}`` (values
-    read as YAML scalars; the head's signature types them). ValueError naming a bad item."""
-    out: dict[str, dict[str, Any]] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        field, dot, option = key.strip().partition(".")
-        if not sep or not dot or not option or field not in OPTION_FIELDS:
-            raise ValueError(
-                f"--set {item!r}: expected FIELD.OPTION=VALUE with FIELD one of "
-                f"{', '.join(OPTION_FIELDS)}, e.g. attitude_options.hidden=512"
-            )
-        out.setdefault(field, {})[option] = parse_scalar(value)
-    return out
-
-
-def run(args: argparse.Namespace) -> int:
-    from benchmark.errors import UsageError
-
-    if args.repeats < 1 or args.warmup < 0 or args.threads < 1:
-        raise UsageError(
-            f"need --repeats >= 1, --warmup >= 0, --threads >= 1; got {args.repeats}, "
-            f"{args.warmup}, {args.threads}"
-        )
-    torch.set_num_threads(args.threads)
-    try:
-        options = parse_options(args.options)
-        info = model_info(
-            head=args.head,
-            encoder=args.encoder,
-            variant=args.variant,
-            width=args.width,
-            input_size=args.size,
-            translation=args.translation,
-            repeats=args.repeats,
-            warmup=args.warmup,
-            options=options,
-            device=args.device,
-            precision=args.precision,
-        )
-    except ValueError as err:  # bad configuration: unknown head/encoder/variant, size, width
-        raise UsageError(str(err)) from None
-    print(json.dumps(asdict(info)) if args.json else format_info(info))
-    return 0

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import torch
 
-from benchmark.models.device import cpu_model
+from benchmark.machine import cpu_model
 
 BENCH_PRECISIONS = ("fp32", "bf16")
 NATIVE_BF16_FLAGS = ("avx512_bf16", "amx_bf16", "bf16")  # x86 (Linux names), Arm (Features)

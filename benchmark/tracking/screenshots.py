@@ -1,6 +1,6 @@
 """Screenshots of the MLflow UI with headless Chromium (``uavbench ui --screenshots DIR``).
 
-Pages in the classic Runs view (see ``benchmark.tracking.ui`` on
+Pages in the classic Runs view (see ``benchmark.tracking.ui_links`` on
 ``?workflowType=machine_learning``): the experiment list (``experiments.png``), one experiment's
 runs table (``runs.png``: the experiment of Table 1 when the store has one, else the first), the
 page of one of its runs (``run.png``: a finished nested run, i.e. a table row, when there is one)
@@ -35,7 +35,12 @@ import tempfile
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from benchmark.tracking.ui import experiment_url, experiments_url, list_experiments, run_url
+from benchmark.tracking.ui_links import (
+    experiment_url,
+    experiments_url,
+    list_experiments,
+    run_url,
+)
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 CHROMIUM_FLAGS = (

@@ -4,8 +4,8 @@ train-then-evaluate path and the run identity.
 ``train_and_evaluate(cfg, out_dir, eval_splits)`` is what ``uavbench train`` and every
 ``uavbench reproduce`` unit call; ``run_key`` / ``run_tags`` identify its trained model the same
 way for both. This package never imports ``benchmark.tracking`` (connect a tracker through
-``on_epoch_end``) except in ``command.py``, the ``uavbench train`` CLI. Checkpoints are read with
-``benchmark.models.checkpoint`` (re-exported here).
+``on_epoch_end``) except in ``tracked_run.py``, what ``uavbench train`` runs. Checkpoints are
+read with ``benchmark.models.checkpoint`` (re-exported here).
 """
 
 from benchmark.models.checkpoint import load_checkpoint, load_trained_model

@@ -48,7 +48,6 @@ convolution's rate.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import time
@@ -119,37 +118,36 @@ class LoopResult:
     gflop_by_kind: dict[str, float] = field(default_factory=dict)  # flop_count.KINDS, 10^9
 
 
-def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="uavbench bench train", description=__doc__.split("\n")[0])
-    p.add_argument("--models", default="quick,paper", help="comma list of quick,paper")
-    p.add_argument("--encoders", default=",".join(ENCODERS), help="comma list of "
-                   f"{','.join(ENCODERS)} (default both, in the same rounds)")  # fmt: skip
-    p.add_argument("--batch-size", type=int, default=20, help="pairs per step (paper: 20)")
-    p.add_argument("--distinct-sat", type=int, default=4, help="distinct satellite images/batch")
-    p.add_argument("--steps", type=int, default=5, help="timed steps per loop and model")
-    p.add_argument("--warmup", type=int, default=1, help="untimed steps first")
-    p.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's)")
-    p.add_argument("--size", type=int, help="override the image size of every model")
-    p.add_argument("--width", type=float, help="override the width of every model")
-    p.add_argument("--attitude", default="pd_re_net")
-    p.add_argument("--variant", default="a-f", help="GoogLeNet's variant (matching: '/')")
-    p.add_argument("--device", default="auto", help="auto (CUDA, else MPS, else CPU), cpu, cuda, "
-                   "cuda:N or mps")  # fmt: skip
-    p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
-                   "where the device supports bf16, else fp32 and the reason)")  # fmt: skip
-    p.add_argument("--no-plain", action="store_true", help="skip the plain reference loop")
-    p.add_argument("--no-base", action="store_true", help="skip the base row (ours fp32 before "
-                   "issue 20: per-tensor optimiser loop; with --optimizer adam)")  # fmt: skip
-    p.add_argument("--optimizer", choices=sorted(OPTIMIZERS), default="sgd", help="sgd: the "
-                   "paper's SGD, momentum 0.9, lr 1e-3 (default); adam: the quick profile's Adam, "
-                   "lr 3e-4, gradient norm clipped at 10")  # fmt: skip
-    p.add_argument("--no-ceiling", action="store_true", help="skip the convolution ceiling")
-    p.add_argument("--profile", type=int, default=0, metavar="N", help="after timing, profile "
-                   "one step of each of our loops: time by kind of work and its N top ops (self "
-                   "time)")  # fmt: skip
-    p.add_argument("--ceiling-batch", type=int, default=None, help="images per ceiling "
-                   "convolution (default 24: 20 pairs over 4 satellite images)")  # fmt: skip
-    return p
+@dataclass(frozen=True)
+class TrainBenchConfig:
+    """``bench train``: the ``models`` (names of :data:`MODELS`) and ``encoders`` timed side by
+    side; ``batch_size`` pairs over ``distinct_sat`` satellite images; ``steps`` timed steps after
+    ``warmup``; ``threads`` torch threads (None: torch's); ``size``/``width`` override every
+    model's; the ``attitude`` head, GoogLeNet's ``variant``; ``device`` and ``precision`` (comma
+    list; None: fp32 and bf16 where supported) by name, resolved by :func:`resolve`; which loops
+    (``plain``, ``base``) and the ``ceiling`` run; the ``optimizer`` (:data:`OPTIMIZERS`);
+    ``profile`` top ops per loop (0: none); ``ceiling_batch`` images per ceiling convolution
+    (None: 24)."""
+
+    models: tuple[str, ...] = ("quick", "paper")
+    encoders: tuple[str, ...] = ENCODERS
+    batch_size: int = 20
+    distinct_sat: int = 4
+    steps: int = 5
+    warmup: int = 1
+    threads: int | None = None
+    size: int | None = None
+    width: float | None = None
+    attitude: str = "pd_re_net"
+    variant: str = "a-f"
+    device: str = "auto"
+    precision: str | None = None
+    plain: bool = True
+    base: bool = True
+    optimizer: str = "sgd"
+    ceiling: bool = True
+    profile: int = 0
+    ceiling_batch: int | None = None
 
 
 def batch_of(
@@ -230,24 +228,25 @@ def count_step_flops(step: Callable[[], float]) -> int:
     return step_flops(step)["total"]
 
 
-def optim_config(args: argparse.Namespace):
-    """The ``OptimConfig`` of ``--optimizer`` (batch size from ``--batch-size``)."""
+def optim_config(config: TrainBenchConfig):
+    """The ``OptimConfig`` of ``config.optimizer`` (batch size ``config.batch_size``)."""
     from benchmark.training.config import OptimConfig
 
-    return OptimConfig(**OPTIMIZERS[args.optimizer], batch_size=args.batch_size)  # type: ignore[arg-type]
+    return OptimConfig(**OPTIMIZERS[config.optimizer], batch_size=config.batch_size)  # type: ignore[arg-type]
 
 
 def build(
     size: int,
     width: float,
-    args: argparse.Namespace,
+    config: TrainBenchConfig,
     spec: LoopSpec,
     device,
     encoder: str = "googlenet",
 ):
     """The benchmarked model (seed 0: every loop of an encoder starts from the same weights) and
     its optimiser, built by training's ``make_optimizer`` (``spec.foreach``). GoogLeNet takes
-    ``--variant``; the matching encoder has one level (variant ``/``) and its default options."""
+    ``config.variant``; the matching encoder has one level (variant ``/``) and its default
+    options."""
     from benchmark.models import create_model
     from benchmark.training.config import TrainConfig
     from benchmark.training.loop import make_optimizer
@@ -257,20 +256,20 @@ def build(
         encoder=encoder,
         width=width,
         input_size=size,
-        attitude=args.attitude,
-        variant=args.variant if encoder == "googlenet" else "/",
+        attitude=config.attitude,
+        variant=config.variant if encoder == "googlenet" else "/",
         channels_last=spec.channels_last,
     )
     m.translation_head.set_statistics(torch.zeros(3), torch.full((3,), 50.0))
     m = m.to(device).train()
-    cfg = TrainConfig(optim=optim_config(args))
+    cfg = TrainConfig(optim=optim_config(config))
     return m, make_optimizer(cfg, m, foreach=spec.foreach)
 
 
 def measure(
     size: int,
     width: float,
-    args: argparse.Namespace,
+    config: TrainBenchConfig,
     device: torch.device,
     precisions: Sequence[str],
     encoders: Sequence[str] = ("googlenet",),
@@ -280,29 +279,28 @@ def measure(
     from benchmark.models.bench_ceiling import SHAPES, CeilingResult, conv_job
     from benchmark.models.flop_count import KINDS
 
-    batch = batch_of(size, args.batch_size, args.distinct_sat, device)
-    clip = optim_config(args).grad_clip
-    base = not getattr(args, "no_base", False)
-    specs = loop_specs(precisions, device, not args.no_plain, base, args.optimizer)
+    batch = batch_of(size, config.batch_size, config.distinct_sat, device)
+    clip = optim_config(config).grad_clip
+    specs = loop_specs(precisions, device, config.plain, config.base, config.optimizer)
     loops: dict[tuple[str, str], tuple[str, Callable[[], float]]] = {}
     for encoder in encoders:
         for spec in specs:
-            model, opt = build(size, width, args, spec, device, encoder)
+            model, opt = build(size, width, config, spec, device, encoder)
             step = make_step(model, opt, batch, spec.share, device, spec.precision, clip)
             loops[encoder, spec.name] = (spec.precision, step)
     flops = {key: step_flops(step) for key, (_, step) in loops.items()}
     convs: dict[tuple[str, str], tuple[Callable[[], float], int]] = {}
-    if not args.no_ceiling:
+    if config.ceiling:
         for precision in precisions:
             for shape_name, shape in SHAPES.items():
                 convs[precision, shape_name] = conv_job(shape, device, precision,
-                                                        args.ceiling_batch)  # fmt: skip
+                                                        config.ceiling_batch)  # fmt: skip
     jobs = {**{k: v[1] for k, v in loops.items()}, **{("conv", *k): v[0] for k, v in convs.items()}}
-    for _ in range(args.warmup + 1):  # +1: the conv jobs' first run picks kernels
+    for _ in range(config.warmup + 1):  # +1: the conv jobs' first run picks kernels
         for run in jobs.values():
             run()
     times: dict[tuple[str, ...], list[float]] = {key: [] for key in jobs}
-    for _ in range(args.steps):  # round robin: load affects every loop alike
+    for _ in range(config.steps):  # round robin: load affects every loop alike
         for key, run in jobs.items():
             times[key].append(run())
     ceilings = {}
@@ -321,49 +319,25 @@ def measure(
         gflops = total / seconds / 1e9
         share = gflops / ceilings[precision] if precision in ceilings else None
         kinds = {k: flops[encoder, name][k] / 1e9 for k in KINDS}
-        results.append(LoopResult(name, precision, args.batch_size / seconds, total / 1e9,
+        results.append(LoopResult(name, precision, config.batch_size / seconds, total / 1e9,
                                   gflops, share, encoder, kinds))  # fmt: skip
-    if getattr(args, "profile", 0):
+    if config.profile:
         from benchmark.training.bench_breakdown import breakdown_line, profile_step
 
         for (encoder, name), (precision, step) in loops.items():
             if name.startswith("ours"):
-                table, kinds = profile_step(step, args.profile)
+                table, kinds = profile_step(step, config.profile)
                 print(f"profile of one step, {size} px width {width:g}, {encoder} {name}:")
                 print(breakdown_line(kinds, flops[encoder, name], ceilings.get(precision)))
                 print(table)
     return results, ceilings
 
 
-def check_args(args: argparse.Namespace) -> tuple[list[str], list[str]]:
-    """``(model names, encoder names)`` of ``--models`` and ``--encoders``; UsageError naming the
-    bad flag otherwise."""
-    from benchmark.errors import UsageError
-
-    names = [m.strip() for m in args.models.split(",") if m.strip()]
-    unknown = [m for m in names if m not in MODELS]
-    if unknown or not names:
-        raise UsageError(f"--models {args.models!r}: expected a comma list of {sorted(MODELS)}")
-    encoders = [e.strip() for e in args.encoders.split(",") if e.strip()]
-    if not encoders or len(set(encoders)) != len(encoders) or set(encoders) - set(ENCODERS):
-        raise UsageError(f"--encoders {args.encoders!r}: expected a comma list of distinct "
-                         f"{', '.join(ENCODERS)}")  # fmt: skip
-    for name in ("batch_size", "distinct_sat", "steps"):
-        if getattr(args, name) < 1:
-            raise UsageError(f"--{name.replace('_', '-')} must be >= 1")
-    if args.warmup < 0:
-        raise UsageError("--warmup must be >= 0")
-    if args.profile < 0:
-        raise UsageError("--profile must be >= 0 (rows of the op table)")
-    if args.ceiling_batch is not None and args.ceiling_batch < 1:
-        raise UsageError("--ceiling-batch must be >= 1")
-    if args.distinct_sat > args.batch_size:
-        raise UsageError("--distinct-sat cannot exceed --batch-size")
-    return names, encoders
-
-
-def resolve(args: argparse.Namespace) -> tuple[torch.device, list[str], list[str]]:
-    """``(device, precisions, notes)`` of ``--device`` / ``--precision`` (UsageError if bad).
+def resolve(
+    device_name: str = "auto", precision: str | None = None
+) -> tuple[torch.device, list[str], list[str]]:
+    """``(device, precisions, notes)`` of ``--device`` / ``--precision`` (``precision``: a comma
+    list; UsageError if bad).
 
     The bench measures bf16 by default wherever oneDNN has bf16 kernels, and anywhere on an
     explicit ``--precision`` (measuring how slow it is is its job); training and ``model-info``
@@ -379,8 +353,8 @@ def resolve(args: argparse.Namespace) -> tuple[torch.device, list[str], list[str
     )
 
     try:
-        device = resolve_device(args.device)
-        precisions, notes = precision_plan(device, args.precision)
+        device = resolve_device(device_name)
+        precisions, notes = precision_plan(device, precision)
     except ValueError as error:
         raise UsageError(str(error)) from None
     if "bf16" in precisions and device.type == "cpu" and not slow_bf16_allowed():
@@ -489,21 +463,22 @@ def load_text() -> str:
     return f"load {loads} on {os.cpu_count()} cores"
 
 
-def main(argv: Sequence[str]) -> int:
+def bench_train(config: TrainBenchConfig) -> int:
+    """Time and print every model of ``config`` (rows, ceilings, the comparison lines and the bf16
+    table); exit code 0 (UsageError: a device or precision this machine lacks)."""
     from benchmark.models.bench_ceiling import cpu_bf16_line
     from benchmark.models.device import accelerator_name
     from benchmark.models.precision_support import bf16_support_label
 
-    args = parser().parse_args(list(argv))
-    names, encoders = check_args(args)
-    device, precisions, notes = resolve(args)
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
+    names, encoders = config.models, config.encoders
+    device, precisions, notes = resolve(config.device, config.precision)
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
     print(
-        f"bench train: {args.attitude} on {', '.join(encoders)} (googlenet variant "
-        f"{args.variant}), batch {args.batch_size} with "
-        f"{args.distinct_sat} distinct satellite images, {args.steps} timed steps, optimizer "
-        f"{args.optimizer}, device {device} ({accelerator_name(device)}), "
+        f"bench train: {config.attitude} on {', '.join(encoders)} (googlenet variant "
+        f"{config.variant}), batch {config.batch_size} with "
+        f"{config.distinct_sat} distinct satellite images, {config.steps} timed steps, optimizer "
+        f"{config.optimizer}, device {device} ({accelerator_name(device)}), "
         f"{torch.get_num_threads()} torch threads; {load_text()}"
     )
     if device.type == "cpu":
@@ -516,8 +491,8 @@ def main(argv: Sequence[str]) -> int:
     measured = []
     for name in names:
         size, width = MODELS[name]
-        size, width = args.size or size, args.width or width
-        results, ceilings = measure(size, width, args, device, precisions, encoders)
+        size, width = config.size or size, config.width or width
+        results, ceilings = measure(size, width, config, device, precisions, encoders)
         measured.append((name, results))
         print("\n".join(format_rows(name, size, width, results)), flush=True)
         for precision, gflops in ceilings.items():

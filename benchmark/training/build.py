@@ -11,6 +11,7 @@ import torch
 from torch.utils.data import ConcatDataset, Dataset, Subset
 
 from benchmark.config import ConfigError
+from benchmark.models.device import Placement
 from benchmark.training.config import TrainConfig
 from benchmark.training.loop import EpochCallback, TrainResult, train
 
@@ -85,10 +86,19 @@ def run_training(
     on_epoch_end: EpochCallback | None = None,
     progress: bool = True,
     datasets: tuple[Dataset, Dataset | None] | None = None,
+    placement: Placement | None = None,
 ) -> TrainResult:
-    """Open the datasets (unless given), build the model and :func:`train` it into ``out_dir``."""
+    """Open the datasets (unless given), build the model and :func:`train` it into ``out_dir``
+    on ``placement`` (None: resolved from ``cfg``)."""
     train_set, val_set = datasets if datasets is not None else open_datasets(cfg)
     factory = model_factory(cfg, image_size_of(train_set))
     return train(
-        cfg, factory, train_set, val_set, out_dir, on_epoch_end=on_epoch_end, progress=progress
+        cfg,
+        factory,
+        train_set,
+        val_set,
+        out_dir,
+        on_epoch_end=on_epoch_end,
+        progress=progress,
+        placement=placement,
     )

@@ -20,8 +20,12 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from typing import TYPE_CHECKING
 
 from benchmark.training.config import TrainConfig
+
+if TYPE_CHECKING:
+    from benchmark.models.device import Placement
 
 MODEL_KEY_TAG = "model_key"  # the tag holding run_key(cfg, manifest) on every tracked run
 
@@ -39,12 +43,13 @@ def effective_precision(cfg: TrainConfig) -> str:
     return resolve_precision(cfg.precision, device)
 
 
-def numbers_hash(cfg: TrainConfig) -> str:
+def numbers_hash(cfg: TrainConfig, precision: str | None = None) -> str:
     """:func:`benchmark.config.config_hash` of ``cfg`` as it was before devices (issue 11): the
     ``device`` left out (any device computes the same model), the ``precision`` left out when it
     is fp32 and written resolved (``bf16``/``fp16``, never ``auto``) otherwise. Hashes and run keys
     of fp32 runs are therefore the ones stored before ``device``/``precision`` existed, and a
-    checkpoint resumes on another device."""
+    checkpoint resumes on another device. ``precision``: ``cfg.precision`` already resolved
+    (``Placement.precision``); None resolves it here (:func:`effective_precision`)."""
     from benchmark.config import to_dict
 
     data = to_dict(cfg)
@@ -54,7 +59,7 @@ def numbers_hash(cfg: TrainConfig) -> str:
     pretrained = data.pop("pretrained")
     if pretrained["checkpoint"]:
         data["pretrained"] = {"key": pretrained["key"]}
-    precision = effective_precision(cfg)
+    precision = precision or effective_precision(cfg)
     if precision != "fp32":
         data["precision"] = precision
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=True)
@@ -70,26 +75,33 @@ def portable_config(cfg: TrainConfig) -> TrainConfig:
     return dataclasses.replace(cfg, data=data, threads=None)
 
 
-def run_key(cfg: TrainConfig, dataset_manifest: str) -> str:
+def run_key(cfg: TrainConfig, dataset_manifest: str, precision: str | None = None) -> str:
     """16 hex digits identifying the trained model of ``cfg`` on the dataset whose
-    ``manifest.json`` has sha256 ``dataset_manifest``; stable across machines and data paths."""
+    ``manifest.json`` has sha256 ``dataset_manifest``; stable across machines and data paths.
+    ``precision``: resolved, as in :func:`numbers_hash`."""
     from benchmark.models.registry import head_versions
 
     versions = head_versions(cfg.model.attitude, cfg.model.translation)
-    text = json.dumps([numbers_hash(portable_config(cfg)), dataset_manifest, versions])
+    text = json.dumps([numbers_hash(portable_config(cfg), precision), dataset_manifest, versions])
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def run_tags(cfg: TrainConfig, dataset_manifest: str) -> dict[str, str]:
+def run_tags(
+    cfg: TrainConfig, dataset_manifest: str, placement: Placement | None = None
+) -> dict[str, str]:
     """The tags describing the trained model of ``cfg`` (strings; the same for a ``train`` run
     and a reproduce unit): model key, heads and their options and versions, encoder, seed,
-    dataset, and where it ran (:func:`device_tags`)."""
+    dataset, and where it ran (:func:`device_tags`). ``placement``: ``cfg``'s device and
+    precision resolved once by the caller (None: resolved here)."""
     from benchmark.models.registry import head_versions
 
     m = cfg.model
+    if placement is None:
+        placement = placement_of(cfg)
+    precision = placement.precision
     return {
-        MODEL_KEY_TAG: run_key(cfg, dataset_manifest),
-        "config_hash": numbers_hash(portable_config(cfg)),
+        MODEL_KEY_TAG: run_key(cfg, dataset_manifest, precision),
+        "config_hash": numbers_hash(portable_config(cfg), precision),
         "head": m.attitude,
         "translation_head": m.translation,
         "head_options": json.dumps(
@@ -102,19 +114,28 @@ def run_tags(cfg: TrainConfig, dataset_manifest: str) -> dict[str, str]:
         "train_split": cfg.data.train_split,
         "seed": str(cfg.seed),
         "dataset_manifest_sha256": dataset_manifest,
-        **device_tags(cfg),
+        **device_tags(cfg, placement),
     }
 
 
-def device_tags(cfg: TrainConfig) -> dict[str, str]:
+def placement_of(cfg: TrainConfig) -> Placement:
+    """``cfg.device`` and ``cfg.precision`` resolved on this machine (not checked: a tag or a key
+    may name a precision this machine refuses to run)."""
+    from benchmark.models.device import resolve_placement
+
+    return resolve_placement(cfg.device, cfg.precision, check=False)
+
+
+def device_tags(cfg: TrainConfig, placement: Placement | None = None) -> dict[str, str]:
     """Where the run computes, resolved on this machine: ``device`` (``cpu``, ``cuda:0``, ...),
     ``precision`` (``fp32``, ``bf16``, ``fp16``) and ``accelerator`` (the GPU's name or the CPU
-    model). Tags only: none of them is part of :func:`run_key` (fp32 precision included)."""
-    from benchmark.models.device import accelerator_name, resolve_device, resolve_precision
+    model). Tags only: none of them is part of :func:`run_key` (fp32 precision included).
+    ``placement``: resolved by the caller (None: :func:`placement_of`)."""
+    from benchmark.models.device import accelerator_name
 
-    device = resolve_device(cfg.device)
+    placement = placement or placement_of(cfg)
     return {
-        "device": str(device),
-        "precision": resolve_precision(cfg.precision, device),
-        "accelerator": accelerator_name(device),
+        "device": str(placement.device),
+        "precision": placement.precision,
+        "accelerator": accelerator_name(placement.device),
     }

@@ -44,12 +44,11 @@ from benchmark.config import to_dict
 from benchmark.evaluation.evaluate import forward_batch
 from benchmark.models.checkpoint import CHECKPOINT_FORMAT, load_checkpoint
 from benchmark.models.device import (
+    Placement,
     autocast,
-    check_precision_supported,
     grad_scaler,
     outputs_to_float,
-    resolve_device,
-    resolve_precision,
+    resolve_placement,
     to_device,
 )
 from benchmark.progress import Progress
@@ -200,8 +199,10 @@ def train(
     *,
     on_epoch_end: EpochCallback | None = None,
     progress: bool = True,
+    placement: Placement | None = None,
 ) -> TrainResult:
-    """Train ``model_factory()`` (a ``PoseModel``) on ``train_set`` per ``cfg``; resume if
+    """Train ``model_factory()`` (a ``PoseModel``) on ``train_set`` per ``cfg`` on ``placement``
+    (``cfg.device``/``cfg.precision`` resolved and checked by the caller; None: here); resume if
     ``out_dir`` holds a checkpoint of the same config. Raises :class:`DivergenceError` if a
     training loss (any step), a weight or a validation number becomes non-finite (checked before
     the epoch's checkpoint is written: the last good checkpoint stays on disk)."""
@@ -213,10 +214,10 @@ def train(
     ckpt_path = out_dir / CHECKPOINT
     # The device is not part of the hash (a checkpoint resumes anywhere), fp32 not either: the
     # hashes of checkpoints written before devices existed still match (identity.numbers_hash).
-    chash = numbers_hash(cfg)
-    device = resolve_device(cfg.device)
-    precision = resolve_precision(cfg.precision, device)
-    check_precision_supported(precision, device)  # bf16 needs native bf16 on a CPU (or the env)
+    if placement is None:  # bf16 needs native bf16 on a CPU (or the env)
+        placement = resolve_placement(cfg.device, cfg.precision)
+    device, precision = placement.device, placement.precision
+    chash = numbers_hash(cfg, precision)
     torch.manual_seed(derive_seed(cfg.seed, 0))
     model = model_factory()  # built and initialised on the CPU: the same weights on any device
     if cfg.pretrained.enabled:  # a frozen encoder: only the heads train, on its features

@@ -35,7 +35,7 @@ from torch.utils.data import Dataset
 
 from benchmark.config import save_yaml
 from benchmark.data.swap import SATELLITE_MODES
-from benchmark.models.device import resolve_device, resolve_precision
+from benchmark.models.device import Placement, resolve_placement
 from benchmark.training.build import run_training
 from benchmark.training.config import TrainConfig
 from benchmark.training.encoded import encode_for_heads, resolve_pretrained
@@ -90,16 +90,26 @@ def train_and_evaluate(
     progress: bool = False,
     datasets: tuple[Dataset, Dataset | None] | None = None,
     eval_batch: int = EVAL_BATCH,
+    placement: Placement | None = None,
 ) -> TrainEvalResult:
     """Train ``cfg`` into ``out_dir/train`` (resuming), then evaluate each split of
     ``cfg.data.root`` in ``eval_splits`` with the true and the swapped satellite image (files
-    already written are read back, not recomputed). See the module doc for the layout."""
+    already written are read back, not recomputed), all on ``placement`` (``cfg.device`` and
+    ``cfg.precision`` resolved and checked once by the caller; None: here). See the module doc
+    for the layout."""
+    if placement is None:
+        placement = resolve_placement(cfg.device, cfg.precision)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cfg = resolve_pretrained(cfg)  # a frozen encoder named by its checkpoint's digest
     save_yaml(cfg, out_dir / "config.yaml", header="uavbench train config")
     trained = run_training(
-        cfg, out_dir / "train", on_epoch_end=on_epoch_end, progress=progress, datasets=datasets
+        cfg,
+        out_dir / "train",
+        on_epoch_end=on_epoch_end,
+        progress=progress,
+        datasets=datasets,
+        placement=placement,
     )
     (out_dir / "history.json").write_text(json.dumps(trained.history, indent=1) + "\n")
     model = trained.model.eval()
@@ -108,7 +118,7 @@ def train_and_evaluate(
         for satellite in SATELLITE_MODES:  # true first: the swap summary compares with it
             key = eval_key(split, satellite)
             result.metrics[key], result.predictions[key] = _evaluate_split(
-                cfg, model, out_dir, split, satellite, eval_batch, progress
+                cfg, model, out_dir, split, satellite, eval_batch, progress, placement
             )
     return result
 
@@ -121,6 +131,7 @@ def _evaluate_split(
     satellite: str,
     batch_size: int,
     progress: bool,
+    placement: Placement,
 ) -> tuple[dict[str, float], Path]:
     """Evaluate one split in one satellite mode, or read the files a previous run wrote."""
     import pandas as pd
@@ -135,7 +146,6 @@ def _evaluate_split(
     dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify, satellite=satellite)
     if cfg.pretrained.enabled:  # the heads on the frozen encoder's cached features
         dataset = encode_for_heads(model, cfg, dataset, progress=progress)
-    device = resolve_device(cfg.device)
     summary, _ = evaluate(
         model,
         dataset,
@@ -144,8 +154,8 @@ def _evaluate_split(
         shared_satellite=cfg.model.shared_satellite,
         progress=progress,
         desc=f"eval {eval_key(split, satellite)}",
-        precision=resolve_precision(cfg.precision, device),
-        num_workers=loader_workers(cfg, device),
+        precision=placement.precision,
+        num_workers=loader_workers(cfg, placement.device),
     )
     # A diverged model (finite weights, overflowing outputs) fails here, before its summary is
     # written, so a rerun evaluates again instead of reading back non-finite numbers.

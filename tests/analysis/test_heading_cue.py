@@ -263,7 +263,7 @@ class TestHeadingCueAudit:
         assert list(result["splits"]) == ["standard/val", "standard/test"]
 
     def test_cli(self, cue_dataset, cue_result, capsys):
-        from benchmark.analysis.heading_cue_command import format_result
+        from benchmark.analysis.heading_cue_report import format_result
         from benchmark.cli import main
 
         assert main(["heading-cue", str(cue_dataset), "--json"]) == 0

@@ -181,7 +181,7 @@ def test_written_metadata_holds_no_machine_facts(smoke_dataset):
 
     import pyarrow.parquet as pq
 
-    from benchmark.data.bench_isa import _cpu_model
+    from benchmark.machine import cpu_model
 
     texts = {n: (smoke_dataset / n).read_text() for n in ("manifest.json", "config.json")}
     for name in ("uav.parquet", "sat.parquet", "pairs.parquet"):
@@ -189,7 +189,7 @@ def test_written_metadata_holds_no_machine_facts(smoke_dataset):
         texts[name] = meta.created_by + "".join(
             k.decode() + v.decode(errors="replace") for k, v in (meta.metadata or {}).items()
         )
-    facts = {socket.gethostname(), _cpu_model(), platform.node(), getpass.getuser()}
+    facts = {socket.gethostname(), cpu_model(), platform.node(), getpass.getuser()}
     facts |= {str(smoke_dataset.parent), time.strftime("%Y-%m-%d"), time.strftime("%Y%m%d")}
     for name, text in texts.items():
         found = sorted(f for f in facts if len(f) >= 4 and f in text)
@@ -198,13 +198,16 @@ def test_written_metadata_holds_no_machine_facts(smoke_dataset):
 
 class TestBenchIsa:
     def test_registered_as_a_bench_target(self):
-        from benchmark.bench import TARGET_HELP, TARGETS
+        from benchmark.commands.bench import TARGET_HELP, TARGETS
 
-        assert TARGETS["isa"] == "benchmark.data.bench_isa:main" and "isa" in TARGET_HELP
+        assert TARGETS["isa"] == "benchmark.commands.bench_isa" and "isa" in TARGET_HELP
 
     def test_unknown_setting_or_profile_is_a_usage_error(self):
-        from benchmark.data.bench_isa import main
+        from benchmark.commands.bench import run_target
         from benchmark.errors import UsageError
+
+        def main(argv: list[str]) -> int:
+            return run_target("isa", argv)
 
         with pytest.raises(UsageError, match=r"unknown --only \['nope'\]; expected some of"):
             main(["--only", "nope"])

@@ -110,9 +110,11 @@ class TestBenchCommand:
     def test_targets_resolve(self):
         import importlib
 
-        from benchmark.bench import TARGET_HELP, TARGETS
+        from benchmark.commands.bench import TARGET_HELP, TARGETS
 
         assert set(TARGETS) == set(TARGET_HELP)
         for spec in TARGETS.values():
-            module, func = spec.split(":")
-            assert callable(getattr(importlib.import_module(module), func))
+            module, _, legacy = spec.partition(":")
+            loaded = importlib.import_module(module)
+            names = [legacy] if legacy else ["add_arguments", "run"]
+            assert all(callable(getattr(loaded, name)) for name in names)

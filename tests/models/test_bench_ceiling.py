@@ -9,11 +9,16 @@ import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from benchmark.commands.bench import run_target
 from benchmark.models import bench_ceiling, precision_support
-from benchmark.models.bench_ceiling import SHAPES, conv_job, conv_step_flops, main, measure_ceiling
+from benchmark.models.bench_ceiling import SHAPES, conv_job, conv_step_flops, measure_ceiling
 from benchmark.models.precision_support import precision_plan
 
 CPU = torch.device("cpu")
+
+
+def main(argv: list[str]) -> int:
+    return run_target("ceiling", argv)
 
 
 class TestConvStepFlops:

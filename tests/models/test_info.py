@@ -96,7 +96,10 @@ class TestModelInfoCommand:
 
 class TestBenchModel:
     def test_runs_and_prints_ratios(self, capsys):
-        from benchmark.models.bench_model import main as bench_main
+        from benchmark.commands.bench import run_target
+
+        def bench_main(argv: list[str]) -> int:
+            return run_target("model", argv)
 
         args = ["--width", "0.25", "--size", "32", "--batch", "4", "--sats", "2", "--repeats", "1"]
         assert bench_main(args) == 0
@@ -104,7 +107,10 @@ class TestBenchModel:
         assert "shared satellite" in out and "channels_last" in out and "pairs/s" in out
 
     def test_bad_arguments(self):
-        from benchmark.models.bench_model import main as bench_main
+        from benchmark.commands.bench import run_target
+
+        def bench_main(argv: list[str]) -> int:
+            return run_target("model", argv)
 
         with pytest.raises(SystemExit):
             bench_main(["--sats", "5", "--batch", "4"])

@@ -27,7 +27,7 @@ from benchmark.tracking.screenshots import (
     screenshot,
 )
 from benchmark.tracking.server import free_port, port_is_free
-from benchmark.tracking.ui import (
+from benchmark.tracking.ui_links import (
     ExperimentLink,
     experiment_links,
     experiment_url,

@@ -11,13 +11,15 @@ import pytest
 import torch
 from torch import nn
 
+from benchmark.commands import bench_train as command
+from benchmark.commands.bench import run_target
 from benchmark.data.dataset import CONTEXT_KEYS
 from benchmark.errors import UsageError
 from benchmark.models.bench_ceiling import conv_step_flops
 from benchmark.models.flop_count import KINDS as KINDS_OF_FLOPS
 from benchmark.models.matching_ops import fft_size
 from benchmark.training import bench
-from benchmark.training.bench import count_step_flops, main, step_flops
+from benchmark.training.bench import count_step_flops, step_flops
 from benchmark.training.bench_breakdown import KINDS
 
 TINY = ["--models", "quick", "--size", "32", "--width", "0.1", "--steps", "1", "--warmup", "0"]
@@ -29,6 +31,10 @@ ROW = re.compile(
     r"\s+([\d.]+)\s+([\d.]+x|-)\s+([\d.]+x|-)\s+([\d.]+)\s+([\d.]+)\s+(\d+%|-)$",
     re.MULTILINE,
 )
+
+
+def main(argv: list[str]) -> int:
+    return run_target("train", argv)
 
 
 def rows(out: str, encoder: str = "googlenet") -> dict[str, tuple[str, ...]]:
@@ -102,7 +108,7 @@ class TestBenchTrain:
     def test_base_and_ours_train_the_same_weights(self):
         """The base row (torch's per-tensor optimiser loop) and ours (foreach for Adam) differ
         in speed only: three steps from the same weights end in bit-identical weights."""
-        args = bench.parser().parse_args([*TINY, "--optimizer", "adam"])
+        args = command.parse([*TINY, "--optimizer", "adam"])
         cpu = torch.device("cpu")
         batch = bench.batch_of(32, 4, 2)
         clip = bench.optim_config(args).grad_clip
@@ -164,16 +170,20 @@ class TestBenchTrain:
 
         monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx", "avx2", "fma"})
         monkeypatch.delenv(precision_support.ALLOW_SLOW_BF16_ENV, raising=False)
-        args = bench.parser().parse_args([*TINY, "--precision", "fp32,bf16"])
-        _, precisions, notes = bench.resolve(args)
+        args = command.parse([*TINY, "--precision", "fp32,bf16"])
+        _, precisions, notes = bench.resolve(args.device, args.precision)
         assert precisions == ["fp32", "bf16"]
         note = next(n for n in notes if "for comparison only" in n)
         assert "UAVBENCH_ALLOW_SLOW_BF16=1" in note and "needs avx512_bf16 or amx_bf16" in note
         monkeypatch.setenv(precision_support.ALLOW_SLOW_BF16_ENV, "1")
-        assert not any("for comparison only" in n for n in bench.resolve(args)[2])
+        assert not any(
+            "for comparison only" in n for n in bench.resolve(args.device, args.precision)[2]
+        )
         monkeypatch.delenv(precision_support.ALLOW_SLOW_BF16_ENV)
-        fp32 = bench.parser().parse_args([*TINY, "--precision", "fp32"])
-        assert not any("for comparison only" in n for n in bench.resolve(fp32)[2])
+        fp32 = command.parse([*TINY, "--precision", "fp32"])
+        assert not any(
+            "for comparison only" in n for n in bench.resolve(fp32.device, fp32.precision)[2]
+        )
 
     def test_profile_prints_the_top_ops(self, capsys):
         argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]
@@ -245,7 +255,7 @@ class TestMatchingEncoder:
         GEMMs (forward, and the same GEMMs again for the gradients of their left operands), the
         spectra's products and sums, and the bilinear sampling (forward and input gradient: the
         sampling positions come from the context's priors in training, no gradient)."""
-        args = bench.parser().parse_args([*TINY, "--optimizer", "adam"])
+        args = command.parse([*TINY, "--optimizer", "adam"])
         cpu = torch.device("cpu")
         spec = bench.loop_specs(["fp32"], cpu, plain=False, base=False, optimizer="adam")[-1]
         model, opt = bench.build(32, 0.1, args, spec, cpu, "matching")
@@ -320,10 +330,10 @@ class TestCountStepFlops:
 def test_optimizers_are_the_profiles():
     """--optimizer adam is the quick profile's optimiser, sgd the paper profile's (the bench
     keeps its own copy: training may not import the runner)."""
-    from benchmark.runner.profiles import PROFILES
+    from benchmark.runner.plan.repro_profiles import PROFILES
 
     for name, profile in (("adam", "quick"), ("sgd", "paper")):
-        args = bench.parser().parse_args(["--optimizer", name])
+        args = command.parse(["--optimizer", name])
         got, want = bench.optim_config(args), PROFILES[profile].optim
         assert (got.name, got.lr, got.grad_clip) == (want.name, want.lr, want.grad_clip)
         assert got.momentum == want.momentum and got.weight_decay == want.weight_decay

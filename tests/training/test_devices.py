@@ -234,12 +234,45 @@ class TestBf16OnCpu:
         assert all(math.isfinite(v) for r in res.history for v in r.values())
 
 
+class TestPlacement:
+    def test_auto_resolves_to_a_plain_value(self):
+        from benchmark.models.device import Placement, resolve_placement
+
+        placement = resolve_placement("cpu", "auto")
+        assert placement == Placement(torch.device("cpu"), "fp32")
+        with pytest.raises(ValueError, match="resolved"):
+            Placement(torch.device("cpu"), "auto")
+
+    def test_resolved_once_by_the_caller(self, tmp_path, monkeypatch):
+        """Given a placement, training, the run key and the tags never resolve a device again
+        (what ``uavbench train`` passes down after resolving ``auto`` once)."""
+        from benchmark.models import device as device_module
+        from benchmark.models.device import resolve_placement
+        from benchmark.training import run_key, run_tags, train_and_evaluate
+
+        placement = resolve_placement("auto", "auto")
+        cfg = tiny_config("optim.epochs=1")
+
+        def refuse(*args, **kwargs):
+            raise AssertionError("device resolved again")
+
+        monkeypatch.setattr(device_module, "resolve_device", refuse)
+        key = run_key(cfg, "0" * 64, placement.precision)
+        tags = run_tags(cfg, "0" * 64, placement)
+        assert tags["model_key"] == key and tags["precision"] == placement.precision
+        done = train_and_evaluate(
+            cfg, tmp_path, [], datasets=(TinyPairs(8), None), placement=placement
+        )
+        assert len(done.trained.history) == 1
+
+
 class TestModelInfoLatency:
     def test_latency_on_cpu_in_bf16(self):
+        from benchmark.models.device import resolve_placement
         from benchmark.models.info import model_info
 
         info = model_info(head="re_net_r", variant="/", width=0.25, input_size=32, repeats=1,
-                          warmup=0, device="cpu", precision="bf16")  # fmt: skip
+                          warmup=0, placement=resolve_placement("cpu", "bf16"))  # fmt: skip
         assert (info.device, info.precision) == ("cpu", "bf16")
         assert info.latency_ms > 0 and info.accelerator
 

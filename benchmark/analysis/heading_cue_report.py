@@ -10,34 +10,13 @@ pooled (``pooled_heading_cue_audit``): one small test split cannot decide the qu
 
 from __future__ import annotations
 
-import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 from benchmark.errors import UsageError
 
-HELP = "audit: how well image-wide UAV statistics alone read the yaw (issue 9)"
 THRESHOLD = 0.85  # issue 9 acceptance: probe error >= 0.85 x the constant predictor's
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "dataset",
-        type=Path,
-        nargs="+",
-        help="dataset directory written by uavbench simulate (several: audited and pooled)",
-    )
-    parser.add_argument("--train", default="standard/train", help="split the probe is fitted on")
-    parser.add_argument(
-        "--val", default="standard/val", help="split the ridge strength is chosen on"
-    )
-    parser.add_argument(
-        "--test",
-        action="append",
-        default=None,
-        help="split to score (repeatable; default standard/test)",
-    )
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 def _check_splits(root: Path, names: list[tuple[str, str]]) -> None:
@@ -90,22 +69,37 @@ def format_result(result: dict, pooled: bool = False) -> str:
     return "\n".join(lines)
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass(frozen=True)
+class HeadingCueConfig:
+    """The audit of ``datasets`` (audited one by one and pooled): the probe fitted on ``train``,
+    its ridge chosen on ``val``, scored on ``test``; ``as_json``: print JSON instead of tables."""
+
+    datasets: tuple[Path, ...]
+    train: str = "standard/train"
+    val: str = "standard/val"
+    test: tuple[str, ...] = ("standard/test",)
+    as_json: bool = False
+
+
+def heading_cue_report(config: HeadingCueConfig) -> int:
+    """Check the splits, run the pooled audit and print it; exit code 0 (UsageError: a split a
+    dataset lacks)."""
     from benchmark.analysis.heading_cue import pooled_heading_cue_audit
 
-    tests = args.test or ["standard/test"]
-    names = [("--train", args.train), ("--val", args.val), *(("--test", t) for t in tests)]
-    for root in args.dataset:
+    tests = list(config.test)
+    datasets = list(config.datasets)
+    names = [("--train", config.train), ("--val", config.val), *(("--test", t) for t in tests)]
+    for root in datasets:
         _check_splits(root, names)
-    pooled = pooled_heading_cue_audit(args.dataset, train=args.train, val=args.val, test=tests)
-    if args.json:
-        print(json.dumps(pooled if len(args.dataset) > 1 else pooled["datasets"][0], indent=1))
+    pooled = pooled_heading_cue_audit(datasets, train=config.train, val=config.val, test=tests)
+    if config.as_json:
+        print(json.dumps(pooled if len(datasets) > 1 else pooled["datasets"][0], indent=1))
         return 0
-    for root, result in zip(args.dataset, pooled["datasets"], strict=True):
+    for root, result in zip(datasets, pooled["datasets"], strict=True):
         print(f"== {root}")
         print(format_result(result))
-    if len(args.dataset) > 1:
-        print(f"== pooled over {len(args.dataset)} datasets")
+    if len(datasets) > 1:
+        print(f"== pooled over {len(datasets)} datasets")
         first = pooled["datasets"][0]
         print(format_result({**first, "splits": pooled["pooled"]}, pooled=True))
     return 0

@@ -9,48 +9,26 @@ missing or empty ``--from`` directory, an unusable ``--to`` or an unreachable se
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
-HELP = "copy runs kept locally (./tracking-fallback) into an MLflow store; idempotent"
 
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--from",
-        dest="source",
-        type=Path,
-        default=Path("tracking-fallback"),
-        metavar="DIR",
-        help="local tracking directory (default ./tracking-fallback, where uavbench keeps runs "
-        "when MLflow fails; ./tracking-local for --tracker local)",
-    )
-    parser.add_argument(
-        "--to",
-        dest="target",
-        required=True,
-        metavar="URI",
-        help="the MLflow store: a server URL (http://host:5000), a sqlite:/// URI or a path "
-        "ending in .db",
-    )
-    parser.add_argument("--quiet", action="store_true", help="print only the summary")
-
-
-def run(args: argparse.Namespace) -> int:
+def sync_and_report(source: Path, target: str, *, quiet: bool = False) -> int:
+    """Copy the runs of the local directory ``source`` into the MLflow store ``target`` and print
+    the summary (each copied run too unless ``quiet``); the exit code above."""
     from benchmark.errors import UsageError
     from benchmark.tracking.sync import SyncError, sync_runs
 
-    say = (lambda _m: None) if args.quiet else (lambda m: print(m, flush=True))
+    say = (lambda _m: None) if quiet else (lambda m: print(m, flush=True))
     try:
-        report = sync_runs(args.source, args.target, say=say)
+        report = sync_runs(source, target, say=say)
     except SyncError as err:
         raise UsageError(str(err)) from None
     except UsageError:  # a --to that is no store (benchmark.tracking.uri)
         raise
     except Exception as err:  # the store failed midway: what is copied stays, a rerun continues
         print(
-            f"uavbench sync: the copy into {args.target} failed: {err!r}; runs copied so far are "
+            f"uavbench sync: the copy into {target} failed: {err!r}; runs copied so far are "
             "in the store, rerun the same command to copy the rest",
             file=sys.stderr,
         )

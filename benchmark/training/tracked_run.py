@@ -1,6 +1,6 @@
 """``uavbench train``: train one variant from a config, evaluate it, track it in MLflow.
 
-This is CLI glue: it connects the training loop (which knows nothing of tracking) to a tracker
+It connects the training loop (which knows nothing of tracking) to a tracker
 through ``on_epoch_end``. Example::
 
     uavbench train --set data.root=data/quick-s0 --set model.attitude=re_net_r --set optim.epochs=5
@@ -24,11 +24,13 @@ and the evaluations already written.
 
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-HELP = "train one variant from a config (--set a.b=value), evaluate it and track it in MLflow"
+from benchmark.models.device import Placement
+from benchmark.training.config import TrainConfig
+
 EXPERIMENT_TEXT = (
     "Runs of `uavbench train`: one run per trained config and seed, open while it trains and "
     "evaluates (per-epoch curves, system metrics), with its dataset, every split's numbers "
@@ -37,56 +39,31 @@ EXPERIMENT_TEXT = (
 )
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, help="YAML file with TrainConfig fields")
-    parser.add_argument(
-        "--set",
-        dest="overrides",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="override a config field, e.g. --set optim.lr=0.01 (repeatable)",
-    )
-    parser.add_argument("--out", type=Path, help="output directory (default runs/train-<run key>)")
-    parser.add_argument(
-        "--eval-split",
-        action="append",
-        dest="eval_splits",
-        help="split(s) to evaluate after training (default: standard/test)",
-    )
-    parser.add_argument("--experiment", default="train", help="MLflow experiment (default train)")
-    parser.add_argument("--tracking-uri", help="MLflow tracking URI (default ./mlflow.db)")
-    parser.add_argument("--no-track", action="store_true", help="do not log to MLflow")
-    parser.add_argument(
-        "--force", action="store_true", help="run even if a finished run of this config exists"
-    )
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+@dataclass(frozen=True)
+class TrainRunConfig:
+    """One ``uavbench train``: the train config ``cfg`` (its frozen encoder resolved,
+    ``data.root`` set) on ``placement`` (``cfg.device``/``cfg.precision`` resolved and checked
+    once), evaluated on ``eval_splits``, outputs in ``out`` (None: ``runs/train-<run key>``),
+    tracked in ``experiment`` of ``tracking_uri`` (None: ./mlflow.db) unless not ``track``;
+    ``force``: train even when a finished run of this model exists."""
+
+    cfg: TrainConfig
+    placement: Placement
+    eval_splits: tuple[str, ...] = ("standard/test",)
+    out: Path | None = None
+    experiment: str = "train"
+    tracking_uri: str | None = None
+    track: bool = True
+    force: bool = False
+    progress: bool = True
 
 
-def run(args: argparse.Namespace) -> int:
+def train_tracked(config: TrainRunConfig) -> int:
+    """Train, evaluate and track ``config`` (or say it is done); print the metrics. Exit code 0,
+    1 when the run diverged (marked FAILED); UsageError for bad data, splits or disk errors."""
     from benchmark.config import ConfigError, flatten
-    from benchmark.errors import UsageError
-    from benchmark.training.config import load_train_config
-    from benchmark.training.encoded import resolve_pretrained
-    from benchmark.training.identity import run_key, run_tags
-    from benchmark.training.pipeline import eval_keys
-
-    try:
-        # A frozen pretrained encoder is named by its checkpoint's digest in the run's identity.
-        cfg = resolve_pretrained(load_train_config(args.config, args.overrides))
-    except ConfigError as err:
-        raise UsageError(str(err)) from None
-    if not cfg.data.root:
-        raise UsageError(
-            "no dataset: pass --set data.root=DIR (a directory from uavbench simulate)"
-        )
-    eval_splits = args.eval_splits or ["standard/test"]
     from benchmark.data import list_splits
-    from benchmark.models.device import (
-        check_precision_supported,
-        resolve_device,
-        resolve_precision,
-    )
+    from benchmark.errors import UsageError
     from benchmark.tracking import (
         RUN_KEY_TAG,
         DatasetRef,
@@ -94,13 +71,11 @@ def run(args: argparse.Namespace) -> int:
         git_commit,
         manifest_sha256,
     )
+    from benchmark.training.identity import run_key, run_tags
+    from benchmark.training.pipeline import eval_keys
 
-    try:
-        device = resolve_device(cfg.device)
-        # bf16 on a CPU without native bf16 (models/precision_support.py), before any work
-        check_precision_supported(resolve_precision(cfg.precision, device), device)
-    except ValueError as err:  # e.g. device=cuda on a machine (or a torch build) without CUDA
-        raise UsageError(str(err)) from None
+    cfg, placement = config.cfg, config.placement
+    eval_splits = list(config.eval_splits)
     try:
         manifest = manifest_sha256(cfg.data.root)
     except FileNotFoundError as err:
@@ -117,12 +92,12 @@ def run(args: argparse.Namespace) -> int:
             )
     # The trained model's identity and tags, computed as for a reproduce unit
     # (benchmark.training.identity): config without paths, dataset content, head versions.
-    key = run_key(cfg, manifest)
-    out = args.out or Path("runs") / f"train-{key}"
+    key = run_key(cfg, manifest, placement.precision)
+    out = config.out or Path("runs") / f"train-{key}"
 
-    tracker = create_tracker("null" if args.no_track else "mlflow", args.tracking_uri)
-    done = tracker.find_finished_run(args.experiment, key)
-    if done is not None and not args.force:
+    tracker = create_tracker("mlflow" if config.track else "null", config.tracking_uri)
+    done = tracker.find_finished_run(config.experiment, key)
+    if done is not None and not config.force:
         logged = {k.rpartition("/")[0] for k in done.metrics}
         if set(eval_keys(eval_splits)) <= logged:
             print(
@@ -131,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             )
             return 0
     tags = {
-        **run_tags(cfg, manifest),
+        **run_tags(cfg, manifest, placement),
         RUN_KEY_TAG: key,
         "git_commit": git_commit() or "unknown",
         "output_dir": str(out.resolve()),
@@ -141,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     from benchmark.data import DatasetError, os_error_message
     from benchmark.training.loop import CheckpointMismatchError, DivergenceError
 
-    tracker.describe_experiment(args.experiment, EXPERIMENT_TEXT)
+    tracker.describe_experiment(config.experiment, EXPERIMENT_TEXT)
     m = cfg.model
     text = (
         f"`uavbench train`: attitude head `{m.attitude}`, translation head `{m.translation}`, "
@@ -151,12 +126,14 @@ def run(args: argparse.Namespace) -> int:
     )
     root = Path(cfg.data.root).resolve()
     try:
-        with tracker.start_run(args.experiment, name, tags=tags, description=text) as tracked:
+        with tracker.start_run(config.experiment, name, tags=tags, description=text) as tracked:
             tracked.log_params(flatten(cfg, drop_none=True))
             tracked.log_input(DatasetRef(root.name, manifest, str(root), cfg.data.train_split))
-            summaries = _train_and_evaluate(cfg, out, eval_splits, tracked, quiet=args.quiet)
+            summaries = _train_and_evaluate(
+                cfg, out, eval_splits, tracked, placement, progress=config.progress
+            )
     except DivergenceError as err:  # a failure of the run (exit 1), recorded as its reason
-        tracked_in = "" if args.no_track else f"; the run is marked FAILED in {tracker.uri}"
+        tracked_in = "" if not config.track else f"; the run is marked FAILED in {tracker.uri}"
         print(f"uavbench train: {err}{tracked_in}", file=sys.stderr)
         return 1
     except (ConfigError, DatasetError, CheckpointMismatchError) as err:
@@ -176,7 +153,15 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_and_evaluate(cfg, out: Path, eval_splits: list[str], tracked, *, quiet: bool) -> dict:
+def _train_and_evaluate(
+    cfg: TrainConfig,
+    out: Path,
+    eval_splits: list[str],
+    tracked,
+    placement: Placement,
+    *,
+    progress: bool,
+) -> dict:
     """The one train-then-evaluate path (benchmark.training.pipeline), logged to ``tracked``."""
     from benchmark.training.pipeline import train_and_evaluate
 
@@ -186,7 +171,12 @@ def _train_and_evaluate(cfg, out: Path, eval_splits: list[str], tracked, *, quie
 
     with tracked.system_metrics():
         done = train_and_evaluate(
-            cfg, out, eval_splits, on_epoch_end=on_epoch_end, progress=not quiet
+            cfg,
+            out,
+            eval_splits,
+            on_epoch_end=on_epoch_end,
+            progress=progress,
+            placement=placement,
         )
     tracked.log_artifact(out / "config.yaml")
     tracked.log_artifact(out / "history.json")

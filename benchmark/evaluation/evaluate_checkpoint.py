@@ -18,83 +18,49 @@ permission for ``--out`` (the path and the fix). ``--device`` / ``--precision`` 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-HELP = "evaluate a trained checkpoint on dataset splits: per-sample CSV and the paper's metrics"
+from benchmark.models.device import Placement
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", type=Path, required=True, help="checkpoint.pt of a run")
-    parser.add_argument(
-        "--split", action="append", dest="splits", help="split to evaluate (repeatable)"
-    )
-    parser.add_argument("--data-root", type=Path, help="dataset directory (default: the run's)")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        help="directory for <split>.csv and metrics.json (default: beside "
-        "the checkpoint, in predictions/)",
-    )
-    parser.add_argument(
-        "--satellite",
-        choices=("true", "swap"),
-        default="true",
-        help="true: each pair's own satellite image; swap: another place's (the swap probe)",
-    )
-    parser.add_argument(
-        "--verify",
-        choices=("sha256", "size", "full"),
-        default="sha256",
-        help="dataset file check: sha256 (default; hashed once, cached), size, full (always hash)",
-    )
-    parser.add_argument(
-        "--device",
-        default="auto",
-        help="auto (CUDA, else MPS, else CPU), cpu, cuda, cuda:N or mps (default auto)",
-    )
-    parser.add_argument(
-        "--precision",
-        choices=("auto", "fp32", "bf16", "fp16"),
-        default="auto",
-        help="autocast precision; auto = bf16 on CUDA devices that support it, else fp32",
-    )
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """One ``uavbench evaluate``: the ``checkpoint`` (an existing file) on ``splits`` (empty:
+    standard/test) of ``data_root`` (None: the run's dataset), outputs in ``out`` (None:
+    ``predictions/`` beside the checkpoint), ``satellite`` ``"true"`` or ``"swap"``, files
+    checked by ``verify``, batches of ``batch_size`` on ``placement``."""
+
+    checkpoint: Path
+    placement: Placement
+    splits: tuple[str, ...] = ()
+    data_root: Path | None = None
+    out: Path | None = None
+    satellite: str = "true"
+    verify: str = "sha256"
+    batch_size: int = 64
+    progress: bool = True
 
 
-def run(args: argparse.Namespace) -> int:
-    from benchmark.errors import UsageError
-
-    if not args.checkpoint.is_file():
-        raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
-    if args.batch_size < 1:
-        raise UsageError(f"--batch-size must be >= 1, got {args.batch_size}")
+def evaluate_checkpoint(config: EvaluateConfig) -> int:
+    """Evaluate and write every split of ``config`` (predictions CSV per split, metrics JSON),
+    printing the headline metrics; exit code 0, or 1 for a diverged model (non-finite metrics).
+    UsageError: an unreadable checkpoint, a missing split, a damaged dataset, a disk error."""
     from benchmark.data import DatasetError, list_splits, os_error_message
+    from benchmark.errors import UsageError
     from benchmark.models.checkpoint import load_checkpoint, load_trained_model
-    from benchmark.models.device import (
-        check_precision_supported,
-        resolve_device,
-        resolve_precision,
-    )
 
     try:
-        device = resolve_device(args.device)
-        args.precision = resolve_precision(args.precision, device)
-        check_precision_supported(args.precision, device)  # bf16: native on a CPU, or the env
-    except ValueError as err:
-        raise UsageError(f"--device/--precision: {err}") from None
-    try:
-        ckpt = load_checkpoint(args.checkpoint)
-        model = load_trained_model(args.checkpoint, device)
+        ckpt = load_checkpoint(config.checkpoint)
+        model = load_trained_model(config.checkpoint, config.placement.device)
     except ValueError as err:
         raise UsageError(str(err)) from None
     data_cfg = ckpt["config"]["data"]
-    root = args.data_root or Path(data_cfg["root"])
-    splits = args.splits or ["standard/test"]
+    root = config.data_root or Path(data_cfg["root"])
+    splits = list(config.splits) or ["standard/test"]
     try:
         available = list_splits(root)
     except (DatasetError, OSError) as err:
@@ -104,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(
                 f"--split {split!r} is not in {root}; available: {', '.join(available)}"
             )
-    out = args.out or args.checkpoint.parent / "predictions"
+    out = config.out or config.checkpoint.parent / "predictions"
     try:
-        bad = _evaluate_splits(args, model, ckpt, root, splits, out)
+        bad = _evaluate_splits(config, model, ckpt, root, splits, out)
     except DatasetError as err:
         raise UsageError(f"{err} (`uavbench verify {root}` checks every file)") from None
     except OSError as err:
@@ -124,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _evaluate_splits(
-    args: argparse.Namespace, model: Any, ckpt: dict, root: Path, splits: list[str], out: Path
+    config: EvaluateConfig, model: Any, ckpt: dict, root: Path, splits: list[str], out: Path
 ) -> str | None:
     """Evaluate and write every split; the non-finite metrics found (``"split: keys"``) or None."""
     from benchmark.data import PairDataset, atomic_write_bytes
@@ -132,25 +98,25 @@ def _evaluate_splits(
 
     shared = bool(ckpt["config"]["model"].get("shared_satellite", True))
     results, bad = {}, []
-    suffix = "" if args.satellite == "true" else "__swap"
+    suffix = "" if config.satellite == "true" else "__swap"
     for split in splits:
-        dataset = PairDataset(root, split, verify=args.verify, satellite=args.satellite)
+        dataset = PairDataset(root, split, verify=config.verify, satellite=config.satellite)
         summary, _ = evaluate(
             model,
             dataset,
             out_csv=out / (split.replace("/", "_") + suffix + ".csv"),
-            batch_size=args.batch_size,
+            batch_size=config.batch_size,
             shared_satellite=shared,
-            progress=not args.quiet,
+            progress=config.progress,
             desc=f"eval {split}",
-            precision=args.precision,
+            precision=config.placement.precision,
         )
         results[split] = summary
         if non_finite_metrics(summary):
             bad.append(f"{split}: non-finite " + ", ".join(non_finite_metrics(summary)))
         keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
         print(
-            f"{split} ({args.satellite} satellite): n={int(summary['n'])} "
+            f"{split} ({config.satellite} satellite): n={int(summary['n'])} "
             + ", ".join(f"{k}={summary[k]:.3f}" for k in keys)
         )
     metrics = out / f"metrics{suffix}.json"
