@@ -10,14 +10,16 @@ alternates the two N times and reports medians, so a load change hits both alike
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+
+from benchmark.errors import UsageError
 
 TARGET_RATIO = 1.3  # issue 11: local Ray within 1.3x the process pool's wall time
 TIME_SUFFIXES = ("seconds", "_s", "_ms")  # results.csv columns that are times, not results
@@ -25,20 +27,18 @@ NOT_NUMBERS = {"run_id", "training_run_id", "model_uri", "started", "ended"}
 ROW_KEYS = ["table", "label", "split", "satellite", "seed"]
 
 
-def parse_args(argv: list[str]) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="uavbench bench ray", description=__doc__)
-    p.add_argument("--profile", default="smoke")
-    p.add_argument("--only", default="table3", help="tables to reproduce (default table3)")
-    p.add_argument("--jobs", type=int, default=2, help="units at once, for both executors")
-    p.add_argument("--repeats", type=int, default=1, help="alternating runs of each executor")
-    p.add_argument("--tracker", choices=("mlflow", "local", "null"), default="mlflow")
-    p.add_argument(
-        "--dir", type=Path, default=None, help="keep everything here (default: a temporary dir)"
-    )
-    args = p.parse_args(argv)
-    if args.jobs < 1 or args.repeats < 1:
-        p.error("--jobs and --repeats must be >= 1")
-    return args
+@dataclass(frozen=True)
+class BenchRayConfig:
+    """What ``uavbench bench ray`` times: the reproduction's profile and tables, the units at once
+    (``--jobs``, for both executors), the alternating repeats, the tracker, and where everything
+    is kept (None: a temporary directory)."""
+
+    profile: str = "smoke"
+    only: str = "table3"
+    workers: int = 2
+    repeats: int = 1
+    tracker: str = "mlflow"
+    dir: Path | None = None
 
 
 def numbers(results_csv: Path):
@@ -51,14 +51,14 @@ def numbers(results_csv: Path):
     return frame[keep].sort_values(ROW_KEYS).reset_index(drop=True)
 
 
-def reproduce_once(args: argparse.Namespace, executor: str, data: Path, where: Path) -> float:
+def reproduce_once(config: BenchRayConfig, executor: str, data: Path, where: Path) -> float:
     """Wall seconds of one ``uavbench reproduce`` in a fresh process; raises if it fails."""
     where.mkdir(parents=True)
     argv = [
-        sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", args.profile,
-        "--only", args.only, "--data", str(data), "--workdir", str(where / "runs"),
-        "--out", str(where / "reports"), "--tracker", args.tracker, "--no-models", "--quiet",
-        "--jobs", str(args.jobs), "--executor", executor,
+        sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", config.profile,
+        "--only", config.only, "--data", str(data), "--workdir", str(where / "runs"),
+        "--out", str(where / "reports"), "--tracker", config.tracker, "--no-models", "--quiet",
+        "--jobs", str(config.workers), "--executor", executor,
     ]  # fmt: skip
     checkout = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
     env = {
@@ -76,36 +76,39 @@ def reproduce_once(args: argparse.Namespace, executor: str, data: Path, where: P
     return wall
 
 
-def main(argv: list[str]) -> int:
+def bench_ray(config: BenchRayConfig) -> int:
+    """Time the pool and the local Ray side by side and print the table; 0 if both computed the
+    same numbers, 1 otherwise."""
     from benchmark.runner.claims.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
     from benchmark.runner.execute.ray_executor import import_ray
     from benchmark.runner.plan.repro_profiles import get_repro_profile
-    from benchmark.runner.reproduce import prepare_dataset
+    from benchmark.runner.reproduction import prepare_dataset
 
-    args = parse_args(argv)
+    if config.workers < 1 or config.repeats < 1:
+        raise UsageError("--jobs and --repeats must be >= 1")
     import_ray()  # exit 2 with the install line before rendering anything
     with tempfile.TemporaryDirectory(prefix="bench-ray-") as tmp:
-        root = args.dir if args.dir is not None else Path(tmp)
+        root = config.dir if config.dir is not None else Path(tmp)
         data = root / "data"
-        profile = get_repro_profile(args.profile)
-        print(f"bench ray: {args.profile} --only {args.only}, --jobs {args.jobs}, "
-              f"{args.repeats} repeat(s), {os.cpu_count()} cores; rendering the datasets (untimed)",
-              flush=True)  # fmt: skip
-        prepare_dataset(profile, data, 0, args.jobs, quiet=True)
+        profile = get_repro_profile(config.profile)
+        print(f"bench ray: {config.profile} --only {config.only}, --jobs {config.workers}, "
+              f"{config.repeats} repeat(s), {os.cpu_count()} cores; rendering the datasets "
+              "(untimed)", flush=True)  # fmt: skip
+        prepare_dataset(profile, data, 0, config.workers, quiet=True)
         # The heading-cue audit's extra datasets too: else the first timed run renders them.
         cue_dataset_roots(data, CUE_EXTRA_SEEDS, quiet=True)
         walls: dict[str, list[float]] = {"pool": [], "ray": []}
-        for repeat in range(args.repeats):
+        for repeat in range(config.repeats):
             for executor in ("pool", "ray"):
                 where = root / f"{executor}-{repeat}"
-                walls[executor].append(reproduce_once(args, executor, data, where))
+                walls[executor].append(reproduce_once(config, executor, data, where))
                 print(f"  {executor:4s} run {repeat + 1}: {walls[executor][-1]:7.1f} s", flush=True)
         pool, ray = (statistics.median(walls[e]) for e in ("pool", "ray"))
         same = all(
             numbers(root / f"ray-{r}" / "reports" / "results.csv").equals(
                 numbers(root / f"pool-{r}" / "reports" / "results.csv")
             )
-            for r in range(args.repeats)
+            for r in range(config.repeats)
         )
     ratio = ray / pool
     verdict = "within" if ratio <= TARGET_RATIO else "OVER"

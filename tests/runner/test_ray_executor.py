@@ -1,10 +1,11 @@
-"""``reproduce --executor ray`` (benchmark/runner/ray_executor.py): the same numbers as the process
-pool, a killed worker retried or reported, the dataset check on the node, the tracking guard and
-the message without ray. A local Ray with 2 CPUs stands in for a cluster."""
+"""``reproduce --executor ray`` (benchmark/runner/execute/ray_executor.py): the same numbers as
+the process pool, a killed worker retried or reported, the dataset check on the node, the tracking
+guard and the message without ray. A local Ray with 2 CPUs stands in for a cluster."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib.util
 import json
 import os
@@ -18,13 +19,13 @@ import pytest
 from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
+from benchmark.commands import reproduce as reproduce_command
 from benchmark.errors import UsageError
-from benchmark.runner import reproduce as reproduce_module
+from benchmark.runner import ReproduceConfig
+from benchmark.runner.execute.pool import ExecutorConfig, check_executor
 from benchmark.runner.execute.ray_executor import (
     INSTALL_LINE,
-    add_executor_arguments,
     check_dataset_on_node,
-    check_executor,
     check_ray_tracking,
     connect_ray,
     execute_units_ray,
@@ -33,6 +34,7 @@ from benchmark.runner.execute.ray_executor import (
     is_node_local_uri,
     ray_unit,
 )
+from benchmark.runner.reproduction import planned_tracking_uri
 
 HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(
@@ -46,7 +48,7 @@ NOT_NUMBERS = {"run_id", "training_run_id", "model_uri", "started", "ended"}
 
 def has_executor_flag() -> bool:
     parser = argparse.ArgumentParser()
-    reproduce_module.add_arguments(parser)
+    reproduce_command.add_arguments(parser)
     return any("--executor" in action.option_strings for action in parser._actions)
 
 
@@ -75,18 +77,9 @@ def pool_run(tmp_path_factory, smoke_dataset):
 
 @pytest.fixture(scope="module")
 def ray_run(tmp_path_factory, smoke_dataset):
-    """The same reproduction through a local Ray (2 CPUs) that the executor starts and stops:
-    ``--executor ray`` once reproduce has the flag, else its pool swapped for the executor."""
+    """The same reproduction through a local Ray (2 CPUs) that the executor starts and stops."""
     tmp = tmp_path_factory.mktemp("ray")
-    if has_executor_flag():
-        return tmp, run_in(tmp, smoke_dataset, "--executor", "ray")
-
-    def through_ray(todo, jobs, on_done, quiet):
-        execute_units_ray(todo, on_done, quiet, num_cpus=jobs)
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(reproduce_module, "execute_units", through_ray)
-        return tmp, run_in(tmp, smoke_dataset)
+    return tmp, run_in(tmp, smoke_dataset, "--executor", "ray")
 
 
 def numbers(tmp: Path) -> pd.DataFrame:
@@ -124,7 +117,7 @@ class TestReproduceThroughRay:
         if not has_executor_flag():
             pytest.skip("needs integration: reproduce.add_arguments has no --executor yet")
         parser = argparse.ArgumentParser()
-        reproduce_module.add_arguments(parser)
+        reproduce_command.add_arguments(parser)
         args = parser.parse_args(["--executor", "ray", "--gpus-per-unit", "0.5"])
         assert args.executor == "ray" and args.gpus_per_unit == 0.5
 
@@ -330,25 +323,54 @@ class TestTrackingGuard:
 
     def test_ray_only_flags_need_the_ray_executor(self):
         parser = argparse.ArgumentParser()
-        add_executor_arguments(parser)
+        reproduce_command.add_executor_arguments(parser)
         args = parser.parse_args(["--ray-address", "10.0.0.5:6379"])
+        args.jobs = 2
         with pytest.raises(UsageError, match="--ray-address only apply to --executor ray"):
-            check_executor(args)
+            check_executor(reproduce_command.executor_config(args), None)
 
     @needs_ray
     def test_check_executor_resolves_the_default_store(self, monkeypatch):
         parser = argparse.ArgumentParser()
-        add_executor_arguments(parser)
+        reproduce_command.add_arguments(parser)
         args = parser.parse_args(["--executor", "ray", "--ray-address", "10.0.0.5:6379"])
-        args.tracker, args.tracking_uri = "mlflow", None
+        config = reproduce_command.config_from(args)
         monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
+        planned = planned_tracking_uri(config.tracker, config.tracking_uri)
         with pytest.raises(UsageError, match=r"sqlite:///mlflow\.db"):
-            check_executor(args)
-        args.tracker = "null"
-        check_executor(args)  # nothing tracked: allowed
-        args.gpus_per_unit = -1.0
+            check_executor(config.executor, planned)
+        check_executor(config.executor, planned_tracking_uri("null", None))  # nothing tracked
+        bad = dataclasses.replace(config.executor, gpus_per_unit=-1.0)
         with pytest.raises(UsageError, match="--gpus-per-unit must be >= 0"):
-            check_executor(args)
+            check_executor(bad, None)
+
+    def test_the_flags_become_the_frozen_config(self):
+        parser = argparse.ArgumentParser()
+        reproduce_command.add_arguments(parser)
+        args = parser.parse_args(
+            [
+                "--only",
+                "table1, fig7",
+                "--jobs",
+                "3",
+                "--no-models",
+                "--no-wait",
+                "--executor",
+                "ray",
+                "--max-retries",
+                "0",
+            ]
+        )
+        config = reproduce_command.config_from(args)
+        assert config.only == ("table1", "fig7") and not config.log_models and not config.wait
+        assert config.executor == ExecutorConfig(kind="ray", workers=3, max_retries=0)
+        assert config == dataclasses.replace(
+            ReproduceConfig(),
+            only=config.only,
+            log_models=False,
+            wait=False,
+            executor=config.executor,
+        )  # every other field: the library's default is the flag's
 
     @pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")
     def test_cli_exits_2_before_any_work(self, tmp_path, capsys):

@@ -12,6 +12,9 @@ import pytest
 from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
+from benchmark.runner import ReproduceConfig
+from benchmark.runner import reproduce as run_reproduction
+from benchmark.runner.execute.pool import ExecutorConfig
 from benchmark.runner.plan import repro_profiles as profiles_module
 from benchmark.runner.plan.specs import load_specs
 
@@ -185,9 +188,14 @@ class TestReproduceSmoke:
         assert all(r["tags"]["training_run_id"] in ids for r in nested if "unit" in r["tags"])
 
     def test_second_invocation_runs_nothing(self, full_run, smoke_dataset, capsys, monkeypatch):
+        """From Python this time (the README's lines): the same frozen config the CLI builds."""
         tmp, _ = full_run
         monkeypatch.chdir(tmp)
-        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        config = ReproduceConfig(
+            profile="smoke", data=smoke_dataset, out=tmp / "reports", workdir=tmp / "runs",
+            tracker="local", quiet=True, executor=ExecutorConfig(workers=1),
+        )  # fmt: skip
+        assert run_reproduction(config) == 0
         out = capsys.readouterr().out
         counts = re.search(r"(\d+) training runs \((\d+) already in the tracking store\)", out)
         assert counts and counts[1] == counts[2] and int(counts[1]) >= 33

@@ -11,27 +11,112 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import signal
+from collections.abc import Callable
+from dataclasses import dataclass
 
+from benchmark.errors import UsageError
 from benchmark.progress import Progress
-from benchmark.runner.execute.worker import UnitTask, run_unit, worker_init
+from benchmark.runner.execute.ray_executor import (
+    check_ray_tracking,
+    execute_units_ray,
+    import_ray,
+    resolve_resources,
+)
+from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 from benchmark.runner.plan.units import Unit
 
+EXECUTORS = ("pool", "ray")
+OnDone = Callable[[Unit, UnitResult], None]
 
-def execute_units(todo: list[tuple[Unit, UnitTask]], jobs: int, on_done, quiet: bool) -> None:
-    """Run tasks inline (``jobs == 1``) or in a spawn pool; ``on_done(unit, result)`` in order of
+
+@dataclass(frozen=True)
+class ExecutorConfig:
+    """Where the units run (``uavbench reproduce --executor ...``).
+
+    ``workers`` units train at once on this machine (``--jobs``) with either executor. The
+    Ray-only fields are None when not given (defaults in ``ray_executor``), so a pool run that
+    sets one is refused rather than silently ignored."""
+
+    kind: str = "pool"  # one of EXECUTORS
+    workers: int = 2
+    ray_address: str | None = None  # None: a local Ray started for the run
+    cpus_per_unit: float | None = None
+    gpus_per_unit: float | None = None
+    max_retries: int | None = None
+
+
+RAY_ONLY_FLAGS = {
+    "ray_address": "--ray-address",
+    "cpus_per_unit": "--cpus-per-unit",
+    "gpus_per_unit": "--gpus-per-unit",
+    "max_retries": "--max-retries",
+}
+
+
+def check_executor(config: ExecutorConfig, tracking_uri: str | None) -> None:
+    """Refuse a bad executor choice before any work is done (a dataset rendered, a unit
+    planned): an unknown kind, Ray-only fields without ``kind="ray"``, Ray not installed,
+    resources out of range, a node-local tracking store (``tracking_uri``: where the units will
+    log; None: nothing is logged) with a cluster."""
+    if config.kind not in EXECUTORS:
+        raise UsageError(f"executor must be one of {EXECUTORS}, got {config.kind!r}")
+    if config.kind != "ray":
+        given = [flag for name, flag in RAY_ONLY_FLAGS.items() if getattr(config, name)]
+        if given:
+            raise UsageError(f"{', '.join(given)} only apply to --executor ray")
+        return
+    import_ray()
+    resolve_resources(config.cpus_per_unit, config.gpus_per_unit, config.max_retries)
+    check_ray_tracking(config.ray_address, tracking_uri)
+
+
+def run_executor(
+    config: ExecutorConfig,
+    todo: list[tuple[Unit, UnitTask]],
+    on_done: OnDone,
+    quiet: bool,
+    tracking_uri: str | None,
+) -> None:
+    """Run ``todo`` with the executor ``config`` chose. ``tracking_uri`` is where the units log
+    (the tracker's resolved URI; None when nothing is logged)."""
+    check_executor(config, tracking_uri)
+    if config.kind == "pool":
+        execute_units(todo, config.workers, on_done, quiet)
+        return
+    cpus, gpus, retries = resolve_resources(
+        config.cpus_per_unit, config.gpus_per_unit, config.max_retries
+    )
+    local = config.ray_address is None or config.ray_address == "local"
+    execute_units_ray(
+        todo,
+        on_done,
+        quiet,
+        address=config.ray_address,
+        cpus_per_unit=cpus,
+        gpus_per_unit=gpus,
+        max_retries=retries,
+        # workers means the same for both executors: units training at once on this machine
+        num_cpus=max(1, round(config.workers * cpus)) if local else None,
+    )
+
+
+def execute_units(
+    todo: list[tuple[Unit, UnitTask]], workers: int, on_done: OnDone, quiet: bool
+) -> None:
+    """Run tasks inline (``workers == 1``) or in a spawn pool; ``on_done(unit, result)`` in order of
     completion, in this process.
 
     Ctrl-C: pool workers ignore SIGINT (``execute.worker_init``); this process stops them
     (SIGTERM) and re-raises, so the user sees one message, not a traceback per worker."""
     with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
-        if jobs == 1 or len(todo) <= 1:
+        if workers == 1 or len(todo) <= 1:
             for unit, task in todo:
                 bar.update(0, postfix=f"running {unit.title}")
                 on_done(unit, run_unit(task))
                 bar.update(1, postfix=f"done {unit.title}")
             return
         ctx = multiprocessing.get_context("spawn")
-        pool = cf.ProcessPoolExecutor(jobs, mp_context=ctx, initializer=worker_init)
+        pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=worker_init)
         try:
             # Workers are spawned by submit; started with SIGINT ignored (kept across exec, and
             # then Python installs no KeyboardInterrupt handler) they cannot print a traceback

@@ -27,7 +27,6 @@ the reports and ``results.csv`` are those of the process pool, number for number
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import sys
@@ -38,7 +37,6 @@ from urllib.parse import urlsplit
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
-from benchmark.runner.execute.pool import execute_units
 from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 
 INSTALL_LINE = 'pip install -e ".[ray]"'
@@ -53,107 +51,14 @@ SHARED_FS_HINT = (
 OnDone = Callable[[object, UnitResult], None]
 
 
-# ----------------------------------------------------------------------------- CLI
-def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--executor {pool,ray}``, ``--ray-address``, ``--cpus-per-unit``, ``--gpus-per-unit``,
-    ``--max-retries``. The Ray-only flags default to None, so :func:`check_executor` can refuse
-    them without ``--executor ray``."""
-    group = parser.add_argument_group("executor (where the training units run)")
-    group.add_argument(
-        "--executor",
-        choices=("pool", "ray"),
-        default="pool",
-        help="pool: --jobs local worker processes (default); ray: one Ray task per unit, on a "
-        f"local Ray or on --ray-address (needs {INSTALL_LINE})",
-    )
-    group.add_argument(
-        "--ray-address",
-        default=None,
-        help="Ray cluster to submit to, as `ray start --head` prints it (HOST:6379 or "
-        "ray://HOST:10001); default: a local Ray with --jobs x --cpus-per-unit CPUs, "
-        "started for this run",
-    )
-    group.add_argument(
-        "--cpus-per-unit",
-        type=float,
-        default=None,
-        help=f"CPUs Ray reserves per unit (default {DEFAULT_CPUS_PER_UNIT:g}; training uses one "
-        "torch thread, the others serve DataLoader workers)",
-    )
-    group.add_argument(
-        "--gpus-per-unit",
-        type=float,
-        default=None,
-        help=f"GPUs Ray reserves per unit (default {DEFAULT_GPUS_PER_UNIT:g}; 0.5 puts two units "
-        "on one GPU)",
-    )
-    group.add_argument(
-        "--max-retries",
-        type=int,
-        default=None,
-        help="times Ray reruns a unit whose worker process or node died "
-        f"(default {DEFAULT_MAX_RETRIES})",
-    )
-
-
-RAY_ONLY_FLAGS = {
-    "ray_address": "--ray-address",
-    "cpus_per_unit": "--cpus-per-unit",
-    "gpus_per_unit": "--gpus-per-unit",
-    "max_retries": "--max-retries",
-}
-
-
-def check_executor(args: argparse.Namespace) -> None:
-    """Refuse a bad executor choice before any work is done (a dataset rendered, a unit
-    planned): Ray-only flags without ``--executor ray``, Ray not installed, resources out of
-    range, a node-local tracking store with a cluster (the store as ``reproduce`` will resolve
-    it: ``--tracking-uri``, else ``MLFLOW_TRACKING_URI``, else ``./mlflow.db``)."""
-    if getattr(args, "executor", "pool") != "ray":
-        given = [flag for name, flag in RAY_ONLY_FLAGS.items() if getattr(args, name, None)]
-        if given:
-            raise UsageError(f"{', '.join(given)} only apply to --executor ray")
-        return
-    import_ray()
-    _resources(args)
-    check_ray_tracking(args.ray_address, _planned_tracking_uri(args))
-
-
-def run_executor(
-    args: argparse.Namespace,
-    todo: list[tuple[object, UnitTask]],
-    on_done: OnDone,
-    quiet: bool,
-    tracking_uri: str | None,
-) -> None:
-    """Run ``todo`` with the executor ``args`` chose. ``tracking_uri`` is where the units log
-    (the tracker's resolved URI, ``tracker.uri``; ignored with ``--tracker null``)."""
-    check_executor(args)
-    if getattr(args, "tracker", "mlflow") == "null":
-        tracking_uri = None  # nothing is logged (the null tracker's uri reads "null")
-    if getattr(args, "executor", "pool") == "pool":
-        execute_units(todo, args.jobs, on_done, quiet)
-        return
-    check_ray_tracking(args.ray_address, tracking_uri)
-    cpus, gpus, retries = _resources(args)
-    local = args.ray_address is None or args.ray_address == "local"
-    execute_units_ray(
-        todo,
-        on_done,
-        quiet,
-        address=args.ray_address,
-        cpus_per_unit=cpus,
-        gpus_per_unit=gpus,
-        max_retries=retries,
-        # --jobs means the same for both executors: units training at once on this machine
-        num_cpus=max(1, round(args.jobs * cpus)) if local else None,
-    )
-
-
-def _resources(args: argparse.Namespace) -> tuple[float, float, int]:
-    cpus = DEFAULT_CPUS_PER_UNIT if args.cpus_per_unit is None else args.cpus_per_unit
-    gpus = DEFAULT_GPUS_PER_UNIT if args.gpus_per_unit is None else args.gpus_per_unit
-    retries = DEFAULT_MAX_RETRIES if args.max_retries is None else args.max_retries
+def resolve_resources(
+    cpus: float | None, gpus: float | None, retries: int | None
+) -> tuple[float, float, int]:
+    """``--cpus-per-unit``, ``--gpus-per-unit``, ``--max-retries`` with their defaults filled in
+    (None: not given), checked."""
+    cpus = DEFAULT_CPUS_PER_UNIT if cpus is None else cpus
+    gpus = DEFAULT_GPUS_PER_UNIT if gpus is None else gpus
+    retries = DEFAULT_MAX_RETRIES if retries is None else retries
     _check_resources(cpus, gpus, retries)
     return cpus, gpus, retries
 
@@ -165,15 +70,6 @@ def _check_resources(cpus: float, gpus: float, retries: int) -> None:
         raise UsageError(f"--gpus-per-unit must be >= 0, got {gpus:g}")
     if retries < 0:
         raise UsageError(f"--max-retries must be >= 0, got {retries}")
-
-
-def _planned_tracking_uri(args: argparse.Namespace) -> str | None:
-    kind = getattr(args, "tracker", "mlflow")
-    if kind == "null":
-        return None
-    if kind == "local":
-        return str(Path.cwd() / "tracking-local")  # a directory on this machine
-    return args.tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
 
 
 # ----------------------------------------------------------------------------- guards

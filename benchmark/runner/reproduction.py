@@ -1,29 +1,28 @@
-"""``uavbench reproduce``: simulate, train and evaluate every variant, write the paper's tables.
+"""One reproduction: simulate, train and evaluate every table row, write the paper's tables.
 
-Steps: (1) simulate the profile's dataset or reuse a matching one; (2) plan the deduplicated
-training units of the selected tables and seeds; (3) for each unit, take its results from the
-tracking store if a finished run exists, else train/resume and evaluate it (``--jobs`` worker
-processes, one torch thread each) and log it; (4) write Markdown tables beside the paper's numbers,
-figures, the raw CSV and a claim-by-claim summary under ``--out``.
+``reproduce(ReproduceConfig(...))`` is what ``uavbench reproduce`` runs (its flags are parsed in
+``benchmark.commands.reproduce``) and what a Python caller runs. Steps: (1) simulate the
+profile's dataset or reuse a matching one; (2) plan the deduplicated training units of the
+selected tables and seeds; (3) for each unit, take its results from the tracking store if a
+finished run exists, else train/resume and evaluate it (``executor.workers`` worker processes,
+one torch thread each) and log it; (4) write Markdown tables beside the paper's numbers, figures,
+the raw CSV and a claim-by-claim summary under ``out``.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
+import os
 import platform
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.errors import UsageError
 from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
-from benchmark.runner.execute.ray_executor import (
-    add_executor_arguments,
-    check_executor,
-    run_executor,
-)
+from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
 from benchmark.runner.execute.worker import UnitResult, UnitTask
 from benchmark.runner.plan.invocations import (
     LOCK,
@@ -32,75 +31,39 @@ from benchmark.runner.plan.invocations import (
     start_invocation,
 )
 from benchmark.runner.plan.partial import DEFAULT_STALE, STALE_MODES, MergePlan, plan_merge
-from benchmark.runner.plan.repro_profiles import PROFILES, ReproProfile, get_repro_profile
+from benchmark.runner.plan.repro_profiles import ReproProfile, get_repro_profile
 from benchmark.runner.plan.specs import SpecError, load_specs
 from benchmark.runner.plan.units import Unit, plan_units
 from benchmark.runner.report.logbook import Logbook, write_config
 
-HELP = "reproduce the paper's tables and figures: simulate, train, evaluate, track, report"
 
+@dataclass(frozen=True)
+class ReproduceConfig:
+    """One reproduction (``uavbench reproduce``'s flags, typed; the defaults are the command's).
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--profile", choices=sorted(PROFILES), default="quick")
-    parser.add_argument(
-        "--only",
-        default="",
-        help="comma-separated tables/figures (table1,fig7) or groups: paper (the paper's tables "
-        "and figures), extras (extended, leakage, towns); default: all",
-    )
-    parser.add_argument(
-        "--seeds",
-        type=int,
-        default=None,
-        help="training seeds per variant, on one dataset (default: the profile's, quick 3)",
-    )
-    parser.add_argument(
-        "--stale",
-        choices=STALE_MODES,
-        default=DEFAULT_STALE,
-        help="with --only: what to do with the report's other tables when they come from an "
-        "earlier run (other dataset, profile or code, or predictions gone): keep them as "
-        "written, marked 'from an earlier run at <commit>' and left out of today's claims "
-        "(default), or drop them with their files and README lines",
-    )
-    parser.add_argument("--out", type=Path, default=None, help="reports dir (reports/<profile>)")
-    parser.add_argument(
-        "--workdir", type=Path, default=None, help="checkpoints etc. (runs/<profile>)"
-    )
-    parser.add_argument("--data", type=Path, default=None, help="dataset dir (data/<profile>)")
-    parser.add_argument("--dataset-seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=2, help="parallel training processes")
-    parser.add_argument("--specs", type=Path, default=None, help="table specs dir")
-    parser.add_argument(
-        "--tracker", choices=("mlflow", "local", "null"), default="mlflow", help="tracking backend"
-    )
-    parser.add_argument("--tracking-uri", default=None, help="MLflow server (or env)")
-    parser.add_argument(
-        "--no-models",
-        action="store_true",
-        help="log no trained model to the tracker (about 15 MB each at the smoke/quick width; "
-        "the checkpoints stay in --workdir)",
-    )
-    parser.add_argument(
-        "--device",
-        default="auto",
-        help="where every unit trains and evaluates: auto (CUDA, else MPS, else CPU), cpu, cuda, "
-        "cuda:N, mps (default: auto; not part of a unit's identity)",
-    )
-    parser.add_argument(
-        "--precision",
-        default="auto",
-        help="auto, fp32, bf16 or fp16 for every unit (default auto: bf16 on CUDA with bf16, "
-        "fp32 on every CPU); bf16 on a CPU needs native bf16 (avx512_bf16/amx_bf16) or "
-        "UAVBENCH_ALLOW_SLOW_BF16=1; a precision other than fp32 trains other units",
-    )
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_executor_arguments(parser)
-    parser.add_argument(
-        "--no-wait",
-        action="store_true",
-        help="exit 2 naming the holder instead of waiting when another reproduce holds --workdir",
-    )
+    ``only``: table/figure names or groups (``paper``, ``extras``; empty: all). ``seeds`` None:
+    the profile's. ``out``/``workdir``/``data`` None: ``reports/<profile>``, ``runs/<profile>``,
+    ``data/<dataset>-s<dataset_seed>``. ``wait=False`` refuses (exit 2) instead of waiting when
+    another reproduction holds ``workdir``. ``executor.workers`` (``--jobs``) also renders the
+    dataset."""
+
+    profile: str = "quick"
+    only: tuple[str, ...] = ()
+    seeds: int | None = None
+    stale: str = DEFAULT_STALE  # one of STALE_MODES
+    out: Path | None = None
+    workdir: Path | None = None
+    data: Path | None = None
+    dataset_seed: int = 0
+    specs: Path | None = None  # None: reports/configs of this checkout
+    tracker: str = "mlflow"  # mlflow, local or null
+    tracking_uri: str | None = None  # None: MLFLOW_TRACKING_URI, else ./mlflow.db
+    log_models: bool = True
+    device: str = "auto"
+    precision: str = "auto"
+    quiet: bool = False
+    wait: bool = True
+    executor: ExecutorConfig = field(default_factory=ExecutorConfig)
 
 
 def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, quiet: bool) -> None:
@@ -140,7 +103,7 @@ def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) ->
     )
 
 
-def _check_data(root: Path, profile: ReproProfile, args: argparse.Namespace) -> str:
+def _check_data(root: Path, profile: ReproProfile, config: ReproduceConfig) -> str:
     """Simulate or confirm the dataset before any training: every file's sha256 is checked
     (cached by file identity, ``benchmark.data.integrity``) and bad files are rendered again. A
     dataset that stays damaged (config unreadable, a repair that cannot write) is one line and
@@ -149,14 +112,16 @@ def _check_data(root: Path, profile: ReproProfile, args: argparse.Namespace) -> 
     from benchmark.tracking import manifest_sha256
 
     try:
-        prepare_dataset(profile, root, args.dataset_seed, max(1, args.jobs), args.quiet)
+        prepare_dataset(
+            profile, root, config.dataset_seed, max(1, config.executor.workers), config.quiet
+        )
         return manifest_sha256(root)
     except DatasetError as err:
-        raise _data_error(root, profile, args.dataset_seed, err) from None
+        raise _data_error(root, profile, config.dataset_seed, err) from None
     except OSError as err:
         if os_error_message(err) is None:
             raise  # not a disk or permission problem: a bug, let it surface
-        raise _data_error(root, profile, args.dataset_seed, err) from None
+        raise _data_error(root, profile, config.dataset_seed, err) from None
 
 
 def _with_device(profile: ReproProfile, device: str, precision: str) -> ReproProfile:
@@ -178,42 +143,61 @@ def _with_device(profile: ReproProfile, device: str, precision: str) -> ReproPro
     return dataclasses.replace(profile, device=device, precision=precision)
 
 
-def run(args: argparse.Namespace) -> int:
-    profile = _with_device(get_repro_profile(args.profile), args.device, args.precision)
-    if args.seeds is not None and args.seeds < 1:
-        raise UsageError(f"--seeds must be >= 1, got {args.seeds}")
-    if args.jobs < 1:
-        raise UsageError(f"--jobs must be >= 1, got {args.jobs}")
-    check_executor(args)
-    only = [name.strip() for name in args.only.split(",") if name.strip()]
+def reproduce(config: ReproduceConfig) -> int:
+    """Run one reproduction; the exit code: 0 when every unit trained, 1 when one failed.
+    Bad input (a flag out of range, an unknown table, a device this machine lacks, a damaged
+    dataset, a busy ``workdir`` with ``wait=False``) raises ``UsageError`` before any training."""
     try:
-        specs = load_specs(args.specs, only or None)
+        repro = get_repro_profile(config.profile)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    profile = _with_device(repro, config.device, config.precision)
+    if config.seeds is not None and config.seeds < 1:
+        raise UsageError(f"--seeds must be >= 1, got {config.seeds}")
+    if config.executor.workers < 1:
+        raise UsageError(f"--jobs must be >= 1, got {config.executor.workers}")
+    if config.stale not in STALE_MODES:
+        raise UsageError(f"--stale must be one of {STALE_MODES}, got {config.stale!r}")
+    check_executor(config.executor, planned_tracking_uri(config.tracker, config.tracking_uri))
+    try:
+        specs = load_specs(config.specs, list(config.only) or None)
     except SpecError as err:
         raise UsageError(str(err)) from err
-    workdir = args.workdir or Path("runs") / profile.name
+    workdir = config.workdir or Path("runs") / profile.name
     # One writer per work directory for the whole invocation: a second one waits (or, with
     # --no-wait, exits 2 naming the holder); a dead holder's lock is taken over.
     try:
         with work_lock(
             workdir / LOCK,
             what=f"uavbench reproduce --profile {profile.name}",
-            wait=not args.no_wait,
+            wait=config.wait,
             notify=lambda message: print(message, file=sys.stderr, flush=True),
         ):
-            return _run_locked(args, profile, specs, workdir)
+            return _run_locked(config, profile, specs, workdir)
     except LockBusyError as err:
         raise UsageError(f"{err} (or choose another --workdir)") from None
 
 
-def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, workdir: Path) -> int:
+def planned_tracking_uri(tracker: str, tracking_uri: str | None) -> str | None:
+    """The store the units will log to, as the tracker will resolve it (``tracking_uri``, else
+    ``MLFLOW_TRACKING_URI``, else ``./mlflow.db``), known before the tracker is made; None when
+    nothing is logged."""
+    if tracker == "null":
+        return None
+    if tracker == "local":
+        return str(Path.cwd() / "tracking-local")  # a directory on this machine
+    return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
+
+
+def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, workdir: Path) -> int:
     from benchmark.data import list_splits
     from benchmark.tracking import RunStatus, create_tracker, git_commit
 
     started = time.time()
-    seeds = list(range(args.seeds if args.seeds is not None else profile.seeds))
-    data_root = args.data or Path("data") / f"{profile.dataset}-s{args.dataset_seed}"
-    out = args.out or Path("reports") / profile.name
-    dataset_hash = _check_data(data_root, profile, args)
+    seeds = list(range(config.seeds if config.seeds is not None else profile.seeds))
+    data_root = config.data or Path("data") / f"{profile.dataset}-s{config.dataset_seed}"
+    out = config.out or Path("reports") / profile.name
+    dataset_hash = _check_data(data_root, profile, config)
     try:
         units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash,
                            workdir)  # fmt: skip
@@ -221,12 +205,12 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
         raise UsageError(str(err)) from err
 
     # What happens to the report's other tables, said before any training (and in the README).
-    merge = plan_merge(out, specs, profile, data_root, workdir, dataset_hash, args.stale)
+    merge = plan_merge(out, specs, profile, data_root, workdir, dataset_hash, config.stale)
     if merge.describe():
         print(merge.describe(), flush=True)
 
     workdir.mkdir(parents=True, exist_ok=True)
-    tracker = create_tracker(args.tracker, args.tracking_uri, workdir=Path.cwd())
+    tracker = create_tracker(config.tracker, config.tracking_uri, workdir=Path.cwd())
     provenance = {"git_commit": git_commit() or "unknown", "dataset_manifest": dataset_hash}
     logbook = Logbook(
         tracker,
@@ -237,7 +221,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
         owner=owner_tags(workdir),
     )
     # Runs left RUNNING by an invocation that was killed (kill -9, power loss) end KILLED.
-    stale = logbook.close_stale(spec.name for spec in load_specs(args.specs))
+    stale = logbook.close_stale(spec.name for spec in load_specs(config.specs))
     if stale:
         print(f"closed {len(stale)} run(s) left RUNNING by a killed invocation: now KILLED")
     results: dict[str, UnitResult] = {}
@@ -255,14 +239,14 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
             continue
         unit_dir = workdir / "units" / unit.key
         live = None
-        if args.tracker != "null":
-            live = logbook.unit_tracking(unit, log_model=not args.no_models)
+        if config.tracker != "null":
+            live = logbook.unit_tracking(unit, log_model=config.log_models)
         todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir, tracking=live)))
-    todo = _with_shared_encoders(todo, units, workdir, logbook, args)
+    todo = _with_shared_encoders(todo, units, workdir, logbook, config)
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
-        f"logging to {tracker.uri or args.tracker}"
+        f"logging to {tracker.uri or config.tracker}"
     )
     # Journalled now and as each unit finishes: a killed invocation still shows what it trained.
     keys = [u.key for u in units]
@@ -282,12 +266,13 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
             print(f"FAILED {unit.title}: {result.error}")
 
     status = RunStatus.FINISHED
+    units_log_to = None if config.tracker == "null" else tracker.uri  # null's uri reads "null"
     try:
         # First the shared encoders (their checkpoints are what the others load) and every
         # unit that needs none, then the units on the shared encoders; one whose shared encoder
         # failed is reported failed without running.
         first = [(u, t) for u, t in todo if not u.needs]
-        run_executor(args, first, on_done, args.quiet, tracker.uri)
+        run_executor(config.executor, first, on_done, config.quiet, units_log_to)
         broken = {u.key: u.title for u, _ in first if not results[u.key].ok}
         rest = []
         for unit, task in todo:
@@ -299,7 +284,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
                                          f"({bad[0]})"))  # fmt: skip
             else:
                 rest.append((unit, task))
-        run_executor(args, rest, on_done, args.quiet, tracker.uri)
+        run_executor(config.executor, rest, on_done, config.quiet, units_log_to)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
         written = _write_reports(
@@ -329,7 +314,7 @@ def _run_locked(args: argparse.Namespace, profile: ReproProfile, specs: list, wo
     # Where the runs really went (counted at the end, not assumed at the start): the store, or
     # the local fallback and the `uavbench sync` that sends them; then how to browse them.
     print(tracker.summary())
-    hint = browse_hint(args.tracker, tracker)
+    hint = browse_hint(config.tracker, tracker)
     if hint:
         print(hint)
     return 1 if failures else 0
@@ -340,7 +325,7 @@ def _with_shared_encoders(
     units: list[Unit],
     workdir: Path,
     logbook: Logbook,
-    args: argparse.Namespace,
+    config: ReproduceConfig,
 ) -> list[tuple[Unit, UnitTask]]:
     """``todo`` with the shared-encoder units its units need put first, each once, even when the
     tracking store has them: their checkpoints must be in ``workdir`` (a finished one costs
@@ -351,8 +336,8 @@ def _with_shared_encoders(
     for unit in units:
         if unit.key in needed and unit.key not in queued:
             live = None
-            if args.tracker != "null":
-                live = logbook.unit_tracking(unit, log_model=not args.no_models)
+            if config.tracker != "null":
+                live = logbook.unit_tracking(unit, log_model=config.log_models)
             task = UnitTask(unit.key, unit.cfg, unit.eval_splits, workdir / "units" / unit.key,
                             tracking=live)  # fmt: skip
             shared.append((unit, task))

@@ -1,0 +1,51 @@
+"""``uavbench bench ray``: parse the flags into a :class:`benchmark.runner.bench_ray.BenchRayConfig`
+and run :func:`benchmark.runner.bench_ray.bench_ray` (the smoke reproduction through the process
+pool and through a local Ray, side by side)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from benchmark.runner import bench_ray as lib
+
+HELP = "smoke reproduction through the process pool and a local Ray: wall times, ratio"
+DESCRIPTION = lib.__doc__
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--profile", default="smoke")
+    parser.add_argument("--only", default="table3", help="tables to reproduce (default table3)")
+    parser.add_argument("--jobs", type=int, default=2, help="units at once, for both executors")
+    parser.add_argument("--repeats", type=int, default=1, help="alternating runs of each executor")
+    parser.add_argument("--tracker", choices=("mlflow", "local", "null"), default="mlflow")
+    parser.add_argument(
+        "--dir", type=Path, default=None, help="keep everything here (default: a temporary dir)"
+    )
+
+
+def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.jobs < 1 or args.repeats < 1:
+        parser.error("--jobs and --repeats must be >= 1")
+
+
+def run(args: argparse.Namespace) -> int:
+    return lib.bench_ray(
+        lib.BenchRayConfig(
+            profile=args.profile,
+            only=args.only,
+            workers=args.jobs,
+            repeats=args.repeats,
+            tracker=args.tracker,
+            dir=args.dir,
+        )
+    )
+
+
+def main(argv: list[str]) -> int:
+    """``uavbench bench ray ARGS`` as a ``module:main`` target of ``uavbench bench``."""
+    parser = argparse.ArgumentParser(prog="uavbench bench ray", description=DESCRIPTION)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    check_arguments(parser, args)
+    return run(args)
