@@ -179,10 +179,6 @@ def test_only_the_entry_points_import_the_command_layer(path):
     assert not bad, f"{rel(path)} imports {bad}; only {COMMAND_ENTRIES} may"
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="until the runner moves reproduce's and the executors' parsing into benchmark/commands/",
-)
 def test_argparse_only_in_the_command_layer():
     # `grep -rl argparse benchmark baselines` lists only benchmark/commands/ files.
     found = [rel(p) for p in FILES if "argparse" in p.read_text()]

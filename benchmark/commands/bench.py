@@ -23,7 +23,7 @@ TARGETS: dict[str, str] = {
     "verify": "benchmark.commands.bench_verify",
     "ceiling": "benchmark.commands.bench_ceiling",
     "accelerator": "benchmark.commands.bench_accelerator",
-    "ray": "benchmark.commands.bench_ray:main",
+    "ray": "benchmark.commands.bench_ray",
     "isa": "benchmark.commands.bench_isa",
 }
 
@@ -53,10 +53,7 @@ def run_target(target: str, argv: Sequence[str]) -> int:
     input, as every command)."""
     if target not in TARGETS:
         raise UsageError(f"unknown bench target {target!r}; expected one of {sorted(TARGETS)}")
-    path, _, legacy = TARGETS[target].partition(":")
-    module = importlib.import_module(path)
-    if legacy:  # a target that still parses its own arguments: main(argv)
-        return int(getattr(module, legacy)(list(argv)) or 0)
+    module = importlib.import_module(TARGETS[target])
     parser = argparse.ArgumentParser(
         prog=f"uavbench bench {target}",
         description=getattr(module, "DESCRIPTION", module.HELP),

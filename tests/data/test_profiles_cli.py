@@ -113,8 +113,7 @@ class TestBenchCommand:
         from benchmark.commands.bench import TARGET_HELP, TARGETS
 
         assert set(TARGETS) == set(TARGET_HELP)
-        for spec in TARGETS.values():
-            module, _, legacy = spec.partition(":")
-            loaded = importlib.import_module(module)
-            names = [legacy] if legacy else ["add_arguments", "run"]
-            assert all(callable(getattr(loaded, name)) for name in names)
+        for path in TARGETS.values():
+            module = importlib.import_module(path)
+            assert isinstance(module.HELP, str)
+            assert callable(module.add_arguments) and callable(module.run)
