@@ -4,7 +4,7 @@ The copy holds the working tree's files (tracked and not ignored) as a fresh git
 one commit. The test then follows the guide: saves the README's Python block under the path the
 README names, runs the README's shell commands as they are (``uavbench`` is the installed console
 script; ``PYTHONPATH`` points it at the copy, as ``pip install -e .`` in a clone would), inserts
-the README's YAML line under ``variants:`` of the spec it names, and runs the smoke reproduction
+the README's YAML line under ``rows:`` of the spec it names, and runs the smoke reproduction
 of that table. It asserts the acceptance of issue 13: a head with a new option, trained with that
 option and swept in a table, touches one new Python file and one YAML line, nothing else
 (``git status`` / ``git diff`` of the copy); the new head's rows are in the rendered table.
@@ -108,7 +108,7 @@ def test_guide_runs_and_touches_one_file_and_one_line(tmp_path, cue_datasets):
     (repo / head_file).write_text(blocks(section, "python")[0])
 
     # 2-4. the README's commands and its one YAML line, in the README's order
-    spec_path = re.search(r"one line under `variants:` in `(reports/configs/\w+\.yaml)`", section)
+    spec_path = re.search(r"one line under `rows:` in `(reports/configs/\w+\.yaml)`", section)
     assert spec_path is not None, "the guide must name the spec the YAML line goes into"
     (yaml_line,) = [line for b in blocks(section, "yaml") for line in b.splitlines() if line]
     cmds = commands(section)

@@ -60,7 +60,8 @@ import torch
 MODELS = {"quick": (96, 0.25), "paper": (224, 1.0)}
 ENCODERS = ("googlenet", "matching")
 # --optimizer: OptimConfig fields (benchmark.training.config); "adam" is the quick profile's
-# (benchmark.runner.profiles, which training may not import), "sgd" the paper's (Sec. 3.3).
+# (benchmark.runner.plan.repro_profiles, which training may not import), "sgd" the
+# paper's (Sec. 3.3).
 OPTIMIZERS: dict[str, dict[str, object]] = {
     "sgd": {"name": "sgd", "lr": 1e-3, "momentum": 0.9},
     "adam": {"name": "adam", "lr": 3e-4, "grad_clip": 10.0},

@@ -6,7 +6,7 @@ the heads on its ``F`` features cost microseconds. With the encoder frozen, its 
 split do not depend on the head, the seed of the head's training or the epoch, so each
 (encoder weights, split, satellite mode, satellite input) is encoded once and every head that
 sits on the encoder reads the same file. The quick reproduction trains one encoder per seed and
-fourteen heads on it this way (``benchmark.runner.profiles.SharedEncoder``).
+fourteen heads on it this way (``benchmark.runner.plan.repro_profiles.SharedEncoder``).
 
 Numerics: the features are computed in eval mode (the matching encoder then builds its
 bird's-eye view from the protocol's test-time inputs, so the heads train on what they are

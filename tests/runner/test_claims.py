@@ -33,8 +33,13 @@ from benchmark.runner.claims.paper import (
     uncertainty_claim,
 )
 from benchmark.runner.claims.satellite import control_claim, satellite_claim
+from benchmark.runner.plan.specs import RowSpec
 
 STD, GEN = "standard/test", "generalized/test"
+
+
+def replace_model(row: RowSpec, **fields) -> RowSpec:
+    return dataclasses.replace(row, model={**row.model, **fields})
 
 
 def add_head(repro: Repro, table: str, label: str, attitude: str, splits, **kwargs) -> None:
@@ -43,7 +48,9 @@ def add_head(repro: Repro, table: str, label: str, attitude: str, splits, **kwar
     repro.add(table, label, splits, **kwargs)
     for unit in repro.units[first:]:
         unit.jobs = [
-            dataclasses.replace(j, variant=dataclasses.replace(j.variant, attitude=attitude))
+            dataclasses.replace(
+                j, row=dataclasses.replace(j.row, model={**j.row.model, "attitude": attitude})
+            )
             for j in unit.jobs
         ]
 

@@ -119,7 +119,7 @@ class TestCostRows:
         assert len(fake.calls) == 4 and measured == [
             "Re-Net",
             "Re-Net",
-            *[spec.variants[1].label] * 2,
+            *[spec.rows[1].label] * 2,
         ]
         assert steps == [(i, 4) for i in range(4)]
         again = rows()  # a rerun: nothing measured, nothing to log, the same numbers
@@ -142,7 +142,7 @@ class TestCostTable:
         profile = get_repro_profile("smoke")
         # Fill the cache as a first run would have (the same identities cost_table computes).
         configs = cost_configs(spec, 32, profile.width, profile.name)
-        assert len(configs) == 2 * len(spec.variants)
+        assert len(configs) == 2 * len(spec.rows)
         assert {c.input_size for *_, c in configs} == {224, 32}
         for i, (*_, cfg) in enumerate(configs):
             record = dataclasses.asdict(_record(cfg, i))

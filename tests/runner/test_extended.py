@@ -37,20 +37,20 @@ def repository_heads() -> list[str]:
 
 class TestEveryHeadHasARow:
     def test_every_registered_attitude_head(self):
-        rows = {v.attitude for v in spec().variants}
+        rows = {r.get("attitude") for r in spec().rows}
         missing = [name for name in repository_heads() if name not in rows]
         lines = "\n".join(
             f'  - {{label: {get_head_class(n).paper_name}, paper_model: "", attitude: {n}, '
-            'encoder_variant: "/"}'
+            'variant: "/"}'
             for n in missing
         )
         assert not missing, (
             f"attitude head(s) {missing} have no row in reports/configs/extended.yaml, the table "
-            f"of every representation; add one line per head under 'variants:', e.g.\n{lines}"
+            f"of every representation; add one line per head under 'rows:', e.g.\n{lines}"
         )
 
     def test_rows_name_registered_heads_once_each(self):
-        names = [v.attitude for v in spec().variants]
+        names = [r.get("attitude") for r in spec().rows]
         assert set(names) <= set(list_heads("attitude"))
         assert len(names) == len(set(names)) and len(names) >= 13
 
@@ -64,7 +64,7 @@ class TestEveryHeadHasARow:
 
         both = plan(["table1", "table2", "extended"])
         paper = plan(["table1", "table2"])
-        extra = [v for v in spec().variants if not v.paper_model]
+        extra = [r for r in spec().rows if not r.paper_model]
         assert len(both) == len(paper) + len(extra)
         for unit in both:
             tables = {j.table for j in unit.jobs}

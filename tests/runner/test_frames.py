@@ -20,7 +20,7 @@ from benchmark.evaluation.metrics import predictions_frame, write_predictions_cs
 from benchmark.geometry import SAT_R_N
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.execute.worker import eval_key, split_filename
-from benchmark.runner.plan.specs import Job, VariantSpec
+from benchmark.runner.plan.specs import Job, RowSpec
 from benchmark.runner.plan.units import Unit
 from benchmark.training.config import TrainConfig
 
@@ -87,10 +87,8 @@ class Repro:
         ``"constant"`` (the training-mean pose plus 0.5 deg noise). Translation errors follow the
         same scale in metres. ``swap`` gives the errors with the swapped satellite image (default:
         the same predictions). The ``uncertainty`` column is ``uncertainty * error + N(0, 1)``."""
-        variant = VariantSpec(
-            label, label, "pd_re_net", satellite_input="blank" if blank else "image"
-        )
-        job = Job(table, label, label, x, variant, train, tuple(splits))
+        model = {"attitude": "pd_re_net", "satellite_input": "blank" if blank else "image"}
+        job = Job(table, label, label, x, RowSpec(label, label, model), train, tuple(splits))
         for seed in seeds:
             where = "" if train == "standard/train" else f"-{train}"
             key = f"{table}-{label}-{x}-{seed}{where}".replace("/", "_").replace(" ", "_")

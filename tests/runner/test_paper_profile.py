@@ -40,9 +40,7 @@ def test_paper_profile_runs_a_training_step_on_cpu(tmp_path):
     assert (profile.optim.name, profile.optim.lr, profile.optim.batch_size) == ("sgd", 1e-3, 20)
     assert profile.optim.momentum == 0.9  # the paper's SGDM (Sec. 3.3)
     # The heaviest model of the paper profile: Pd/Re-Net with AGTFM (Table 5).
-    job = next(
-        j for j in load_specs(only=["table5"])[0].jobs() if j.variant.encoder_variant == "a-f"
-    )
+    job = next(j for j in load_specs(only=["table5"])[0].jobs() if j.row.get("variant") == "a-f")
     cfg = train_config(job, profile, 0, Path("unused"), ["standard/train", "standard/val"])
     cfg = dataclasses.replace(cfg, optim=dataclasses.replace(cfg.optim, epochs=1, batch_size=2))
     result = train(cfg, model_factory(cfg, 224), TinyPairs(), None, tmp_path, progress=False)

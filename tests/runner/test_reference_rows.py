@@ -34,7 +34,7 @@ train_split: standard/train
 eval_splits: [standard/test]
 metrics: [dpsi_deg, dphi_deg]
 swap_metrics: [dpsi_deg, dphi_deg]
-variants:
+rows:
   - {{label: Pd/Re-Net, paper_model: Pd/Re-Net, attitude: pd_re_net}}
 """
 

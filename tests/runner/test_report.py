@@ -318,8 +318,8 @@ class TestSweepLabels:
             ("sat_height_m", "600", "600"),
             ("sat_height_m", 600, "600"),
             ("kappa", "10", "10"),
-            ("encoder_variant", "/", "/ (plain)"),
-            ("encoder_variant", "a-f", "a-f (AGTFM)"),
+            ("variant", "/", "/ (plain)"),
+            ("variant", "a-f", "a-f (AGTFM)"),
         ],
     )
     def test_tick(self, sweep, value, expected):

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from benchmark.models.model_config import ModelConfig
 from benchmark.models.registry import list_heads
 from benchmark.runner.plan.specs import SpecError, load_spec, load_specs
 
@@ -37,7 +38,7 @@ kind: table
 paper_table: 1
 eval_splits: [standard/test]
 metrics: [dphi_deg]
-variants:
+rows:
   - {label: A, paper_model: Pd/Re-Net, attitude: pd_re_net}
 """
 
@@ -49,9 +50,9 @@ class TestRepositorySpecs:
     def test_heads_exist_in_the_registry(self):
         attitude, translation = set(list_heads("attitude")), set(list_heads("translation"))
         for spec in load_specs():
-            for v in spec.variants:
-                assert v.attitude in attitude, (spec.name, v.attitude)
-                assert v.translation in translation, (spec.name, v.translation)
+            for row in spec.rows:
+                assert row.get("attitude") in attitude, (spec.name, row.get("attitude"))
+                assert row.get("translation") in translation, (spec.name, row.get("translation"))
 
     def test_first_line_cites_the_paper(self):
         for spec in load_specs():
@@ -64,9 +65,9 @@ class TestRepositorySpecs:
 
     def test_sweeps_substitute_values(self):
         fig7 = {s.name: s for s in load_specs()}["fig7"]
-        kappas = [j.variant.attitude_options["kappa"] for j in fig7.jobs()]
+        kappas = [j.row.get("attitude_options")["kappa"] for j in fig7.jobs()]
         assert kappas == [1, 5, 10, 20, 50]  # YAML scalars; ModelConfig types them as floats
-        assert [j.variant.model_config().attitude_options for j in fig7.jobs()] == [
+        assert [j.row.model_config().attitude_options for j in fig7.jobs()] == [
             {"kappa": 1.0}, {"kappa": 5.0}, {}, {"kappa": 20.0}, {"kappa": 50.0},
         ]  # fmt: skip
         fig5 = {s.name: s for s in load_specs()}["fig5"]
@@ -79,8 +80,8 @@ class TestControlsInSpecs:
         specs = {s.name: s for s in load_specs()}
         for name in ("table1", "table2", "table5", "leakage", "towns"):
             spec = specs[name]
-            blank = [v for v in spec.variants if v.satellite_input == "blank"]
-            assert blank and all(v.attitude == "pd_re_net" for v in blank), name
+            blank = [r for r in spec.rows if r.get("satellite_input") == "blank"]
+            assert blank and all(r.get("attitude") == "pd_re_net" for r in blank), name
             assert {"dpsi_deg", "dphi_deg"} <= set(spec.swap_metrics), name
 
     def test_leakage_rows_train_on_their_own_split(self):
@@ -94,8 +95,16 @@ class TestControlsInSpecs:
 class TestLoadSpec:
     def test_good(self, tmp_path):
         spec = load_spec(write(tmp_path, "t1", GOOD))
-        assert spec.variants[0].translation == "regression"
+        assert spec.rows[0].get("translation") == "regression"
         assert len(spec.jobs()) == 1
+
+    def test_a_row_is_the_plain_encoder_unless_it_names_a_variant(self, tmp_path):
+        """ModelConfig's default variant is the paper's AGTFM ("a-f"); a row's is "/"."""
+        (row,) = load_spec(write(tmp_path, "t1", GOOD)).rows
+        assert ModelConfig().variant == "a-f" and row.get("variant") == "/"
+        assert row.model_config().variant == "/"
+        named = GOOD.replace("attitude: pd_re_net}", 'attitude: pd_re_net, variant: "a-f"}')
+        assert load_spec(write(tmp_path, "t1", named)).rows[0].model_config().variant == "a-f"
 
     @pytest.mark.parametrize(
         ("old", "new", "message"),
@@ -112,7 +121,7 @@ class TestLoadSpec:
             (
                 "attitude: pd_re_net}",
                 "attitude: pd_re_net, attitude_options: {kapa: 5}}",
-                r"variants\[0\] \('A'\): attitude_options: attitude head 'pd_re_net' takes no "
+                r"rows\[0\] \('A'\): attitude_options: attitude head 'pd_re_net' takes no "
                 r"option 'kapa'; it takes: alpha \(default",
             ),
             (
@@ -138,12 +147,12 @@ class TestLoadSpec:
             (
                 "attitude: pd_re_net}",
                 "attitude: nope}",
-                r"variants\[0\] \('A'\): unknown attitude head 'nope'",
+                r"rows\[0\] \('A'\): unknown attitude head 'nope'",
             ),
             (
                 "attitude: pd_re_net}",
                 "attitude: pd_re_net, colour: red}",
-                r"variants\[0\]: unknown fields",
+                r"rows\[0\]: unknown fields",
             ),
             ("eval_splits: [standard/test]", "eval_splits: []", "eval_splits must list"),
             (
@@ -156,6 +165,13 @@ class TestLoadSpec:
                 "attitude: pd_re_net, eval_splits: standard/test}",
                 "eval_splits must be a non-empty list",
             ),
+            # spec files written before issue 22: ModelConfig's name, and a table's rows
+            (
+                "attitude: pd_re_net}",
+                'attitude: pd_re_net, encoder_variant: "/"}',
+                "field 'encoder_variant' is now 'variant': write variant: '/'",
+            ),
+            ("rows:", "variants:", "field 'variants' is now 'rows'"),
         ],
     )
     def test_errors_name_file_and_field(self, tmp_path, old, new, message):
@@ -168,12 +184,12 @@ class TestLoadSpec:
         path = write(
             tmp_path,
             "t1",
-            GOOD.replace("attitude: pd_re_net}", 'attitude: pd_re_net, encoder_variant: "{x}"}'),
+            GOOD.replace("attitude: pd_re_net}", 'attitude: pd_re_net, variant: "{x}"}'),
         )
         with pytest.raises(SpecError, match="outside a sweep"):
             load_spec(path)
 
-    def test_per_variant_splits_and_beyond_the_paper(self, tmp_path):
+    def test_per_row_splits_and_beyond_the_paper(self, tmp_path):
         text = GOOD.replace("# Paper Table 1: a test table.", "# Beyond the paper: an audit.")
         text = text.replace("paper_table: 1\n", "").replace("eval_splits: [standard/test]\n", "")
         text = text.replace(
@@ -183,7 +199,7 @@ class TestLoadSpec:
         )
         (job,) = load_spec(write(tmp_path, "t1", text)).jobs()
         assert (job.train_split, job.eval_splits) == ("frames/train", ("frames/test",))
-        assert job.variant.satellite_input == "blank"
+        assert job.row.get("satellite_input") == "blank"
 
     def test_unknown_table_in_only(self):
         with pytest.raises(SpecError, match=r"unknown table.*groups"):
@@ -219,8 +235,8 @@ sweep: kappa
 sweep_values: [1, 2.5, 1e-3]
 eval_splits: [standard/test]
 metrics: [dphi_deg]
-variants:
-  - {label: A, paper_model: Pd/Re-Net, attitude: pd_net_e, encoder_variant: "/",
+rows:
+  - {label: A, paper_model: Pd/Re-Net, attitude: pd_net_e, variant: "/",
      attitude_options: {kappa: "{x}", hidden: 64, direction_weight: 0},
      translation: re_net_t, translation_options: {scale_weight: "{x}"},
      encoder_options: {norm: batch}}
@@ -230,7 +246,7 @@ variants:
 class TestRowOptions:
     def test_any_head_and_encoder_option_per_row_with_sweep_values(self, tmp_path):
         spec = load_spec(write(tmp_path, "f7", SWEEP))
-        configs = [j.variant.model_config(width=0.25) for j in spec.jobs()]
+        configs = [j.row.model_config(width=0.25) for j in spec.jobs()]
         assert [c.attitude_options for c in configs] == [
             {"kappa": k, "hidden": 64, "direction_weight": 0.0} for k in (1.0, 2.5, 0.001)
         ]
@@ -252,18 +268,18 @@ class TestRowOptions:
         text = text.replace(",\n     encoder_options: {norm: batch}}", "}")
         default, five = load_spec(write(tmp_path, "f7", text)).jobs()
         assert (
-            default.variant.model_config()
+            default.row.model_config()
             == load_spec(write(tmp_path, "f7", text.replace('{kappa: "{x}"}', "{}")))
             .jobs()[0]
-            .variant.model_config()
+            .row.model_config()
         )
-        assert five.variant.model_config().attitude_options == {"kappa": 5.0}
+        assert five.row.model_config().attitude_options == {"kappa": 5.0}
 
     def test_option_error_names_sweep_value(self, tmp_path):
         text = SWEEP.replace("sweep_values: [1, 2.5, 1e-3]", "sweep_values: [1, wide]")
         with pytest.raises(SpecError) as err:
             load_spec(write(tmp_path, "f7", text))
-        assert "f7.yaml: variants[0] ('A') (sweep value wide)" in str(err.value)
+        assert "f7.yaml: rows[0] ('A') (sweep value wide)" in str(err.value)
         assert "kappa='wide': expected float" in str(err.value)
 
     def test_placeholder_in_option_outside_sweep(self, tmp_path):

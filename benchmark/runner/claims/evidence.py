@@ -141,7 +141,7 @@ class Evidence:
 
     def attitude(self, model: Model) -> str:
         """Registry name of the model's attitude head (from its spec row)."""
-        return self.frames.variant(*model).attitude
+        return self.frames.row(*model).get("attitude")
 
     def family(self, model: Model) -> str:
         """:func:`head_family` of the model's attitude head."""

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.runner.execute.worker import eval_key, split_filename
-from benchmark.runner.plan.specs import VariantSpec
+from benchmark.runner.plan.specs import RowSpec
 from benchmark.runner.plan.units import Unit
 
 
@@ -113,7 +113,7 @@ class FrameStore:
             job = next(iter(by_seed.values()))[1]
             if t != table or (split is not None and split not in job.eval_splits):
                 continue
-            blank = job.variant.satellite_input == "blank"
+            blank = job.row.get("satellite_input") == "blank"
             if control is None or control == blank:
                 out[label] = None
         return list(out)
@@ -131,12 +131,12 @@ class FrameStore:
         """Whether the model is planned and evaluated on ``split``."""
         return split in self.splits(table, label, x)
 
-    def variant(self, table: str, label: str, x: object = None) -> VariantSpec:
+    def row(self, table: str, label: str, x: object = None) -> RowSpec:
         """The spec row of the model ``(table, label, x)`` (its heads, encoder variant, satellite
-        input): the claims read a head's family from the registry through ``variant.attitude``.
+        input): the claims read a head's family from the registry through ``row.get("attitude")``.
         Raises ``KeyError`` when the model is not planned."""
         _seed, (_key, job) = self._jobs(table, label, x)[0]
-        return job.variant
+        return job.row
 
     def seeds(self, table: str, label: str, x: object = None) -> list[int]:
         return sorted(self._models.get((table, label, _norm_x(x)), {}))

@@ -56,7 +56,7 @@ class ReproProfile:
     # precision other than fp32 is (a bf16 unit is another model).
     device: str = "auto"
     precision: str = "auto"
-    # The encoder of every row that names none (``benchmark.runner.plan.specs.VariantSpec.encoder``)
+    # The encoder of every row that names none (``benchmark.runner.plan.specs.RowSpec``)
     # and its options; rows that name an encoder (Fig. 9's GoogLeNet) keep theirs.
     encoder: str = "googlenet"
     encoder_options: dict[str, Any] = field(default_factory=dict)

@@ -2,19 +2,20 @@
 
 Each file's first line cites what it reproduces (``# Paper Table 1: ...`` or ``# Paper Fig. 7:
 ...``), or says it goes beyond the paper (``# Beyond the paper: ...``, e.g. the leakage audit);
-the loader checks that. A spec names its variants (which heads and encoder variant), the split they
-train on and the splits they are evaluated on. Sweep specs (figures) repeat the variants for every
-``sweep_values`` entry, substituting ``{x}`` in split names and variant fields.
+the loader checks that. A spec names its rows (one model each: heads, encoder and its variant),
+the split they train on and the splits they are evaluated on. Sweep specs (figures) repeat the rows
+for every ``sweep_values`` entry, substituting ``{x}`` in split names and row fields.
 
-Per variant (row): ``label``, ``paper_model`` and ``attitude`` (a registered attitude head) are
-required; the other fields describe the model (``benchmark.models.ModelConfig``; the profile sets
-its width, the dataset its input size) or where it trains:
+Per row: ``label``, ``paper_model`` and ``attitude`` (a registered attitude head) are required;
+the other fields are ``benchmark.models.ModelConfig``'s, by its names (the profile sets the width,
+the dataset the input size), or say where the row trains:
 
 - ``translation`` (default ``regression``), ``encoder`` (default: the profile's,
   ``benchmark.runner.plan.repro_profiles.ReproProfile.encoder``: the matching encoder in ``quick``,
   the paper's GoogLeNet in ``smoke`` and ``paper``; a row that names one keeps it, e.g. Fig. 9's
-  ``googlenet``), ``encoder_variant`` (``/``, ``a``, ``f``, ``a-f``; default ``/``; GoogLeNet's
-  variants: a row on a profile encoder other than GoogLeNet runs it plain, ``/``),
+  ``googlenet``), ``variant`` (GoogLeNet's: ``/``, ``a``, ``f``, ``a-f``; a row's default is
+  ``/``, not ModelConfig's ``a-f``: :data:`ROW_DEFAULTS`; a row on a profile encoder other than
+  GoogLeNet runs it plain, ``/``; the field was ``encoder_variant`` before issue 22),
   ``aux_weight`` (default 0.3).
 - ``attitude_options``, ``translation_options``, ``encoder_options``: mappings of constructor
   options of that head / encoder, any of them, e.g. ``attitude_options: {kappa: 5, hidden: 512}``,
@@ -55,10 +56,9 @@ from typing import Any
 
 import yaml
 
-from benchmark.models.model_config import ModelConfig, parse_scalar
+from benchmark.models.model_config import SATELLITE_INPUTS, ModelConfig, parse_scalar
 
 KINDS = ("table", "sweep", "cost")
-SATELLITE_INPUTS = ("image", "blank")  # benchmark.models.pair.SATELLITE_INPUTS
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
 
@@ -69,27 +69,47 @@ class SpecError(ValueError):
 OPTION_FIELDS = ("attitude_options", "translation_options", "encoder_options")
 
 
+# The ModelConfig fields a row may set. The others are not a row's: the profile's encoder width,
+# the dataset's input size and the speed switches (channels_last, shared_satellite), which do not
+# change what a model computes.
+ROW_MODEL_FIELDS = (
+    *("attitude", "attitude_options", "translation", "translation_options"),
+    *("encoder", "encoder_options", "variant", "aux_weight", "satellite_input"),
+)
+# Where a row's default is not ModelConfig's. A row trains the plain encoder (``variant "/"``)
+# unless it names a variant; ModelConfig's own default is the paper's AGTFM (``"a-f"``). A row
+# without ``encoder`` trains the profile's (None here; see ``RowSpec.model_config``).
+ROW_DEFAULTS: dict[str, Any] = {"variant": "/", "encoder": None}
+# Row fields of earlier spec files and what they are now.
+MOVED_ROW_FIELDS = {
+    "encoder_variant": "variant",  # ModelConfig's name for GoogLeNet's variant
+}
+
+
 @dataclass(frozen=True)
-class VariantSpec:
-    """One model of a table (a spec row): its heads, encoder and their options, and where it
+class RowSpec:
+    """One row of a table (a model): its label, the ``ModelConfig`` fields it sets (``model``:
+    a subset of :data:`ROW_MODEL_FIELDS`, as written, ``{x}`` not yet filled in) and where it
     trains. :meth:`model_config` turns it into the ``benchmark.models.ModelConfig`` it trains."""
 
     label: str
     paper_model: str
-    attitude: str
-    translation: str = "regression"
-    encoder: str | None = None  # None: the profile's encoder (and its options)
-    encoder_variant: str = "/"
-    attitude_options: dict[str, Any] = dataclasses.field(default_factory=dict)
-    translation_options: dict[str, Any] = dataclasses.field(default_factory=dict)
-    encoder_options: dict[str, Any] = dataclasses.field(default_factory=dict)
-    aux_weight: float = 0.3
-    satellite_input: str = "image"  # "blank": the UAV-only control
+    model: dict[str, Any]
     train_split: str | None = None  # None: the table's
     eval_splits: tuple[str, ...] | None = None  # None: the table's
 
-    def __hash__(self) -> int:  # the option dicts are not hashable; their repr is
+    def __hash__(self) -> int:  # the model dict is not hashable; its repr is
         return hash(repr(self))
+
+    def get(self, name: str) -> Any:
+        """The row's model field ``name``: as written, else :data:`ROW_DEFAULTS`, else
+        ``ModelConfig``'s default."""
+        if name in self.model:
+            return self.model[name]
+        if name in ROW_DEFAULTS:
+            return ROW_DEFAULTS[name]
+        default = _MODEL_DEFAULTS[name]
+        return dict(default) if isinstance(default, dict) else default
 
     def model_config(
         self,
@@ -101,37 +121,39 @@ class VariantSpec:
         A row without ``encoder`` takes ``encoder`` with ``encoder_options`` (the profile's),
         updated by the row's own ``encoder_options``. Raises ValueError naming the head and its
         options when an option does not fit."""
-        options = dict(self.encoder_options)
-        variant = self.encoder_variant
-        if self.encoder is None:
-            options = {**(encoder_options or {}), **options}
+        fields = {name: self.get(name) for name in ROW_MODEL_FIELDS}
+        if fields["encoder"] is None:
+            fields["encoder"] = encoder
+            fields["encoder_options"] = {**(encoder_options or {}), **fields["encoder_options"]}
             if encoder != "googlenet":
                 # The variants (SE attention, triple fusion) are GoogLeNet's: a row written for
                 # the paper's encoder (Table 5's "with AGTFM") runs the profile's encoder plain.
-                variant = "/"
-        return ModelConfig(
-            encoder=self.encoder or encoder,
-            encoder_options=options,
-            variant=variant,
-            width=width,
-            attitude=self.attitude,
-            attitude_options=self.attitude_options,
-            translation=self.translation,
-            translation_options=self.translation_options,
-            aux_weight=self.aux_weight,
-            satellite_input=self.satellite_input,
-        )
+                fields["variant"] = "/"
+        return ModelConfig(width=width, **fields)
+
+
+def _model_defaults() -> dict[str, Any]:
+    defaults = {}
+    for f in dataclasses.fields(ModelConfig):
+        if f.default is not dataclasses.MISSING:
+            defaults[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            defaults[f.name] = f.default_factory()
+    return defaults
+
+
+_MODEL_DEFAULTS = _model_defaults()
 
 
 @dataclass(frozen=True)
 class Job:
-    """One (table, variant, sweep value): train on ``train_split``, evaluate on ``eval_splits``."""
+    """One (table, row, sweep value): train on ``train_split``, evaluate on ``eval_splits``."""
 
     table: str
     label: str
     paper_model: str
     x: str | None  # the sweep value as written in the spec (None for plain tables)
-    variant: VariantSpec
+    row: RowSpec  # {x} filled in
     train_split: str
     eval_splits: tuple[str, ...]
 
@@ -142,7 +164,7 @@ class TableSpec:
     title: str
     kind: str
     source: Path
-    variants: tuple[VariantSpec, ...]
+    rows: tuple[RowSpec, ...]
     paper_table: int | None = None
     paper_figure: int | None = None
     paper_split: str | None = None
@@ -157,24 +179,26 @@ class TableSpec:
     references: tuple[str, ...] = ()  # non-learned rows (benchmark.references names)
 
     def jobs(self) -> list[Job]:
-        """Concrete jobs; a sweep yields one per (value, variant). Cost specs train nothing."""
+        """Concrete jobs; a sweep yields one per (value, row). Cost specs train nothing."""
         if self.kind == "cost":
             return []
         values: tuple[str | None, ...] = self.sweep_values if self.kind == "sweep" else (None,)
         out = []
         for x in values:
-            for v in self.variants:
+            for row in self.rows:
                 out.append(
                     Job(
                         table=self.name,
-                        label=v.label,
-                        paper_model=v.paper_model,
+                        label=row.label,
+                        paper_model=row.paper_model,
                         x=x,
-                        variant=_substitute_variant(v, x, self.source),
-                        train_split=_fill(v.train_split or self.train_split, x),
+                        row=_substitute_row(row, x, self.source),
+                        train_split=_fill(row.train_split or self.train_split, x),
                         eval_splits=tuple(
                             _fill(s, x)
-                            for s in (self.eval_splits if v.eval_splits is None else v.eval_splits)
+                            for s in (
+                                self.eval_splits if row.eval_splits is None else row.eval_splits
+                            )
                         ),
                     )
                 )
@@ -202,45 +226,55 @@ def _fill(text: str, x: str | None) -> str:
     return text if x is None else text.replace("{x}", x)
 
 
-def _outside_sweep(v: VariantSpec, name: str, source: Path) -> SpecError:
-    return SpecError(f"{source}: variant {v.label!r} field {name!r} uses {{x}} outside a sweep")
+def _outside_sweep(row: RowSpec, name: str, source: Path) -> SpecError:
+    return SpecError(f"{source}: row {row.label!r} field {name!r} uses {{x}} outside a sweep")
 
 
-def _substitute_variant(v: VariantSpec, x: str | None, source: Path) -> VariantSpec:
-    """``v`` with ``{x}`` replaced in its string fields, split lists and option values; an option
-    value that held ``{x}`` is then read as a YAML scalar (``"5"`` -> 5)."""
-    changes: dict[str, Any] = {}
-    for f in dataclasses.fields(v):
-        value = getattr(v, f.name)
-        if isinstance(value, tuple) and any("{x}" in s for s in value):
-            if x is None:
-                raise _outside_sweep(v, f.name, source)
-            changes[f.name] = tuple(_fill(s, x) for s in value)
-        elif isinstance(value, str) and "{x}" in value:
-            if x is None:
-                raise _outside_sweep(v, f.name, source)
-            changes[f.name] = _fill(value, x)
-        elif f.name in OPTION_FIELDS:
-            swept = [k for k, o in value.items() if isinstance(o, str) and "{x}" in o]
-            if swept and x is None:
-                raise _outside_sweep(v, f"{f.name}.{swept[0]}", source)
-            if swept:
-                changes[f.name] = {
-                    k: parse_scalar(_fill(o, x)) if k in swept else o for k, o in value.items()
-                }
-    return dataclasses.replace(v, **changes)
+def _substitute(value: Any, name: str, row: RowSpec, x: str | None, source: Path) -> Any:
+    """``value`` (of field ``name``) with ``{x}`` filled in: in a string, in each string of a
+    tuple, in the option values of a mapping (then read as YAML scalars: ``"5"`` -> 5)."""
+    if isinstance(value, tuple) and any("{x}" in s for s in value):
+        if x is None:
+            raise _outside_sweep(row, name, source)
+        return tuple(_fill(s, x) for s in value)
+    if isinstance(value, str) and "{x}" in value:
+        if x is None:
+            raise _outside_sweep(row, name, source)
+        return _fill(value, x)
+    if name in OPTION_FIELDS:
+        swept = [k for k, o in value.items() if isinstance(o, str) and "{x}" in o]
+        if swept and x is None:
+            raise _outside_sweep(row, f"{name}.{swept[0]}", source)
+        if swept:
+            return {k: parse_scalar(_fill(o, x)) if k in swept else o for k, o in value.items()}
+    return value
 
 
-def _variant_from(raw: Any, source: Path, index: int) -> VariantSpec:
-    where = f"{source}: variants[{index}]"
+def _substitute_row(row: RowSpec, x: str | None, source: Path) -> RowSpec:
+    """``row`` with ``{x}`` replaced in its strings, split lists and model fields."""
+    changes: dict[str, Any] = {
+        f.name: _substitute(getattr(row, f.name), f.name, row, x, source)
+        for f in dataclasses.fields(row)
+        if f.name != "model"
+    }
+    model = {k: _substitute(v, k, row, x, source) for k, v in row.model.items()}
+    return dataclasses.replace(row, model=model, **changes)
+
+
+def _row_from(raw: Any, source: Path, index: int) -> RowSpec:
+    where = f"{source}: rows[{index}]"
     if not isinstance(raw, dict):
         raise SpecError(f"{where} must be a mapping, got {type(raw).__name__}")
-    fields = {f.name for f in dataclasses.fields(VariantSpec)}
+    own = {f.name for f in dataclasses.fields(RowSpec)} - {"model"}
+    fields = own | set(ROW_MODEL_FIELDS)
     if "kappa" in raw:
         raise SpecError(
             f"{where}: field 'kappa' has moved: write attitude_options: {{kappa: {raw['kappa']}}} "
             "(any option of the head can be set there)"
         )
+    for old, new in MOVED_ROW_FIELDS.items():
+        if old in raw:
+            raise SpecError(f"{where}: field {old!r} is now {new!r}: write {new}: {raw[old]!r}")
     unknown = sorted(set(raw) - fields)
     if unknown:
         raise SpecError(f"{where}: unknown fields {unknown}; expected some of {sorted(fields)}")
@@ -270,23 +304,24 @@ def _variant_from(raw: Any, source: Path, index: int) -> VariantSpec:
             values[key] = float(value)
         else:
             values[key] = str(value)
-    return VariantSpec(**values)
+    model = {k: v for k, v in values.items() if k not in own}
+    return RowSpec(model=model, **{k: v for k, v in values.items() if k in own})
 
 
 def _check_models(spec: TableSpec) -> None:
     """Build every row's ``ModelConfig`` (per sweep value) now: an unknown head or a head option
     the head does not take is reported with the file and the row before anything trains."""
     values: tuple[str | None, ...] = spec.sweep_values if spec.kind == "sweep" else (None,)
-    for index, variant in enumerate(spec.variants):
+    for index, row in enumerate(spec.rows):
         for x in values:
             try:
-                _substitute_variant(variant, x, spec.source).model_config()
+                _substitute_row(row, x, spec.source).model_config()
             except SpecError:
                 raise
             except (TypeError, ValueError) as err:
                 at = f" (sweep value {x})" if x is not None else ""
                 raise SpecError(
-                    f"{spec.source}: variants[{index}] ({variant.label!r}){at}: {err}"
+                    f"{spec.source}: rows[{index}] ({row.label!r}){at}: {err}"
                 ) from None
 
 
@@ -328,30 +363,32 @@ def load_spec(path: str | Path) -> TableSpec:
         raise SpecError(f"{path}: invalid YAML: {err}") from err
     if not isinstance(raw, dict):
         raise SpecError(f"{path}: expected a mapping at the top level")
+    if "variants" in raw:
+        raise SpecError(f"{path}: field 'variants' is now 'rows' (one model per row)")
     fields = {f.name for f in dataclasses.fields(TableSpec)} - {"source"}
     unknown = sorted(set(raw) - fields)
     if unknown:
         raise SpecError(f"{path}: unknown fields {unknown}; expected some of {sorted(fields)}")
-    for required in ("name", "title", "kind", "variants"):
+    for required in ("name", "title", "kind", "rows"):
         if required not in raw:
             raise SpecError(f"{path}: missing field {required!r}")
     if raw["kind"] not in KINDS:
         raise SpecError(f"{path}: kind must be one of {KINDS}, got {raw['kind']!r}")
     if raw["name"] != path.stem:
         raise SpecError(f"{path}: name {raw['name']!r} must equal the file name {path.stem!r}")
-    if not isinstance(raw["variants"], list) or not raw["variants"]:
-        raise SpecError(f"{path}: variants must be a non-empty list")
-    variants = tuple(_variant_from(v, path, i) for i, v in enumerate(raw["variants"]))
+    if not isinstance(raw["rows"], list) or not raw["rows"]:
+        raise SpecError(f"{path}: rows must be a non-empty list")
+    rows = tuple(_row_from(r, path, i) for i, r in enumerate(raw["rows"]))
     tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values", "swap_metrics")
     values = {
-        k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "variants"
+        k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "rows"
     }
     if "references" in raw:
         values["references"] = _references_from(raw["references"], raw["kind"], path)
-    spec = TableSpec(source=path, variants=variants, **values)
+    spec = TableSpec(source=path, rows=rows, **values)
     if spec.kind == "sweep" and not (spec.sweep and spec.sweep_values):
         raise SpecError(f"{path}: a sweep needs 'sweep' and 'sweep_values'")
-    if spec.kind != "cost" and any(v.eval_splits is None for v in variants):
+    if spec.kind != "cost" and any(r.eval_splits is None for r in rows):
         if not spec.eval_splits:
             raise SpecError(f"{path}: eval_splits must list at least one split")
     if spec.paper_splits and len(spec.paper_splits) != len(spec.eval_splits):

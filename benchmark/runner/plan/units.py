@@ -108,7 +108,7 @@ def train_config(
             # verify: DataConfig's default, as for `uavbench train` (the same config, the same
             # run key); the default checks sha256 once per file and caches it (issue 14).
         ),
-        model=job.variant.model_config(profile.width, profile.encoder, profile.encoder_options),
+        model=job.row.model_config(profile.width, profile.encoder, profile.encoder_options),
         optim=profile.optim,
         seed=seed,
         threads=1,

@@ -113,10 +113,10 @@ def cost_configs(spec: TableSpec, input_size: int, width: float, profile_name: s
     each row at the paper's configuration and at the profile's."""
     out = []
     configs = [("paper config", *PAPER_CONFIG), (f"{profile_name} profile", input_size, width)]
-    for v in spec.variants:
+    for row in spec.rows:
         for name, size, w in configs:
-            cfg = dataclasses.replace(v.model_config(w), input_size=int(size))
-            out.append((v.label, v.paper_model, f"{name} ({size} px, width {w:g})", cfg))
+            cfg = dataclasses.replace(row.model_config(w), input_size=int(size))
+            out.append((row.label, row.paper_model, f"{name} ({size} px, width {w:g})", cfg))
     return out
 
 

@@ -97,7 +97,7 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
                     rows.append(
                         {"table": job.table, "label": job.label, "paper_model": job.paper_model,
                          "x": job.x, "split": split, "satellite": satellite,
-                         "satellite_input": job.variant.satellite_input,
+                         "satellite_input": job.row.get("satellite_input"),
                          "train_split": job.train_split, "role": role, "seed": unit.cfg.seed,
                          "unit": unit.key, "train_seconds": result.seconds, **metrics}
                     )  # fmt: skip

@@ -32,7 +32,7 @@ SWEEP_LABELS: dict[str, str] = {
     "sat_height_m": "satellite image height above ground (m)",
     "pitch_bin_deg": "UAV pitch bin (°; satellite camera at -90°)",
     "kappa": "vMF concentration κ",
-    "encoder_variant": "encoder variant",
+    "variant": "encoder variant",
 }
 # Fig. 9's encoder variants, spelled out on the ticks.
 VARIANT_NAMES: dict[str, str] = {"/": "plain", "a": "attention", "f": "fusion", "a-f": "AGTFM"}
@@ -58,7 +58,7 @@ def sweep_tick(sweep: str | None, value: object) -> str:
     """A readable sweep value: a bin ``0to-10`` of a ``*_deg`` sweep reads ``0 to -10°``, an
     encoder variant ``a-f`` reads ``a-f (AGTFM)``; anything else as written in the spec."""
     text = str(value)
-    if sweep == "encoder_variant" and text in VARIANT_NAMES:
+    if sweep == "variant" and text in VARIANT_NAMES:
         return f"{text} ({VARIANT_NAMES[text]})"
     match = _RANGE.fullmatch(text.replace(" ", ""))
     if match:
