@@ -36,15 +36,19 @@ HERE = Path(__file__).resolve().parent
 # Tolerances of the stored-reference checks, from the measurement below (AMD EPYC, AVX2, torch
 # 2.13.0+cpu, 2026-12-02; largest difference over the forced kernels onednn-avx, onednn-sse41,
 # aten-default and all-sse against the default AVX2 run; MKL_ENABLE_INSTRUCTIONS changed nothing):
-#   devices, last epoch's record: 7.2e-6 relative (val_median_dphi_deg; the AVX-512 EPYC:
-#     5.3e-6) -> 5e-5, a margin of 7x;
-#   devices, evaluation summary: 4.0e-5 relative over the stored keys (dgamma_deg), loglik
-#     -0.0174 moved 1.9e-6 absolute -> 3e-4 relative plus 1e-5 absolute, a margin of 5-7x;
+#   devices, last epoch's losses: 7.2e-6 relative on that machine and on an AVX-512 AMD EPYC;
+#     an Intel Xeon with AVX-512 and avx512_bf16 (2026-12-02, stop 25) is 5.9e-5 away
+#     (val_loss_tran; the training losses within 8.9e-6), where MKL_ENABLE_INSTRUCTIONS does
+#     change the numbers (all-sse 9.3e-4 from its own default) -> 5e-4, a margin of 8x over the
+#     farthest CPU seen. Only the losses: they average every pair. The evaluation's per-frame
+#     metrics on 6 validation pairs are not a cross-CPU truth (on that Xeon: median dphi 5.5e-4,
+#     dgamma 1.3e-2 relative, the rank correlation of 6 frames -0.49 -> -0.31), so
+#     ``test_devices`` checks them bit for bit between ``auto`` and ``cpu/fp32`` on one machine
+#     and not against a stored number;
 #   loop, decoded R entries: 2.35e-3 absolute (the AVX-512: 1.7e-3) -> 1e-2, 4x;
 #   loop, decoded T: 0.34 m absolute (|T| up to 67 m; Adam turns last-bit differences of tiny
 #     gradients into whole steps of lr) -> 1.5 m, 4.5x.
-DEVICES_LAST_REL = 5e-5
-DEVICES_EVAL_REL, DEVICES_EVAL_ABS = 3e-4, 1e-5
+DEVICES_LOSS_REL = 5e-4
 LOOP_R_ATOL = 1e-2
 LOOP_T_ATOL_M = 1.5
 

@@ -13,14 +13,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from cross_isa import (
-    DEVICES_EVAL_ABS,
-    DEVICES_EVAL_REL,
-    DEVICES_LAST_REL,
-    LOOP_R_ATOL,
-    LOOP_T_ATOL_M,
-    main,
-)
+from cross_isa import DEVICES_LOSS_REL, LOOP_R_ATOL, LOOP_T_ATOL_M, main
 
 
 @pytest.mark.slow
@@ -35,9 +28,8 @@ def test_forced_kernels_stay_within_the_stored_reference_tolerances(tmp_path):
     base = runs.pop("default")
     for name, run in runs.items():
         last, want_last = run["devices"]["last"], base["devices"]["last"]
-        assert last == pytest.approx(want_last, rel=DEVICES_LAST_REL, abs=0), name
-        got, want = run["devices"]["eval"], base["devices"]["eval"]
-        assert got == pytest.approx(want, rel=DEVICES_EVAL_REL, abs=DEVICES_EVAL_ABS), name
+        losses = {k: v for k, v in want_last.items() if "loss" in k}
+        assert {k: last[k] for k in losses} == pytest.approx(losses, rel=DEVICES_LOSS_REL), name
         for key, outputs in base["loop"].items():
             R, T = run["loop"][key]["R"], run["loop"][key]["T"]
             assert max(abs(a - b) for a, b in zip(R, outputs["R"], strict=True)) <= LOOP_R_ATOL

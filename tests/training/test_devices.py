@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from cross_isa import DEVICES_EVAL_ABS, DEVICES_EVAL_REL, DEVICES_LAST_REL, devices_numbers
+from cross_isa import DEVICES_LOSS_REL, devices_numbers
 from tiny_pairs import TinyPairs, tiny_config
 
 from benchmark.config import ConfigError, apply_overrides
@@ -53,7 +53,8 @@ from benchmark.training.loop import loader_workers
 
 CUDA = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 
-# tiny_config() a-f, SGD, 2 epochs: the last epoch's record and the evaluation (see module doc).
+# tiny_config() a-f, SGD, 2 epochs: the last epoch's record (see module doc; the losses are compared
+# across CPUs, the metrics only by the bf16 test, loosely).
 BEFORE_LAST_EPOCH = {
     "train_loss_total": 329.63062540690106, "train_loss_att": 326.60399373372394,
     "train_loss_tran": 3.026628255844116, "train_loss_att_final": 204.06450907389322,
@@ -64,17 +65,6 @@ BEFORE_LAST_EPOCH = {
     "val_median_dphi_deg": 147.52107601647606, "val_dE_m": 57.57464110851288,
     "val_dN_m": 49.2032063404719, "val_dU_m": 7.916912496089935,
 }  # fmt: skip
-BEFORE_EVAL = {
-    "dE_m": 57.57464106877645, "dN_m": 49.20320610205332, "dU_m": 7.916912496089935,
-    "dtheta_deg": 20.53382714754998, "dgamma_deg": 21.946992633354764,
-    "dpsi_deg": 139.29694002723144, "dphi_deg": 135.46699781800348,
-    "median_dphi_deg": 148.53363425311662, "loglik": -0.017403920491536457,
-    "spearman_unc_err": -0.48571428571428577, "loss_total": 208.87055460611978,
-}  # fmt: skip
-# The one number known from another instruction set (issue 20, an AMD EPYC with AVX-512 and
-# avx512_bf16, printed to 5 decimals); it centres the check there (the tolerance covers both).
-CAPABILITY = torch.backends.cpu.get_cpu_capability()
-BEFORE_BY_CAPABILITY = {"AVX512": {"val_median_dphi_deg": 147.52030}}
 # run_key(cfg, manifest) and config_hash(cfg) at 1fe0c26 (keys of runs stored before devices).
 BEFORE_KEYS = [
     ((), "f" * 64, "fa4f899d57dd33e8", "b55553c0526b4acc"),
@@ -93,7 +83,8 @@ class TestCpuDefaultsUnchanged:
     def test_same_numbers_as_before_devices(self, tmp_path):
         """The default config and an explicit device=cpu precision=fp32 give bit-identical
         training and evaluation on this machine (determinism, and auto is cpu/fp32 here), and
-        the numbers recorded before devices within the measured cross-CPU tolerance."""
+        the last epoch's losses recorded before devices within the measured cross-CPU tolerance
+        (``cross_isa``: the per-frame metrics of 6 pairs are no cross-CPU truth)."""
         runs = {}
         for name, overrides in (("auto", ()), ("cpu", ("device=cpu", "precision=fp32"))):
             runs[name] = devices_numbers(tmp_path / name, *overrides)
@@ -103,13 +94,12 @@ class TestCpuDefaultsUnchanged:
         assert state.keys() == state_cpu.keys()
         assert all(torch.equal(state[k], state_cpu[k]) for k in state)
 
-        want_last = {**BEFORE_LAST_EPOCH, **BEFORE_BY_CAPABILITY.get(CAPABILITY, {})}
-        assert {k: last[k] for k in want_last} == pytest.approx(
-            want_last, rel=DEVICES_LAST_REL, abs=0
-        )
-        assert {k: summary[k] for k in BEFORE_EVAL} == pytest.approx(
-            BEFORE_EVAL, rel=DEVICES_EVAL_REL, abs=DEVICES_EVAL_ABS
-        )
+        want = {k: v for k, v in BEFORE_LAST_EPOCH.items() if "loss" in k}
+        assert {k: last[k] for k in want} == pytest.approx(want, rel=DEVICES_LOSS_REL, abs=0)
+        assert last["epoch"] == 2.0 and last["lr"] == 0.001
+        # the evaluation scores the trained model like the loop's validation does
+        assert summary["loss_total"] == pytest.approx(last["val_loss_total"], rel=1e-6)
+        assert summary["dphi_deg"] == pytest.approx(last["val_dphi_deg"], rel=1e-6)
 
     def test_auto_is_cpu_fp32_here_without_an_accelerator(self):
         if torch.cuda.is_available() or torch.backends.mps.is_available():
@@ -212,8 +202,8 @@ class TestBf16OnCpu:
         for key in ("train_loss_total", "train_loss_tran", "val_loss_total"):
             assert bf16.history[-1][key] == pytest.approx(BEFORE_LAST_EPOCH[key], rel=0.02), key
         summary, _ = evaluate(bf16.model.eval(), val, batch_size=4, precision="bf16")
-        assert summary["loss_total"] == pytest.approx(BEFORE_EVAL["loss_total"], rel=0.02)
-        assert summary["dE_m"] == pytest.approx(BEFORE_EVAL["dE_m"], rel=0.05)
+        assert summary["loss_total"] == pytest.approx(BEFORE_LAST_EPOCH["val_loss_total"], rel=0.02)
+        assert summary["dE_m"] == pytest.approx(BEFORE_LAST_EPOCH["val_dE_m"], rel=0.05)
         weights = load_checkpoint(tmp_path / "bf16" / CHECKPOINT)["model"]
         assert all(v.dtype != torch.bfloat16 for v in weights.values())  # float32 master weights
 
