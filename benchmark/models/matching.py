@@ -10,6 +10,11 @@ Pipeline, per pair (``B`` pairs, ``C = out_channels``):
 1. Two small CNNs (5 convolutions each, GroupNorm, ReLU): the UAV image -> ``(C, S/2, S/2)``
    (2 x 2 average pooling after the first layer), the satellite image -> ``(C, S/2, S)`` (pooled
    along rows only, since a 2 x 1 km footprint squashed to a square has 2x finer rows).
+   With ``grey_gradient``, two fixed channels join each map: the grey level and its gradient
+   magnitude, standardised per image, times a learned gain (``matching_pixels.grey_gradient``;
+   what the geometry oracle correlates, and what does not depend on a city style's palette).
+   With ``photometric > 0``, training images get random colours first (per image, UAV and
+   satellite independently; ``matching_pixels.photometric_jitter``): labels stay exact.
 2. A gravity branch on the UAV trunk predicts pitch, roll and the height above the ground
    (a hidden layer of ``gravity_dim`` features; they no longer go to the heads).
 3. Protocol (option ``protocol``): ``"gravity_aided"`` builds the bird's-eye view from the
@@ -55,6 +60,12 @@ from torch import Tensor, nn
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
 from benchmark.models.encoder import parse_variant
 from benchmark.models.matching_ops import bev_templates, correlate, sat_grid
+from benchmark.models.matching_pixels import (
+    denormalize,
+    grey_gradient,
+    normalize,
+    photometric_jitter,
+)
 from benchmark.models.pair_encoder import PairEncoder, PairEncoding
 from benchmark.models.registry import register_encoder
 
@@ -125,13 +136,16 @@ class MatchingEncoder(PairEncoder):
         default_fov_deg: float = 60.0,
         default_footprint_m: tuple[float, float] = (2000.0, 1000.0),
         default_sat_height_m: float = 1000.0,
+        grey_gradient: bool = False,
+        photometric: float = 0.0,
     ) -> None:
         super().__init__()
         if protocol not in PROTOCOLS:
             raise ValueError(f"matching encoder: protocol must be one of {PROTOCOLS}, got "
                              f"{protocol!r}")  # fmt: skip
         for name, value in (("volume_nll_weight", volume_nll_weight),
-                            ("gravity_weight", gravity_weight)):  # fmt: skip
+                            ("gravity_weight", gravity_weight),
+                            ("photometric", photometric)):  # fmt: skip
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"matching encoder: {name} must be >= 0, got {value!r}")
         for name, value in (("cell_m", cell_m), ("search_m", search_m),
@@ -198,6 +212,13 @@ class MatchingEncoder(PairEncoder):
             "yaw_argmax_sin_w", "E_argmax_w", "N_argmax_w",
         ]  # fmt: skip
         self.feature_dim = len(self.feature_names)
+        self.photometric = float(photometric)
+        self.grey_gradient = bool(grey_gradient)
+        if self.grey_gradient:
+            # log-gain of the fixed grey and gradient channels against the learned ones (created
+            # last, so that the default encoder's parameters and their seeded values stay as they
+            # were before the option existed)
+            self.grey_gradient_log_gain = nn.Parameter(torch.zeros(2))
 
     # --- geometry inputs -------------------------------------------------------------------
     def _geometry(self, context: Mapping[str, Tensor] | None, ref: Tensor) -> dict[str, Tensor]:
@@ -239,8 +260,15 @@ class MatchingEncoder(PairEncoder):
             raise ValueError(f"matching encoder: built for {self.input_size} px images, got uav "
                              f"{tuple(uav.shape)} and sat {tuple(sat.shape)}")  # fmt: skip
         geo = self._geometry(context, uav)
+        if self.training and self.photometric > 0:
+            uav = normalize(photometric_jitter(denormalize(uav), self.photometric))
+            sat = normalize(photometric_jitter(denormalize(sat), self.photometric))
         uav_hidden, uav_feat = _run_trunk(self.uav_trunk, uav)
         _, sat_feat = _run_trunk(self.sat_trunk, sat)
+        if self.grey_gradient:
+            gain = self.grey_gradient_log_gain.exp()[None, :, None, None]
+            uav_feat = torch.cat([uav_feat, grey_gradient(uav, self.uav_stride) * gain], 1)
+            sat_feat = torch.cat([sat_feat, grey_gradient(sat, self.sat_stride) * gain], 1)
         sat_feat = sat_feat[sat_index]
         g = self.gravity_conv(uav_hidden)
         raw = self.gravity_out(g)
@@ -461,7 +489,9 @@ def matching(
     the searched square (m), ``template_m`` bird's-eye radius (m), ``smoothing`` of the NLL
     target (cells/bins), ``temperature`` (initial), ``correlation`` (``"dft"`` by matrix
     products, ``"fft"`` or ``"conv"``: the same numbers to float32 rounding; ``dft`` is the
-    fastest on this CPU), ``default_*`` (the geometry assumed without a ``context``)."""
+    fastest on this CPU), ``default_*`` (the geometry assumed without a ``context``),
+    ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones) and
+    ``photometric`` (strength of the training images' colour jitter, 0: none)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(

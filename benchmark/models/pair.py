@@ -43,7 +43,12 @@ from benchmark.models.model_config import (
     ModelConfig,
     check_satellite_input,
 )
-from benchmark.models.pair_encoder import PairEncoder, PairEncoding
+from benchmark.models.pair_encoder import (
+    IMAGENET_MEAN,
+    IMAGENET_STD,
+    PairEncoder,
+    PairEncoding,
+)
 from benchmark.models.registry import create_encoder, create_head
 
 __all__ = [
@@ -57,9 +62,6 @@ __all__ = [
     "create_model",
 ]
 
-# GoogLeNet's ImageNet input statistics; images enter the model as float RGB in [0, 1].
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
 BLANK_GREY = 0.5  # the UAV-only control's satellite image, RGB in [0, 1]
 
 

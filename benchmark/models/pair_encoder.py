@@ -29,6 +29,11 @@ from torch import Tensor, nn
 
 from benchmark.models.encoder import Encoder
 
+# GoogLeNet's ImageNet input statistics: every encoder gets (x - mean) / std of RGB in [0, 1]
+# (``PoseModel`` normalises; a pair encoder that needs the pixels back inverts it).
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+
 __all__ = ["PairEncoder", "PairEncoding"]
 
 
