@@ -1,11 +1,12 @@
-"""The paper's conclusions, checked one by one by paired statistics on the test frames.
+"""The statistics every claim is decided by (the claims: ``paper``, ``satellite``, ``ranking``;
+all of them in the report's order: ``evaluate``).
 
 Evidence. Every comparison "A beats B" is made on the per-frame error difference on the same test
 frames (``benchmark.runner.claims.frame_errors.FrameStore``): ``Δ = err(A) − err(B)``, each model's
 error first averaged over its training seeds. Its 95% interval is the percentile interval of a
 bootstrap that resamples whole flights (frames of a flight are correlated) and, independently for
-each model, its seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates, seed
-0).
+each model, its seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates,
+seed 0).
 
 Verdict of one comparison: **supported** when the interval excludes zero in the claimed direction,
 **contradicted** when it excludes zero in the other direction, **not resolved at this scale**

@@ -49,7 +49,7 @@ class UnitTracking:
     spec: TrackerSpec
     experiment: str
     run_name: str
-    run_key: str  # the unit key: a rerun finds this unit's run by it
+    unit_key: str  # a rerun finds this unit's run by it (stored as the tag RUN_KEY_TAG)
     tags: dict[str, str] = field(default_factory=dict)
     description: str = ""
     dataset: DatasetRef | None = None
@@ -61,7 +61,7 @@ def open_unit_run(t: UnitTracking) -> tuple[Run | None, RunInfo | None]:
     """``(run, None)`` to log into (new or continued), or ``(None, info)`` of the unit's
     FINISHED run, which is reused as it is."""
     tracker = tracker_from_spec(t.spec)
-    found = tracker.find_runs(t.experiment, t.run_key)
+    found = tracker.find_runs(t.experiment, t.unit_key)
     finished = [info for info in found if info.status == RunStatus.FINISHED.value]
     if finished:
         return None, finished[0]
@@ -78,7 +78,7 @@ def open_unit_run(t: UnitTracking) -> tuple[Run | None, RunInfo | None]:
     run = tracker.start_run(
         t.experiment,
         t.run_name,
-        tags={**t.tags, RUN_KEY_TAG: t.run_key},
+        tags={**t.tags, RUN_KEY_TAG: t.unit_key},
         description=t.description,
     )
     if t.dataset is not None:

@@ -128,7 +128,7 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
         result.started_ms, result.ended_ms = reused.start_time_ms, reused.end_time_ms
         return result
-    with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (jobs == 1)
+    with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (one worker: inline)
         done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
                                      task.eval_batch)  # fmt: skip
     result = _result(task, done, start)

@@ -117,12 +117,13 @@ class Logbook:
             self._describe(table)
             experiment = experiment_name(self.profile, table)
             text = json.dumps([self.profile, self.provenance.get("dataset_manifest", ""), table])
-            key = "reproduce-" + hashlib.sha256(text.encode()).hexdigest()[:16]
+            # the parent's key (the tag RUN_KEY_TAG, as the units' runs are found by theirs)
+            parent_key = "reproduce-" + hashlib.sha256(text.encode()).hexdigest()[:16]
             # Reuse a parent that an earlier invocation ended (FINISHED or FAILED); a KILLED one
             # records an interrupted invocation and keeps its state, a RUNNING one belongs to a
             # live invocation (see close_stale): this invocation then starts its own.
             ended = (RunStatus.FINISHED.value, RunStatus.FAILED.value)
-            found = [r for r in self.tracker.find_runs(experiment, key) if r.status in ended]
+            found = [r for r in self.tracker.find_runs(experiment, parent_key) if r.status in ended]
             if found:
                 run = self.tracker.attach(found[0], reopen=True)
                 run.set_tags({**self.provenance, **self.owner})  # the latest invocation's
@@ -133,7 +134,7 @@ class Logbook:
                     tags={
                         "table": table,
                         "profile": self.profile,
-                        RUN_KEY_TAG: key,
+                        RUN_KEY_TAG: parent_key,
                         **self.provenance,
                         **self.owner,
                     },
@@ -176,7 +177,7 @@ class Logbook:
                 if unit.jobs
                 else f"{unit.title} ({unit.key[:8]})"
             ),  # a shared encoder: no table reads it
-            run_key=unit.key,
+            unit_key=unit.key,
             tags={k: v for k, v in tags.items() if v},
             description=descriptions.unit_run(unit, readers),
             dataset=self._dataset(unit.cfg.data.train_split),

@@ -1,6 +1,6 @@
 """The sweep figures (paper Figs. 5, 6, 7, 9): their Markdown table and their plot.
 
-A row per (split, variant, sweep value) with the mean over seeds and its 95% interval (see
+A row per (split, spec row, sweep value) with the mean over seeds and its 95% interval (see
 ``benchmark.runner.report.tables.interval_note``), the validation split's numbers beside the test
 ones and, in the plot, each seed's own value beside the band of the interval.
 """
@@ -77,7 +77,7 @@ def series_label(label: str, split: str, split_follows_x: bool) -> str:
 
 
 def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = None) -> str:
-    """Markdown for a figure: one row per (split, variant, x), with validation columns as in
+    """Markdown for a figure: one row per (split, spec row, x), with validation columns as in
     ``benchmark.runner.report.tables.markdown_table``."""
     lines = [
         f"## {spec.title}",
@@ -118,7 +118,7 @@ def sweep_table(spec: TableSpec, summary: pd.DataFrame, show_val: bool | None = 
 def sweep_figure(
     spec: TableSpec, summary: pd.DataFrame, path: Path, per_seed: pd.DataFrame | None = None
 ) -> None:
-    """One panel per metric: error against the sweep value, a line per (variant, split) through
+    """One panel per metric: error against the sweep value, a line per (spec row, split) through
     the means over seeds, a band for the 95% interval of the table cells and, given ``per_seed``
     (the results rows, one per seed), each seed's own value as a small dot: the seed spread."""
     import matplotlib
@@ -133,8 +133,8 @@ def sweep_figure(
     rows = math.ceil(len(metrics) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4 * cols, 3.2 * rows), squeeze=False)
     order = {str(x): i for i, x in enumerate(spec.sweep_values)}
-    # A line per variant and evaluated split; when the split itself follows the sweep value
-    # (Fig. 5's height{x}/test, Fig. 6's pitch{x}/test) a line per variant.
+    # A line per spec row and evaluated split; when the split itself follows the sweep value
+    # (Fig. 5's height{x}/test, Fig. 6's pitch{x}/test) a line per spec row.
     split_follows_x = any("{x}" in s for s in spec.eval_splits)
     template = next((s for s in spec.eval_splits if "{x}" in s), "")
 

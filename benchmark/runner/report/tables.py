@@ -1,6 +1,6 @@
 """Render results next to the paper's numbers: Markdown tables, CSV and figures.
 
-Input is the long results table the runner writes (one row per table, variant, sweep value, split,
+Input is the long results table the runner writes (one row per table, spec row, sweep value, split,
 satellite mode and seed; metric columns named as in ``reports/paper_tables.csv``: ``dE_m``,
 ``dtheta_deg``...). ``satellite`` is ``true`` (each pair's own satellite image) or ``swap`` (the
 satellite-swap probe: another place's image); the ``swap`` rows of trained models also hold the
