@@ -40,12 +40,3 @@ def run(args: argparse.Namespace) -> int:
             dir=args.dir,
         )
     )
-
-
-def main(argv: list[str]) -> int:
-    """``uavbench bench ray ARGS`` as a ``module:main`` target of ``uavbench bench``."""
-    parser = argparse.ArgumentParser(prog="uavbench bench ray", description=DESCRIPTION)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    check_arguments(parser, args)
-    return run(args)
