@@ -261,10 +261,6 @@ def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return cycles
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="until sim/splits.py <-> sim/towns.py is broken (the internals' modules)",
-)
 def test_no_import_cycles_between_modules():
     cycles = import_cycles(module_graph())
     assert not cycles, "import circles between modules: " + "; ".join(

@@ -48,8 +48,8 @@ light=0)``
 ``FlightSpec``, ``generate_flight(...)``
     Flight curves around a centre (``benchmark.sim.flights``).
 ``make_plan(profile, cities, seed) -> Plan``, ``city_seed(seed, style)``, ``sample_seed(seed, i)``
-    The dataset plan (flights, splits, labels) and the seeds of worlds and renders
-    (``benchmark.sim.splits``; imported on first use, it pulls in pandas and scipy).
+    The dataset plan (flights, splits, labels; ``benchmark.sim.splits``, imported on first use, it
+    pulls in pandas and scipy) and the seeds of worlds and renders (``benchmark.sim.seeds``).
 ``town_list(n_towns, seed) -> [Town]``, ``build_town(town, size_m=, metres_per_px=)``
     The many-towns family (``benchmark.sim.towns``; imported on first use).
 
@@ -69,6 +69,7 @@ from benchmark.sim import detmath
 from benchmark.sim.camera import Camera, euler_to_rotmat_np, project_enu_to_pixel
 from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.render import render_satellite, render_uav, satellite_camera, satellite_pose
+from benchmark.sim.seeds import city_seed, sample_seed
 from benchmark.sim.world import (
     GENERATOR_VERSION,
     STYLES,
@@ -105,7 +106,7 @@ __all__ = [
 ]
 
 # Imported on first access (PEP 562): render workers import this package and need none of them.
-_FROM_SPLITS = ("city_seed", "make_plan", "sample_seed")
+_FROM_SPLITS = ("make_plan",)
 _FROM_TOWNS = ("TOWN_ROLES", "Town", "build_town", "town_list")
 
 

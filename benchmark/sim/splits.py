@@ -31,7 +31,8 @@ Every flight has its own capture time (illumination state and fog) and every sat
 own, independent one (``benchmark.sim.illumination``).
 
 Every seed is derived from the dataset seed with ``numpy.random.SeedSequence`` spawn keys, so the
-plan is identical on every machine and any sample can be rendered alone.
+plan is identical on every machine and any sample can be rendered alone (world and render seeds:
+``benchmark.sim.seeds``).
 """
 
 from __future__ import annotations
@@ -55,27 +56,11 @@ from benchmark.sim.towns import TOWN_ROLES, Town, town_list
 
 LEAK_DIST_M = 10.0
 LEAK_ANGLE_DEG = 10.0
-SAMPLE_STREAM = 0x53  # spawn-key tag of per-sample render seeds
-CITY_STREAM = 0x43
 FRAME_SPLIT_STREAM = 0x46
 SAT_ATTITUDE = (0.0, -math.pi / 2.0, 0.0)  # yaw, pitch, roll of the satellite camera (Eq. 5)
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major R_uav^sat
 POSE_COLUMNS = ["E", "N", "U", "yaw", "pitch", "roll"]
-
-
-def sample_seed(seed: int, index: int) -> np.random.SeedSequence:
-    """The render seed of global UAV sample ``index``: depends on nothing else."""
-    return np.random.SeedSequence(int(seed), spawn_key=(SAMPLE_STREAM, int(index)))
-
-
-def city_seed(seed: int, style: str, variant: str = "now") -> int:
-    """The world seed of ``style`` in a dataset with ``seed`` (a 31-bit int)."""
-    key = tuple(ord(c) for c in f"{style}/{variant}")
-    return (
-        int(np.random.SeedSequence(int(seed), spawn_key=(CITY_STREAM, *key)).generate_state(1)[0])
-        >> 1
-    )
 
 
 @dataclass(frozen=True)

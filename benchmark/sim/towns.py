@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.sim.seeds import city_seed
 from benchmark.sim.world import City, build_city
 
 TOWN_ROLES: tuple[str, ...] = ("train", "val", "test", "london")
@@ -45,8 +46,6 @@ def town_list(
     World seeds come from ``city_seed(seed, style, "town-<role><k>")``: independent of every other
     town and of the paper cities, identical on every machine.
     """
-    from benchmark.sim.splits import city_seed
-
     if len(n_towns) != len(TOWN_ROLES) or any(int(n) != n or n < 0 for n in n_towns):
         raise ValueError(
             f"n_towns must be {len(TOWN_ROLES)} non-negative integers {TOWN_ROLES}, got {n_towns}"

@@ -13,15 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from benchmark.data.profiles import PROFILES
 from benchmark.geometry import euler_to_rotmat, relative_rotation
-from benchmark.sim.splits import (
-    LEAK_ANGLE_DEG,
-    LEAK_DIST_M,
-    R_COLUMNS,
-    city_seed,
-    make_plan,
-    relative_labels,
-    sample_seed,
-)
+from benchmark.sim.seeds import city_seed, sample_seed
+from benchmark.sim.splits import LEAK_ANGLE_DEG, LEAK_DIST_M, R_COLUMNS, make_plan, relative_labels
 from benchmark.sim.towns import TOWN_ROLES, town_list
 
 
