@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.runner.plan.repro_profiles import PROFILES
+from benchmark.runner.plan.repro_profiles import PROFILES, QUICK_ENCODER_OPTIONS
 from benchmark.runner.plan.specs import load_specs
 from benchmark.runner.plan.units import job_key, plan_units, val_split_for
 
@@ -78,7 +78,8 @@ class TestPlanUnits:
             u
             for u in plan()
             if u.cfg.model.attitude == "re_net_r" and u.cfg.data.train_split == "standard/train"
-            and u.cfg.model.encoder == "matching" and not u.cfg.model.encoder_options
+            and u.cfg.model.encoder == "matching"
+            and u.cfg.model.encoder_options == QUICK_ENCODER_OPTIONS  # the profile's, no protocol
         )  # fmt: skip
         assert "generalized/test" in unit.eval_splits and "pitch0to-10/test" in unit.eval_splits
         assert "flight/pitch0" in unit.eval_splits  # Re-Net of Table 5

@@ -17,7 +17,7 @@ from benchmark.training.config import OptimConfig
 SHARED = dataclasses.replace(
     PROFILES["smoke"],
     encoder="matching",
-    encoder_options={"protocol": "vision_only"},
+    encoder_options={"protocol": "vision_only", "grey_gradient": True},  # as quick + encoders.yaml
     shared_encoder=SharedEncoder(optim=OptimConfig(name="adam", lr=1e-3, epochs=3)),
 )
 
