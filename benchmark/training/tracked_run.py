@@ -28,6 +28,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from benchmark.models.device import Placement
 from benchmark.training.config import TrainConfig
 
@@ -191,18 +193,23 @@ def _train_and_evaluate(
 def _log_model(cfg, done, tracked) -> None:
     """The trained model, servable (``benchmark.tracking.models.PosePredictor``), with the first
     two training pairs as its input example."""
-    import torch
+    from benchmark.tracking.models import PosePredictor
 
+    example = model_input_example(cfg)
+    model = done.trained.model.eval().to("cpu")  # logged and served on the CPU, as trained
+    uri = tracked.log_model(PosePredictor(model), example)
+    if uri:
+        tracked.set_tags({"model_uri": uri})
+
+
+def model_input_example(cfg: TrainConfig, pairs: int = 2) -> np.ndarray:
+    """The first ``pairs`` pairs of the (first) training split, packed with their context: the
+    ``(pairs, 13, H, W)`` float32 input example of a logged model
+    (``benchmark.tracking.models.pack_items``; a gravity-aided model cannot run without the
+    context's sensor priors)."""
     from benchmark.data import PairDataset
-    from benchmark.tracking.models import PosePredictor, pack_pair
+    from benchmark.tracking.models import pack_items
 
     first = cfg.data.train_split.split("+")[0]  # several joined training splits: the first
     data = PairDataset(cfg.data.root, first, verify=cfg.data.verify)
-    items = [data[i] for i in range(min(2, len(data)))]
-    example = pack_pair(
-        torch.stack([i["uav"] for i in items]), torch.stack([i["sat"] for i in items])
-    )
-    model = done.trained.model.eval().to("cpu")  # logged and served on the CPU, as trained
-    uri = tracked.log_model(PosePredictor(model), example.numpy())
-    if uri:
-        tracked.set_tags({"model_uri": uri})
+    return pack_items([data[i] for i in range(min(pairs, len(data)))]).numpy()

@@ -54,7 +54,7 @@ class TestPackItems:
         assert pair.shape == (3, WITH_CONTEXT, SIZE, SIZE)
         assert pair.dtype == torch.float32
         context = unpack_context(pair)
-        for key, k in CONTEXT_PLANES:
+        for key, _ in CONTEXT_PLANES:
             want = torch.stack([i["context"][key] for i in items])
             got = context[key]
             assert got.shape == want.shape
@@ -110,3 +110,17 @@ def test_mlflow_round_trip_with_context(items, tmp_path):
     torch.testing.assert_close(
         torch.from_numpy(served), reference(model, items, True), rtol=0, atol=1e-6
     )
+
+
+def test_logged_models_input_example_carries_the_context(items, smoke_dataset):
+    """What ``uavbench train`` and ``reproduce`` log beside a model: the first training pairs of
+    the first joined split, with the context planes (a gravity-aided model needs them)."""
+    from benchmark.training.config import DataConfig, TrainConfig
+    from benchmark.training.tracked_run import model_input_example
+
+    cfg = TrainConfig(
+        data=DataConfig(root=str(smoke_dataset), train_split="standard/train+towns/train")
+    )
+    example = model_input_example(cfg, pairs=3)
+    assert example.shape == (3, WITH_CONTEXT, SIZE, SIZE) and example.dtype == "float32"
+    torch.testing.assert_close(torch.from_numpy(example), pack_items(items))

@@ -133,7 +133,7 @@ class TestReproduceOnServer:
         import torch
 
         from benchmark.data import PairDataset
-        from benchmark.tracking.models import pack_pair
+        from benchmark.tracking.models import pack_items
 
         _, client, tmp = reproduced
         _, runs = runs_of(client, "uavbench-smoke/training")
@@ -144,9 +144,7 @@ class TestReproduceOnServer:
                             / "standard__test.csv").head(3)  # fmt: skip
         data = PairDataset(smoke_dataset, "standard/test")
         items = [data[int(i)] for i in frame["index"]]
-        pair = pack_pair(
-            torch.stack([i["uav"] for i in items]), torch.stack([i["sat"] for i in items])
-        )
+        pair = pack_items(items)  # the images and their context, as the unit's evaluation saw
         with torch.no_grad():
             out = model.eval()(pair).numpy()
         rotations = frame[[f"Rhat{r}{c}" for r in range(3) for c in range(3)]].to_numpy()

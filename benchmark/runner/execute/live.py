@@ -25,6 +25,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from benchmark.runner.plan.invocations import OWNER_TAGS, owner_lives
 from benchmark.tracking import (
     RUN_KEY_TAG,
@@ -130,19 +132,12 @@ def _predictor(done: TrainEvalResult):
     return PosePredictor(done.trained.model.eval())
 
 
-def _input_example(cfg: TrainConfig):
-    """The first :data:`EXAMPLE_PAIRS` training pairs as the model's ``(b, 6, H, W)`` input."""
-    import torch
+def _input_example(cfg: TrainConfig) -> np.ndarray:
+    """The first :data:`EXAMPLE_PAIRS` training pairs with their context: the model's
+    ``(b, 13, H, W)`` input (``benchmark.training.tracked_run.model_input_example``)."""
+    from benchmark.training.tracked_run import model_input_example
 
-    from benchmark.data import PairDataset
-    from benchmark.tracking.models import pack_pair
-
-    first = cfg.data.train_split.split("+")[0]  # several joined training splits: the first
-    data = PairDataset(cfg.data.root, first, verify=cfg.data.verify)
-    items = [data[i] for i in range(min(EXAMPLE_PAIRS, len(data)))]
-    uav = torch.stack([item["uav"] for item in items])
-    sat = torch.stack([item["sat"] for item in items])
-    return pack_pair(uav, sat).numpy()
+    return model_input_example(cfg, EXAMPLE_PAIRS)
 
 
 def _finite(value: object) -> bool:
