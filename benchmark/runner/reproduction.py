@@ -127,17 +127,11 @@ def _check_data(root: Path, profile: ReproProfile, config: ReproduceConfig) -> s
 def _with_device(profile: ReproProfile, device: str, precision: str) -> ReproProfile:
     """``profile`` training on ``device`` in ``precision``, checked before any work: a bad name,
     a device this machine lacks or bf16 on a CPU without native bf16 is one line (exit 2)."""
-    from benchmark.models.device import (
-        check_precision_name,
-        check_precision_supported,
-        resolve_device,
-        resolve_precision,
-    )
+    from benchmark.models.device import check_precision_name, resolve_placement
 
     try:
         check_precision_name(precision)
-        resolved = resolve_device(device)
-        check_precision_supported(resolve_precision(precision, resolved), resolved)
+        resolve_placement(device, precision)  # each worker resolves its own placement once
     except ValueError as err:
         raise UsageError(f"reproduce: {err}") from None
     return dataclasses.replace(profile, device=device, precision=precision)

@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 
+from benchmark.machine import cpu_model
 from benchmark.models.model_config import ModelConfig
 from benchmark.progress import Progress
 from benchmark.runner.plan.repro_profiles import ReproProfile
@@ -33,16 +34,6 @@ from benchmark.runner.report.tables import load_paper, paper_value
 COST_FORMAT = 1  # bump when the measurement changes (then every cached file is stale)
 REPEATS, WARMUP = 10, 3
 PAPER_CONFIG = (224, 1.0)  # px, encoder width
-
-
-def _cpu_model() -> str:
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name":
-                return value.strip()
-    return platform.processor() or platform.machine()
 
 
 def cost_identity(cfg: ModelConfig, repeats: int = REPEATS, warmup: int = WARMUP) -> dict:
@@ -57,7 +48,7 @@ def cost_identity(cfg: ModelConfig, repeats: int = REPEATS, warmup: int = WARMUP
         "torch": torch.__version__,
         "threads": torch.get_num_threads(),
         "host": platform.node(),
-        "cpu_model": _cpu_model(),
+        "cpu_model": cpu_model(),
         "cpu_count": os.cpu_count(),
     }
 

@@ -107,19 +107,14 @@ def _torch_libraries() -> dict[str, str]:
 
 def machine() -> dict[str, str]:
     """Platform, CPU model, kernel-relevant CPU flags, core count and thread environment."""
-    model, flags = "", set()
-    cpuinfo = Path("/proc/cpuinfo")
-    if cpuinfo.is_file():
-        for line in cpuinfo.read_text().splitlines():
-            key, _, value = line.partition(":")
-            if key.strip() == "model name" and not model:
-                model = value.strip()
-            elif key.strip() == "flags" and not flags:
-                flags = set(value.split())
+    from benchmark.machine import cpu_model
+    from benchmark.models.precision_support import cpu_flags
+
+    model, flags = cpu_model(), cpu_flags()
     out = {
         "hostname": platform.node(),
         "platform": platform.platform(),
-        "cpu_model": model or platform.processor() or platform.machine(),
+        "cpu_model": model,
         "cpu_flags": " ".join(f for f in KERNEL_FLAGS if f in flags) if flags else "unknown",
         "cpu_count": str(os.cpu_count()),
     }
