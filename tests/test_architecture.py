@@ -266,3 +266,44 @@ def test_no_import_cycles_between_modules():
     assert not cycles, "import circles between modules: " + "; ".join(
         " <-> ".join(c) for c in cycles
     )
+
+
+# The runner's rooms, in pipeline order (issue 22): a module imports only its own room or a
+# lower one; the top level (reproduction, bench_ray, __init__) may import every room.
+RUNNER_ROOMS = ("plan", "execute", "claims", "report")
+RUNNER_TOP_MODULES_MAX = 8
+
+
+def runner_room(module: str) -> str | None:
+    """``benchmark.runner.claims.paper`` -> ``claims``; top-level runner modules -> ``top``;
+    modules outside the runner -> None."""
+    parts = module.split(".")
+    if parts[:2] != ["benchmark", "runner"]:
+        return None
+    return parts[2] if len(parts) > 2 and parts[2] in RUNNER_ROOMS else "top"
+
+
+RUNNER_FILES = [p for p in FILES if rel(p).startswith("benchmark/runner/")]
+
+
+@pytest.mark.parametrize("path", RUNNER_FILES, ids=rel)
+def test_runner_rooms_import_only_down_the_pipeline(path):
+    room = runner_room(module_name(path))
+    if room == "top":
+        return
+    floor = RUNNER_ROOMS.index(room)
+    bad = [
+        name
+        for name in imports_of(path)
+        if (target := runner_room(name)) is not None
+        and (target == "top" or RUNNER_ROOMS.index(target) > floor)
+    ]
+    assert not bad, f"{rel(path)} ({room}) imports {bad}; rooms in order: {RUNNER_ROOMS}"
+
+
+def test_runner_top_level_stays_small():
+    top = sorted(p.name for p in (ROOT / "benchmark" / "runner").glob("*.py"))
+    rooms = sorted(p.name for p in (ROOT / "benchmark" / "runner").iterdir() if p.is_dir()
+                   and (p / "__init__.py").is_file())  # fmt: skip
+    assert len(top) <= RUNNER_TOP_MODULES_MAX, top
+    assert set(RUNNER_ROOMS) <= set(rooms), rooms
