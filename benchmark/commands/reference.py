@@ -57,8 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _parse_options(items: list[str]) -> dict[str, object]:
-    import yaml
-
+    """``["step_deg=2"]`` -> ``{"step_deg": 2}``: values read as YAML scalars by the one converter
+    (``benchmark.config.parse_scalar``, as ``model-info --set`` and ``train --set``)."""
+    from benchmark.config import parse_scalar
     from benchmark.errors import UsageError
 
     out: dict[str, object] = {}
@@ -66,7 +67,7 @@ def _parse_options(items: list[str]) -> dict[str, object]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
             raise UsageError(f"--set {item!r}: expected KEY=VALUE")
-        out[key.strip()] = yaml.safe_load(value)
+        out[key.strip()] = parse_scalar(value)
     return out
 
 
