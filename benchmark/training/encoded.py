@@ -91,12 +91,12 @@ def weight_options(options: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in options.items() if k != "protocol"}
 
 
-def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
+def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> None:
     """Load the ``encoder.*`` weights of ``cfg.pretrained.checkpoint`` into ``model.encoder``
     and freeze them (``requires_grad`` off: the optimiser never sees them). The checkpoint's
     model must have the same encoder (name, options but the matching encoder's ``protocol``,
     variant, width, input size): a mismatch is a ConfigError naming the field and both values.
-    Returns the checkpoint's sha256."""
+    (The checkpoint's identity is in the unit's key: ``TrainConfig.pretrained``.)"""
     path = _checkpoint_path(cfg)
     if not getattr(model, "pair_encoder", False):
         raise ConfigError(
@@ -120,7 +120,6 @@ def load_pretrained_encoder(model: torch.nn.Module, cfg: TrainConfig) -> str:
     state = {k[len(prefix) :]: v for k, v in ckpt["model"].items() if k.startswith(prefix)}
     model.encoder.load_state_dict(state)
     model.encoder.requires_grad_(False)
-    return file_sha256(path)
 
 
 class EncodedPairs(Dataset):
