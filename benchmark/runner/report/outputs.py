@@ -155,6 +155,10 @@ def constant_rows(
     return rows, frames
 
 
+# Six significant digits: what results.csv stores and what every table is rendered from.
+RESULTS_FLOAT_FORMAT = "%.6g"
+
+
 def write_reports(
     specs: list[TableSpec],
     units: list[Unit],
@@ -200,11 +204,11 @@ def write_reports(
     plan = merge or plan_merge(out, specs, profile, data_root, workdir, mode=stale)
     kept_specs, kept_units = plan.live, plan.live_units
     parts = (frame, pd.DataFrame(baseline_rows), ref_rows, plan.rows())
-    everything = _with_stale_column(
-        pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True)
+    everything = _as_written(
+        _with_stale_column(pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True))
     )
     written = [out / "results.csv"]
-    everything.to_csv(written[0], index=False, float_format="%.6g")
+    everything.to_csv(written[0], index=False, float_format=RESULTS_FLOAT_FORMAT)
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
     # Validation columns in every table once any model was measured on a validation split.
     show_val = bool(len(frame) and (frame["role"] == "val").any())
@@ -371,6 +375,21 @@ def _claims_section(
         mark_earlier_claims(claims, plan)
     earlier = {t.name: t.commit for t in kept}
     return findings_markdown(claims, earlier), render_claims(claims), claims
+
+
+def _as_written(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with every float rounded as ``results.csv`` stores it
+    (:data:`RESULTS_FLOAT_FORMAT`).
+
+    The tables are rendered from these values, so a table rendered today and the same table
+    rendered again from ``results.csv`` by a later partial rerun say the same digits: a value
+    such as 94.17450x would print 94.175 from the full float and 94.174 from its stored 94.1745
+    (the binary double of 94.1745 lies just below it)."""
+    frame = frame.copy()
+    for column in frame.columns:
+        if pd.api.types.is_float_dtype(frame[column]):
+            frame[column] = [float(RESULTS_FLOAT_FORMAT % v) for v in frame[column]]
+    return frame
 
 
 def _with_stale_column(frame: pd.DataFrame) -> pd.DataFrame:
