@@ -206,11 +206,23 @@ def spearman(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     return float(res.statistic), float(res.pvalue)
 
 
+def horizontal_metrics(frame: pd.DataFrame) -> dict[str, float]:
+    """Mean and median horizontal position error ``hypot(δE, δN)`` in metres over the frames of
+    a :func:`predictions_frame` (``dE_m``, ``dN_m``: per-frame absolute errors).
+
+    The per-axis means of the paper's tables hide how far a frame's position is off; the median
+    horizontal distance is what localisation work (OrthoLoC, OrienterNet) reports."""
+    horizontal = np.hypot(frame["dE_m"].to_numpy(np.float64), frame["dN_m"].to_numpy(np.float64))
+    return {"horizontal_m": float(horizontal.mean()),
+            "median_horizontal_m": float(np.median(horizontal))}  # fmt: skip
+
+
 def summarize(frame: pd.DataFrame) -> dict[str, float]:
     """Scalar metrics of a :func:`predictions_frame`, named as the runner's reports name them:
 
     - ``<col>`` for every error column: the MEAN absolute error (the paper's numbers, e.g.
       ``dpsi_deg``), and ``median_<col>``;
+    - ``horizontal_m`` and ``median_horizontal_m``: :func:`horizontal_metrics`;
     - ``acc5``, ``acc10``, ``acc30``: fraction of samples with dphi <= 5, 10, 30 deg;
     - ``n``: number of samples;
     - with a ``log_likelihood`` column, ``loglik`` (its mean); with an ``uncertainty`` column,
@@ -225,6 +237,7 @@ def summarize(frame: pd.DataFrame) -> dict[str, float]:
         values = frame[col].to_numpy(dtype=np.float64)
         out[col] = float(values.mean())
         out[f"median_{col}"] = float(np.median(values))
+    out.update(horizontal_metrics(frame))
     dphi = frame["dphi_deg"].to_numpy(dtype=np.float64)
     for t in ACCURACY_THRESHOLDS_DEG:
         out[f"acc{t:g}"] = float((dphi <= t).mean())

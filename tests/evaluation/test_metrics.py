@@ -196,6 +196,15 @@ class TestSummarize:
         with pytest.raises(ValueError, match="empty"):
             summarize(self.make_frame([]))
 
+    def test_horizontal_error_is_the_distance_on_the_ground(self):
+        # Pythagorean triples: horizontal errors 5, 13, 25, 0 m (the vertical error is ignored).
+        frame = self.make_frame(
+            [1.0] * 4, dE_m=[3.0, 5.0, 7.0, 0.0], dN_m=[4.0, 12.0, 24.0, 0.0], dU_m=[9.0] * 4
+        )
+        s = summarize(frame)
+        assert s["horizontal_m"] == pytest.approx(43.0 / 4)
+        assert s["median_horizontal_m"] == pytest.approx(9.0)  # between 5 and 13
+
 
 class TestSpearman:
     def test_monotone(self):

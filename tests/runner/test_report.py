@@ -25,7 +25,7 @@ from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import default_spec_dir, load_specs
 from benchmark.runner.plan.units import plan_units
-from benchmark.runner.report.outputs import REPORT_METRICS, results_frame
+from benchmark.runner.report.outputs import REPORT_METRICS, results_frame, with_horizontal_errors
 from benchmark.runner.report.sweeps import (
     series_label,
     sweep_figure,
@@ -162,6 +162,40 @@ class TestResultsFrame:
         # one val row per (job, seed, satellite mode) of the standard-trained jobs
         jobs = [j for u in units for j in u.jobs if j.train_split == "standard/train"]
         assert len(val) == 2 * len(jobs)
+
+
+class TestWithHorizontalErrors:
+    """Rows without the horizontal metrics (units trained before they existed) get them from
+    their per-frame errors, computed here naively from the errors the fixture wrote."""
+
+    def test_from_predictions_references_and_absent(self, synthetic):
+        _, units, results, errors, workdir = synthetic
+        frame = results_frame(units, results)
+        assert "median_horizontal_m" not in frame
+        ref = pd.DataFrame({"dE_m": [3.0, 6.0, 0.0], "dN_m": [4.0, 8.0, 1.0]})
+        extra = pd.DataFrame(
+            [
+                {"split": "standard/test", "satellite": "true", "reference": "oracle"},
+                {"split": "standard/test", "satellite": "true", "unit": "never-trained"},
+            ]
+        )
+        frame = pd.concat([frame, extra], ignore_index=True)
+        filled = with_horizontal_errors(frame, workdir, {("oracle", "standard/test", "true"): ref})
+        for r in filled.itertuples():
+            if r.unit == "never-trained":  # no predictions: stays empty
+                assert math.isnan(r.median_horizontal_m)
+                continue
+            if r.reference == "oracle":
+                assert r.median_horizontal_m == pytest.approx(5.0)
+                assert r.horizontal_m == pytest.approx((5.0 + 10.0 + 1.0) / 3)
+                continue
+            key = r.split + ("/swap" if r.satellite == "swap" else "")
+            e, _ = errors[r.unit, key]
+            horizontal = [
+                math.sqrt(a * a + b * b) for a, b in zip(e["dE_m"], e["dN_m"], strict=True)
+            ]
+            assert r.median_horizontal_m == pytest.approx(float(np.median(horizontal)))
+            assert r.horizontal_m == pytest.approx(sum(horizontal) / len(horizontal))
 
 
 class TestCells:

@@ -16,10 +16,13 @@ import os
 import platform
 import time
 from pathlib import Path
+from typing import Any
 
+import numpy as np
 import pandas as pd
 import torch
 
+from benchmark.evaluation.metrics import horizontal_metrics
 from benchmark.progress import Progress
 from benchmark.runner.claims.data_audit import heading_cue_report, heading_cue_summary
 from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claims
@@ -37,7 +40,7 @@ from benchmark.runner.execute.reference_rows import (
     reference_note,
     reference_rows,
 )
-from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key
+from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key, split_filename
 from benchmark.runner.plan.partial import (
     DEFAULT_STALE,
     STALE_COLUMN,
@@ -72,7 +75,15 @@ REPORT_METRICS = [
     "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
     "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
 ]  # fmt: skip
-EXTRA_METRICS = ["median_dphi_deg", "acc10", "acc30", "loglik", "spearman_unc_err"]
+EXTRA_METRICS = [
+    "median_dpsi_deg",
+    "median_dphi_deg",
+    "median_horizontal_m",
+    "acc10",
+    "acc30",
+    "loglik",
+    "spearman_unc_err",
+]
 
 
 def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataFrame:
@@ -205,7 +216,13 @@ def write_reports(
     kept_specs, kept_units = plan.live, plan.live_units
     parts = (frame, pd.DataFrame(baseline_rows), ref_rows, plan.rows())
     everything = _as_written(
-        _with_stale_column(pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True))
+        with_horizontal_errors(
+            _with_stale_column(
+                pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True)
+            ),
+            workdir,
+            references.frames,
+        )
     )
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format=RESULTS_FLOAT_FORMAT)
@@ -375,6 +392,39 @@ def _claims_section(
         mark_earlier_claims(claims, plan)
     earlier = {t.name: t.commit for t in kept}
     return findings_markdown(claims, earlier), render_claims(claims), claims
+
+
+def with_horizontal_errors(
+    frame: pd.DataFrame, workdir: Path | None, reference_frames: dict[tuple[str, str, str], Any]
+) -> pd.DataFrame:
+    """``frame`` with ``horizontal_m`` and ``median_horizontal_m`` filled where a row lacks
+    them, from its per-frame errors: a model's predictions in ``workdir`` (rows with ``unit``), a
+    reference's frames (rows with ``reference``, keyed by (name, split, satellite)).
+
+    Units trained before these metrics existed (read back from the tracking store or an earlier
+    ``results.csv``) then show them too; rows of tables kept from an earlier run, whose
+    predictions are elsewhere, stay empty."""
+    columns = ("horizontal_m", "median_horizontal_m")
+    frame = frame.copy()
+    for column in columns:
+        if column not in frame:
+            frame[column] = np.nan
+    missing = frame["median_horizontal_m"].isna()
+    for i in frame.index[missing]:
+        row = frame.loc[i]
+        errors = None
+        reference = row.get("reference")
+        if isinstance(reference, str) and reference:
+            errors = reference_frames.get((reference, row["split"], row["satellite"]))
+        elif workdir is not None and isinstance(row.get("unit"), str) and row["unit"]:
+            name = split_filename(eval_key(str(row["split"]), str(row["satellite"]))) + ".csv"
+            path = Path(workdir) / "units" / row["unit"] / "eval" / name
+            if path.is_file():
+                errors = pd.read_csv(path, usecols=["dE_m", "dN_m"])
+        if errors is not None:
+            for column, value in horizontal_metrics(errors).items():
+                frame.at[i, column] = value
+    return frame
 
 
 def _as_written(frame: pd.DataFrame) -> pd.DataFrame:

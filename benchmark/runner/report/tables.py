@@ -38,6 +38,8 @@ METRIC_LABELS: dict[str, str] = {
     "dpsi_deg": "δψ yaw (°)",
     "dphi_deg": "δφ geodesic (°)",
     "median_dphi_deg": "median δφ (°)",
+    "median_dpsi_deg": "median δψ (°)",
+    "median_horizontal_m": "median horizontal error (m)",
     "acc5": "acc@5°",
     "acc10": "acc@10°",
     "acc30": "acc@30°",
