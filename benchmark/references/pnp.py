@@ -21,6 +21,23 @@ body frame (x right, y forward, z up) is ``X_c = M X_b`` with
 Failure rule: fewer than 4 matches, no PnP solution, fewer than ``min_inliers`` inliers, a camera
 centre below the ground plane + 1 m or more than ``max_distance_m`` from the capture point
 horizontally -> failed (the evaluation then gives the frame the constant predictor's pose).
+
+What it finds on the quick dataset (96 px, satellite 2000 m x 1000 m: 20.8 x 10.4 m per pixel; UAV
+at 80-120 m, pitch about -26 deg, about 3 m per pixel at the image centre). Measured on 40 frames of
+standard/val, each ratio-test match checked by projecting its satellite ground point into the UAV
+image with the true pose (``project_enu_to_pixel``; correct within 4 px):
+
+| detector, upscale, ratio | matches per frame | correct | failed |
+|---|---|---|---|
+| SIFT, 2, 0.8 (default) | 4.9 | 0.00 | 100 % |
+| SIFT, 4, 0.8 | 6.7 | 0.00 | 100 % |
+| SIFT, 1, 0.9 | 16.6 | 0.05 | 100 % |
+| ORB, 2, 0.8 | 52.6 | 0.20 | 97 % |
+
+So at this resolution the two images share no local features (a 4-8x scale gap, a 2:1
+anisotropic satellite grid and an oblique view): the row measures that classical local features
+do not solve this task here, not a tuning failure. Near-nadir views of the same scene at matched
+scale are solved (``tests/references/test_references.py``).
 """
 
 from __future__ import annotations
