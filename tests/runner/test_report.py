@@ -25,7 +25,12 @@ from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import default_spec_dir, load_specs
 from benchmark.runner.plan.units import plan_units
-from benchmark.runner.report.outputs import REPORT_METRICS, results_frame, with_horizontal_errors
+from benchmark.runner.report.outputs import (
+    EXTRA_METRICS,
+    REPORT_METRICS,
+    results_frame,
+    with_horizontal_errors,
+)
 from benchmark.runner.report.sweeps import (
     series_label,
     sweep_figure,
@@ -34,6 +39,7 @@ from benchmark.runner.report.sweeps import (
     sweep_tick,
 )
 from benchmark.runner.report.tables import (
+    extra_metrics_table,
     interval_note,
     load_paper,
     markdown_table,
@@ -196,6 +202,26 @@ class TestWithHorizontalErrors:
             ]
             assert r.median_horizontal_m == pytest.approx(float(np.median(horizontal)))
             assert r.horizontal_m == pytest.approx(sum(horizontal) / len(horizontal))
+
+    def test_shown_in_the_further_metrics(self, synthetic):
+        # A further metric is shown only if the report summarises it: every one must be in
+        # REPORT_METRICS (the horizontal error once was not, so its column never appeared).
+        assert set(EXTRA_METRICS) <= set(REPORT_METRICS)
+        specs, units, results, errors, workdir = synthetic
+        frame = with_horizontal_errors(results_frame(units, results), workdir, {})
+        table1 = frame[frame.table == "table1"]
+        summary = summarize(table1, [m for m in REPORT_METRICS if m in frame.columns])
+        text = extra_metrics_table(specs[0], summary, EXTRA_METRICS)
+        header = next(x for x in text.splitlines() if x.startswith("| split | model |"))
+        cols = [c.strip() for c in header.strip("|").split("|")]
+        i = cols.index("median horizontal error (m)")
+        line = next(x for x in text.splitlines() if x.startswith("| `standard/test` | Re-Net-Q |"))
+        cell = [c.strip() for c in line.strip("|").split("|")][i]
+        per_seed = []
+        for key in table1[(table1.label == "Re-Net-Q") & (table1.split == "standard/test")].unit:
+            e, _ = errors[key, "standard/test"]
+            per_seed.append(float(np.median(np.hypot(e["dE_m"], e["dN_m"]))))
+        assert cell.startswith(f"{np.mean(per_seed):.3f} ±")
 
 
 class TestCells:

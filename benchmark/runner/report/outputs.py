@@ -71,7 +71,8 @@ from benchmark.runner.report.tables import (
 CONSTANT_LABEL = "Constant (train mean)"
 REPORT_METRICS = [
     "dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg",
-    "median_dphi_deg", "acc5", "acc10", "acc30", "loglik", "spearman_unc_err",
+    "median_dpsi_deg", "median_dphi_deg", "median_horizontal_m",
+    "acc5", "acc10", "acc30", "loglik", "spearman_unc_err",
     "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
     "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
 ]  # fmt: skip
