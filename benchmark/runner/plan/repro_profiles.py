@@ -6,12 +6,11 @@ two training seeds on one dataset within the 2-hour budget on a 2-core CPU (issu
 need seeds and flight-bootstrap intervals; three seeds until issue 21, whose matching encoder and
 frozen-head units put three seeds of the whole profile at about 2.5-3 hours). To fit, it trains
 5 epochs (15 before issue 10, when one seed of 32 runs took 74.5 min, 136 worker-minutes of it
-training). It departs from the paper's
-optimiser (Adam with a cosine schedule instead of SGD with momentum at 1e-3) because SGD at 1e-3
-barely moves a from-scratch network in the few epochs a CPU affords. Its lr is 3e-4: at 1e-3
-Pd-Net-Rv and Re-Net-Q did not learn (training loss flat), at 3e-4 they do; one rate for every
-head, as in the paper. ``paper`` uses the paper's settings (224 px, full-width GoogLeNet, SGD with
-momentum, lr 1e-3, batch 20): meant for a GPU.
+training). It departs from the paper's optimiser (Adam with a cosine schedule instead of SGD with
+momentum at 1e-3) because SGD at 1e-3 barely moves a from-scratch network in the few epochs a CPU
+affords. Its lr is 3e-4: at 1e-3 Pd-Net-Rv and Re-Net-Q did not learn (training loss flat), at
+3e-4 they do; one rate for every head, as in the paper. ``paper`` uses the paper's settings
+(224 px, full-width GoogLeNet, SGD with momentum, lr 1e-3, batch 20): meant for a GPU.
 """
 
 from __future__ import annotations

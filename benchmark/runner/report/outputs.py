@@ -31,7 +31,12 @@ from benchmark.runner.claims.evidence import Claim
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.claims.ranking import ranking_markdown
-from benchmark.runner.claims.spread import FRAME_METRICS, cell_interval, frame_interval
+from benchmark.runner.claims.spread import (
+    FRAME_METRICS,
+    cell_interval,
+    frame_interval,
+    prediction_paths,
+)
 from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
     describe_references,
@@ -40,7 +45,7 @@ from benchmark.runner.execute.reference_rows import (
     reference_note,
     reference_rows,
 )
-from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key, split_filename
+from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.plan.partial import (
     DEFAULT_STALE,
     STALE_COLUMN,
@@ -69,13 +74,8 @@ from benchmark.runner.report.tables import (
 )
 
 CONSTANT_LABEL = "Constant (train mean)"
-REPORT_METRICS = [
-    "dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg",
-    "median_dpsi_deg", "median_dphi_deg", "median_horizontal_m",
-    "acc5", "acc10", "acc30", "loglik", "spearman_unc_err",
-    "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
-    "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
-]  # fmt: skip
+# Our metrics the paper does not report, shown under each table; summarised with the rest, so a
+# metric added here also gets its interval.
 EXTRA_METRICS = [
     "median_dpsi_deg",
     "median_dphi_deg",
@@ -85,6 +85,12 @@ EXTRA_METRICS = [
     "loglik",
     "spearman_unc_err",
 ]
+REPORT_METRICS = [
+    "dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "acc5",
+    *EXTRA_METRICS,
+    "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
+    "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
+]  # fmt: skip
 
 
 def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataFrame:
@@ -417,11 +423,8 @@ def with_horizontal_errors(
         reference = row.get("reference")
         if isinstance(reference, str) and reference:
             errors = reference_frames.get((reference, row["split"], row["satellite"]))
-        elif workdir is not None and isinstance(row.get("unit"), str) and row["unit"]:
-            name = split_filename(eval_key(str(row["split"]), str(row["satellite"]))) + ".csv"
-            path = Path(workdir) / "units" / row["unit"] / "eval" / name
-            if path.is_file():
-                errors = pd.read_csv(path, usecols=["dE_m", "dN_m"])
+        elif workdir is not None and (paths := prediction_paths(frame.loc[[i]], workdir)):
+            errors = pd.read_csv(paths[0], usecols=["dE_m", "dN_m"])
         if errors is not None:
             for column, value in horizontal_metrics(errors).items():
                 frame.at[i, column] = value
