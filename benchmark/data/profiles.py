@@ -42,6 +42,13 @@ class Profile:
     sat_footprint_m: tuple[float, float] = (2000.0, 1000.0)  # E x N at sat_height_m
     flight_sat_footprint_m: tuple[float, float] = (2500.0, 1200.0)  # paper Sec. 3.5
     samples_per_flight: int = 16
+    # Samples per flight of the held-out groups (every val and test split, generalized/test, the
+    # pitch bins, towns val/test/london; the height test sets are whole flights of standard/test):
+    # None = samples_per_flight. Intervals resample whole flights, and frames of one flight are
+    # correlated (the oracle's yaw errors on quick standard/val: intra-flight correlation 0.55), so
+    # at the same number of pairs more, shorter flights give narrower intervals; the training
+    # splits and the flight-test analogue (flight/*, continuous flights) keep samples_per_flight.
+    eval_samples_per_flight: int | None = None
     frame_stride: int = 15  # 30 fps video, one sample every 0.5 s
     fov_deg: float = 60.0  # horizontal field of view of the UAV camera
     supersample: int = 1  # rays per pixel per axis; textures are mip-mapped, 2 costs 4x
@@ -77,6 +84,14 @@ class Profile:
             raise ValueError(f"Profile.pitch_bin_edges_deg must decrease strictly, got {edges}")
         if min(self.samples_per_flight, self.shard_size, self.sat_shard_size) < 1:
             raise ValueError("Profile.samples_per_flight, shard_size, sat_shard_size must be >= 1")
+        if self.eval_samples_per_flight is not None and (
+            int(self.eval_samples_per_flight) != self.eval_samples_per_flight
+            or self.eval_samples_per_flight < 1
+        ):
+            raise ValueError(
+                "Profile.eval_samples_per_flight must be None or an integer >= 1, got "
+                f"{self.eval_samples_per_flight!r}"
+            )
         for name in ("n_towns", "n_town_pairs"):
             v = getattr(self, name)
             if len(v) != 4 or any(int(x) != x or x < 0 for x in v):
@@ -161,8 +176,9 @@ PROFILES: dict[str, Profile] = {
         name="quick",
         image_size=96,
         # Held-out sets are large enough for flight-bootstrap intervals (issue 10): standard
-        # 2400/600/600 pairs (150/38/38 flights), london 1200 (75 flights); training sets as
-        # before, the height training sets cut to 800 pairs to fit 3 seeds into 90 minutes.
+        # 2400/600/600 pairs (150 training flights of 16 samples; 150/150 held-out flights of 4),
+        # london 1200 (300 flights); training sets as before, the height training sets cut to
+        # 800 pairs to fit the seeds into the time budget.
         n_standard=3600,
         standard_fractions=(2 / 3, 1 / 6, 1 / 6),
         n_generalized_test=1200,
@@ -173,6 +189,7 @@ PROFILES: dict[str, Profile] = {
         n_towns=(40, 4, 8, 6),
         n_town_pairs=(1600, 160, 480, 1200),
         samples_per_flight=16,
+        eval_samples_per_flight=4,
         shard_size=256,
     ),
     "paper": Profile(
@@ -188,6 +205,7 @@ PROFILES: dict[str, Profile] = {
         n_town_pairs=(16000, 1600, 2400, 2400),
         town_metres_per_px=1.0,
         samples_per_flight=24,
+        eval_samples_per_flight=6,
         shard_size=256,
     ),
 }

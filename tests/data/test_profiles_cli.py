@@ -40,6 +40,9 @@ class TestProfiles:
                 get_profile("quick", bad)
         with pytest.raises(ValueError, match="standard_fractions"):
             dataclasses.replace(PROFILES["smoke"], standard_fractions=(0.5, 0.5, 0.5))
+        for bad in (0, -1, 2.5):
+            with pytest.raises(ValueError, match="eval_samples_per_flight must be None or an"):
+                dataclasses.replace(PROFILES["smoke"], eval_samples_per_flight=bad)
 
     def test_dict_round_trip(self):
         for p in PROFILES.values():

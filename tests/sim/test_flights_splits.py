@@ -117,6 +117,26 @@ class TestMakePlan:
             assert uav.camera_effects.all()
         assert not plan.uav[plan.uav.group.str.startswith("standard")].camera_effects.any()
 
+    def test_held_out_flights_are_shorter_and_training_data_unchanged(self, plan):
+        """eval_samples_per_flight shortens the held-out groups' flights (same pair counts, more
+        flights); training splits and the flight-test analogue keep samples_per_flight, and the
+        training rows are those of the plan without the option."""
+        short = make_plan(small_profile(eval_samples_per_flight=2), CITIES, seed=7)
+        per_flight = short.pairs.groupby(["split", "flight"]).size().groupby("split").max()
+        for name in ("standard/val", "standard/test", "generalized/test", "pitch-10to-20/test",
+                     "towns/val", "towns/test", "towns/london"):  # fmt: skip
+            assert per_flight[name] <= 2, name
+            n = (short.pairs.split == name).sum()
+            assert n == (plan.pairs.split == name).sum()
+            assert short.pairs.loc[short.pairs.split == name, "flight"].nunique() == -(-n // 2)
+        for name in ("standard/train", "towns/train", "flight/pitch0"):
+            assert per_flight[name] == 5, name
+        cols = ["E", "N", "U", "yaw", "pitch", "roll", "city", "R00", "dE", "dN", "dU"]
+        for name in ("standard/train", "towns/train"):
+            a = plan.pairs.loc[plan.pairs.split == name, cols].reset_index(drop=True)
+            b = short.pairs.loc[short.pairs.split == name, cols].reset_index(drop=True)
+            pd.testing.assert_frame_equal(a, b)
+
     def test_pitch_bins(self, plan):
         for hi, lo in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50)):
             rows = plan.pairs[plan.pairs.split == f"pitch{hi:g}to{lo:g}/test"]
