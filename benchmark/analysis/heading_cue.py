@@ -365,8 +365,9 @@ def pooled_heading_cue_audit(
     """The audit on several datasets of one profile (different seeds: different cities, suns,
     flights), each probe fitted on its own dataset's ``train``, and the errors pooled.
 
-    One test split of a quick dataset holds ~40 flights, and the constant predictor's error on it
-    swings by +-10 deg with how its flights' headings happen to lie (seen: 88.8-101.3 deg where a
+    One test split of a quick dataset (150 short flights; ~40 long ones before) is one draw: the
+    constant predictor's error on it swings with how its flights' headings lie (seen: 86.9-96.9
+    deg over five quick datasets, 88.8-101.3 with the longer flights, where a
     predictor that knows nothing averages 90); pooling independent datasets measures the
     simulator rather than one draw. A test split missing from a dataset is scored where present
     and pooled only over datasets that all hold it. Returns ``{"datasets": [heading_cue_audit

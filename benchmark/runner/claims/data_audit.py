@@ -6,11 +6,12 @@ on the validation split, and scored on the test splits. A ratio (probe / constan
 error) near 1 means the simulator gives no global heading cue; the acceptance of issue 9 asks
 >= 0.85 on standard/test. Written to ``heading_cue.md`` and summarised in the report's README.
 
-One quick dataset's standard/test holds ~40 flights, too few to decide the question: the constant
-predictor's error alone moves by +-10 deg between draws. The verdict therefore pools the
+One quick dataset's standard/test (150 short flights since the held-out flights were shortened;
+~40 before) is too few to decide the question: the constant predictor's error alone moves by
++-5-10 deg between draws. The verdict therefore pools the
 reproduction's dataset with :data:`CUE_EXTRA_SEEDS` more datasets of the same profile, standard
 splits only, at the next dataset seeds (``<data>-cue-s<seed>``, rendered once and reused; about
-2.5 min each for the quick profile on 2 cores; five datasets hold ~190 test flights).
+2.5 min each for the quick profile on 2 cores; five datasets hold 750 test flights).
 """
 
 from __future__ import annotations
@@ -102,9 +103,9 @@ def heading_cue_report(
         "",
         f"The standard splits are audited on this dataset and on {n_extra} more of the same "
         "profile at the next dataset seeds (standard splits only, `<data>-cue-s<seed>`; each "
-        "probe fitted on its own dataset), then pooled: one test split of ~40 flights cannot "
-        "decide the question, since the constant predictor's error alone moves by about 10 deg "
-        "between draws. The verdict reads the pooled standard/test row.",
+        "probe fitted on its own dataset), then pooled: one dataset's test split cannot decide "
+        "the question, since the constant predictor's error alone moves by 5-10 deg between "
+        "draws. The verdict reads the pooled standard/test row.",
         "",
         "| trained on | evaluated on | dataset | pairs | flights | probe yaw error (deg) "
         "| constant (deg) | ratio [95% interval] |",
