@@ -48,6 +48,9 @@ class Profile:
     # correlated (the oracle's yaw errors on quick standard/val: intra-flight correlation 0.55), so
     # at the same number of pairs more, shorter flights give narrower intervals; the training
     # splits and the flight-test analogue (flight/*, continuous flights) keep samples_per_flight.
+    # Flights are numbered across the groups and a flight's illumination follows its number, so
+    # groups planned after the held-out ones (towns/train) keep their poses but draw other
+    # illumination states; standard/train is unchanged in every column.
     eval_samples_per_flight: int | None = None
     frame_stride: int = 15  # 30 fps video, one sample every 0.5 s
     fov_deg: float = 60.0  # horizontal field of view of the UAV camera

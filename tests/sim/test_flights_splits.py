@@ -119,8 +119,10 @@ class TestMakePlan:
 
     def test_held_out_flights_are_shorter_and_training_data_unchanged(self, plan):
         """eval_samples_per_flight shortens the held-out groups' flights (same pair counts, more
-        flights); training splits and the flight-test analogue keep samples_per_flight, and the
-        training rows are those of the plan without the option."""
+        flights); training splits and the flight-test analogue keep samples_per_flight. The
+        training poses are those of the plan without the option; standard/train (numbered first)
+        is identical in every column, while towns/train's flights get other global flight numbers
+        and so other illumination draws (the same distribution, another draw)."""
         short = make_plan(small_profile(eval_samples_per_flight=2), CITIES, seed=7)
         per_flight = short.pairs.groupby(["split", "flight"]).size().groupby("split").max()
         for name in ("standard/val", "standard/test", "generalized/test", "pitch-10to-20/test",
@@ -136,6 +138,12 @@ class TestMakePlan:
             a = plan.pairs.loc[plan.pairs.split == name, cols].reset_index(drop=True)
             b = short.pairs.loc[short.pairs.split == name, cols].reset_index(drop=True)
             pd.testing.assert_frame_equal(a, b)
+        a = plan.pairs[plan.pairs.split == "standard/train"].reset_index(drop=True)
+        b = short.pairs[short.pairs.split == "standard/train"].reset_index(drop=True)
+        pd.testing.assert_frame_equal(a, b)
+        a = plan.pairs[plan.pairs.split == "towns/train"].reset_index(drop=True)
+        b = short.pairs[short.pairs.split == "towns/train"].reset_index(drop=True)
+        assert not a.flight.equals(b.flight) and not a.light.equals(b.light)
 
     def test_pitch_bins(self, plan):
         for hi, lo in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50)):
