@@ -89,23 +89,19 @@ class Plan:
 def _groups(
     p: Any, styles_train: tuple[str, ...], london: str, industrial: str, towns: list[Town]
 ) -> list[Group]:
-    def spec(**kw: Any) -> FlightSpec:
-        return FlightSpec(samples=p.samples_per_flight, frame_stride=p.frame_stride, **kw)
-
-    # held-out groups: more, shorter flights at the same number of pairs (Profile docs)
-    held_out = p.eval_samples_per_flight or p.samples_per_flight
-
-    def eval_spec(**kw: Any) -> FlightSpec:
-        return FlightSpec(samples=held_out, frame_stride=p.frame_stride, **kw)
+    def spec(held_out: bool = False, **kw: Any) -> FlightSpec:
+        # held-out groups: more, shorter flights at the same number of pairs (Profile docs)
+        samples = (p.eval_samples_per_flight if held_out else None) or p.samples_per_flight
+        return FlightSpec(samples=samples, frame_stride=p.frame_stride, **kw)
 
     n_train = round(p.n_standard * p.standard_fractions[0])
     n_val = round(p.n_standard * p.standard_fractions[1])
     n_test = p.n_standard - n_train - n_val
     out = [
         Group("standard/train", 1, styles_train, n_train, spec()),
-        Group("standard/val", 2, styles_train, n_val, eval_spec(), leak_check=True),
-        Group("standard/test", 3, styles_train, n_test, eval_spec(), leak_check=True),
-        Group("generalized/test", 4, (london,), p.n_generalized_test, eval_spec()),
+        Group("standard/val", 2, styles_train, n_val, spec(held_out=True), leak_check=True),
+        Group("standard/test", 3, styles_train, n_test, spec(held_out=True), leak_check=True),
+        Group("generalized/test", 4, (london,), p.n_generalized_test, spec(held_out=True)),
     ]
     for i, pitch in enumerate(p.flight_pitches_deg):
         out.append(
@@ -126,14 +122,13 @@ def _groups(
                 30 + b,
                 styles_train,
                 p.n_pitch_per_bin,
-                eval_spec(pitch_deg=(lo, hi)),
+                spec(held_out=True, pitch_deg=(lo, hi)),
                 leak_check=True,
             )
         )
     for r, (role, n) in enumerate(zip(TOWN_ROLES, p.n_town_pairs, strict=True)):
         names = tuple(t.name for t in towns if t.role == role)
-        town_spec = spec() if role == "train" else eval_spec()
-        out.append(Group(f"towns/{role}", 50 + r, names, n, town_spec))
+        out.append(Group(f"towns/{role}", 50 + r, names, n, spec(held_out=role != "train")))
     return [g for g in out if g.n > 0]
 
 

@@ -133,16 +133,14 @@ class TestMakePlan:
             assert short.pairs.loc[short.pairs.split == name, "flight"].nunique() == -(-n // 2)
         for name in ("standard/train", "towns/train", "flight/pitch0"):
             assert per_flight[name] == 5, name
-        cols = ["E", "N", "U", "yaw", "pitch", "roll", "city", "R00", "dE", "dN", "dU"]
-        for name in ("standard/train", "towns/train"):
-            a = plan.pairs.loc[plan.pairs.split == name, cols].reset_index(drop=True)
-            b = short.pairs.loc[short.pairs.split == name, cols].reset_index(drop=True)
-            pd.testing.assert_frame_equal(a, b)
-        a = plan.pairs[plan.pairs.split == "standard/train"].reset_index(drop=True)
-        b = short.pairs[short.pairs.split == "standard/train"].reset_index(drop=True)
-        pd.testing.assert_frame_equal(a, b)
-        a = plan.pairs[plan.pairs.split == "towns/train"].reset_index(drop=True)
-        b = short.pairs[short.pairs.split == "towns/train"].reset_index(drop=True)
+
+        def rows(p, name):
+            return p.pairs[p.pairs.split == name].reset_index(drop=True)
+
+        pd.testing.assert_frame_equal(rows(plan, "standard/train"), rows(short, "standard/train"))
+        a, b = rows(plan, "towns/train"), rows(short, "towns/train")
+        poses = ["E", "N", "U", "yaw", "pitch", "roll", "city", "R00", "dE", "dN", "dU"]
+        pd.testing.assert_frame_equal(a[poses], b[poses])
         assert not a.flight.equals(b.flight) and not a.light.equals(b.light)
 
     def test_pitch_bins(self, plan):
