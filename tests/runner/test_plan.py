@@ -28,17 +28,18 @@ def plan(seeds=(0,), root="/data/a", only=None):
 
 
 class TestPlanUnits:
-    def test_the_paper_tables_train_34_models_per_seed(self):
-        # quick: the shared matching encoder + on it 8 attitude heads + Re-Net-T + 2 heads x 5
+    def test_the_paper_tables_train_35_models_per_seed(self):
+        # quick: the shared matching encoder + on it 8 attitude heads + Re-Net-T + the Laplace
+        # translation head (Tables 3-4, not in the paper) + 2 heads x 5
         # heights + 4 other kappas + the UAV-only control on standard/train (Tables 1-5 and
         # leakage share it) + Pd/Re-Net and the control on frames/train (leakage) + 3 models on
-        # towns/train = 29; + Fig. 9's GoogLeNet in its 4 variants (end to end, 4 units).
+        # towns/train = 30; + Fig. 9's GoogLeNet in its 4 variants (end to end, 4 units).
         # (The extended table adds one unit per head beyond the paper; it grows with the registry.
-        # The encoders table adds 3 GoogLeNet rows and 2 gravity-aided matching rows.)
+        # The encoders table adds 3 GoogLeNet rows and 3 gravity-aided matching rows.)
         paper = [s.name for s in load_specs() if s.name not in ("extended", "encoders")]
-        assert len(plan(only=paper)) == 34
-        assert len(plan(seeds=(0, 1, 2), only=paper)) == 102
-        assert len(plan(only=[*paper, "encoders"])) == 39
+        assert len(plan(only=paper)) == 35
+        assert len(plan(seeds=(0, 1, 2), only=paper)) == 105
+        assert len(plan(only=[*paper, "encoders"])) == 41
         extra = {u.key for u in plan()} - {u.key for u in plan(only=[*paper, "encoders"])}
         for unit in plan():
             if unit.key in extra:

@@ -241,7 +241,7 @@ class TestReproduceFailures:
         row = next(line for line in table3.splitlines() if line.startswith("| Pd/Re-Net |"))
         assert "| failed |" in row and "not run" not in row
         readme = (tmp_path / "reports" / "README.md").read_text()
-        assert "3 row(s) failed to train" in readme and "| failed | " in readme
+        assert "4 row(s) failed to train" in readme and "| failed | " in readme
 
     def test_unknown_table_exits_2(self, tmp_path, smoke_dataset, capsys):
         assert reproduce(tmp_path, smoke_dataset, "--only", "table42") == 2
@@ -265,7 +265,7 @@ class TestReproduceInterrupted:
         training = tmp_path / "tracking-local" / "uavbench-smoke_training"
 
         # The same command again continues the killed training runs (same run, start kept):
-        # one run per unit, every one FINISHED.
+        # one run per unit (table3's 4 rows), every one FINISHED.
         def training_runs() -> dict[str, dict]:
             return {p.parent.name: json.loads(p.read_text()) for p in training.glob("*/run.json")}
 
@@ -273,7 +273,7 @@ class TestReproduceInterrupted:
         monkeypatch.chdir(tmp_path)
         assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "1") == 0
         after = training_runs()
-        assert len(after) == 3 and {r["status"] for r in after.values()} == {"FINISHED"}
+        assert len(after) == 4 and {r["status"] for r in after.values()} == {"FINISHED"}
         assert set(killed) <= set(after)
         for key, record in killed.items():
             assert after[key]["start_time_ms"] == record["start_time_ms"]
