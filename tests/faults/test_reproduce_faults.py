@@ -103,7 +103,7 @@ class TestOneWriterPerWorkdir:
         assert len(waited) == 1 and waited[0].count("waiting for") == 1, outs
         assert "locked by pid" in waited[0]
         counts = [re.search(r"(\d+) training runs \((\d+) already", o).groups() for o in outs]
-        assert sorted(counts) == [("3", "0"), ("3", "3")], counts
+        assert sorted(counts) == [("4", "0"), ("4", "4")], counts
         tracker = create_tracker("mlflow", f"sqlite:///{tmp_path / 'mlflow.db'}",
                                  workdir=tmp_path)  # fmt: skip
         try:
@@ -112,12 +112,12 @@ class TestOneWriterPerWorkdir:
                 rows = [r for r in runs if r.status == "FINISHED" and RUN_KEY_TAG in r.tags]
                 keys = [r.tags[RUN_KEY_TAG] for r in rows if not r.tags[RUN_KEY_TAG].startswith(
                     "reproduce-")]  # fmt: skip
-                assert len(keys) == 3 and len(set(keys)) == 3, (table, keys)
+                assert len(keys) == 4 and len(set(keys)) == 4, (table, keys)
                 assert all(r.status != "RUNNING" for r in runs)
         finally:
             tracker.close()
         journal = inv.read_invocations(tmp_path / "runs")
-        assert sorted(j["trained"] for j in journal) == [0, 3]
+        assert sorted(j["trained"] for j in journal) == [0, 4]
         assert {j["state"] for j in journal} == {"finished"}
 
 
@@ -158,15 +158,15 @@ class TestKilledInvocation:
         stale = next(r for r in parents if r["status"] == "KILLED")
         assert f"pid {proc.pid} on" in stale["tags"][END_REASON_TAG]
         training = [r for r in runs if r["experiment"] == "uavbench-smoke/training"]
-        assert len(training) == 3 and {r["status"] for r in training} == {"FINISHED"}
+        assert len(training) == 4 and {r["status"] for r in training} == {"FINISHED"}
         rows = [r for r in runs if r["parent_run_id"] and r["status"] == "FINISHED"]
-        assert len({r["tags"][RUN_KEY_TAG] for r in rows}) == len(rows) == 3
+        assert len({r["tags"][RUN_KEY_TAG] for r in rows}) == len(rows) == 4
         # The README lists both invocations: the killed one with the unit it finished.
         readme = (tmp_path / "reports" / "README.md").read_text()
         table = [line for line in readme.splitlines() if re.match(r"\| \d{4}-\d\d-\d\d ", line)]
         assert len(table) == 2, readme
-        assert "| killed/unfinished |" in table[0] and "| 1 of 3 |" in table[0]
-        assert "| finished |" in table[1] and "| 2 of 3 |" in table[1]
+        assert "| killed/unfinished |" in table[0] and "| 1 of 4 |" in table[0]
+        assert "| finished |" in table[1] and "| 3 of 4 |" in table[1]
 
 
 class TestInvocationJournal:
@@ -297,7 +297,7 @@ class TestFailedUnitsInReports:
         monkeypatch.chdir(tmp_path)
         assert main(argv(smoke_dataset, tmp_path, "--tracker", "local", "--jobs", "1")) == 1
         out = capsys.readouterr().out
-        assert out.count("FAILED ") == 3 and "3 training run(s) failed" in out
+        assert out.count("FAILED ") == 4 and "4 training run(s) failed" in out
         table3 = (tmp_path / "reports" / "table3.md").read_text()
         assert "## Failed training runs" in table3 and "corrupted file x.npy" in table3
         rows = [
@@ -306,12 +306,12 @@ class TestFailedUnitsInReports:
         # the main table's rows, then the swap probe's (first column: the split)
         probe = [r for r in rows if r.startswith("| `standard/test` |") and "Constant" not in r]
         trained = [r for r in rows if "Constant" not in r and "failed" in r and r not in probe]
-        assert len(trained) == 3 and all("not run" not in r for r in trained)
-        assert len(probe) == 3 and all("failed" in r for r in probe)
+        assert len(trained) == 4 and all("not run" not in r for r in trained)
+        assert len(probe) == 4 and all("failed" in r for r in probe)
         readme = (tmp_path / "reports" / "README.md").read_text()
-        assert "3 row(s) failed to train" in readme and "| failed | " in readme
+        assert "4 row(s) failed to train" in readme and "| failed | " in readme
         (journal,) = inv.read_invocations(tmp_path / "runs")
-        assert journal["failed"] == 3 and journal["state"] == "failed"
+        assert journal["failed"] == 4 and journal["state"] == "failed"
 
 
 def test_stale_lock_file_of_dead_process_is_taken_over(tmp_path, capsys):

@@ -40,7 +40,7 @@ HAVE_RAY = importlib.util.find_spec("ray") is not None
 needs_ray = pytest.mark.skipif(
     not HAVE_RAY, reason='ray is not installed (pip install -e ".[ray]")'
 )
-TABLE = "table3"  # three units: Pd/Re-Net, Re-Net-T and the UAV-only control
+TABLE = "table3"  # four units: Pd/Re-Net, Re-Net-T, the Laplace head and the UAV-only control
 # Columns that are measurements of time or where the files are, not results.
 TIME_SUFFIXES = ("seconds", "_s", "_ms")
 NOT_NUMBERS = {"run_id", "training_run_id", "model_uri", "started", "ended"}
@@ -102,7 +102,7 @@ class TestReproduceThroughRay:
     def test_same_unit_files_and_one_finished_training_run_per_unit(self, pool_run, ray_run):
         pool_units = {p.name for p in (pool_run[0] / "runs" / "units").iterdir()}
         ray_units = {p.name for p in (ray_run[0] / "runs" / "units").iterdir()}
-        assert pool_units == ray_units and len(ray_units) == 3
+        assert pool_units == ray_units and len(ray_units) == 4
         for key in ray_units:
             names = {p.name for p in (ray_run[0] / "runs" / "units" / key / "eval").iterdir()}
             pool_names = {p.name for p in (pool_run[0] / "runs" / "units" / key / "eval").iterdir()}
@@ -111,7 +111,7 @@ class TestReproduceThroughRay:
         # Logged live by the Ray workers into the driver's store (they work in its directory)
         training = ray_run[0] / "tracking-local" / "uavbench-smoke_training"
         runs = [json.loads(p.read_text()) for p in training.glob("*/run.json")]
-        assert len(runs) == 3 and {r["status"] for r in runs} == {"FINISHED"}
+        assert len(runs) == 4 and {r["status"] for r in runs} == {"FINISHED"}
 
     def test_reproduce_has_the_executor_flag(self):
         if not has_executor_flag():

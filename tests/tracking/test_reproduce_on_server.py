@@ -71,7 +71,7 @@ class TestReproduceOnServer:
         parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
         children = [r for r in runs if "mlflow.parentRunId" in r.data.tags]
         assert len(parents) == 1 and parents[0].info.status == "FINISHED"
-        assert len(children) == 3  # Pd/Re-Net, Re-Net-T, the UAV-only control; one seed
+        assert len(children) == 4  # Pd/Re-Net, Re-Net-T, Laplace, the UAV-only control; one seed
         for child in children:
             tags = child.data.tags
             assert tags["mlflow.parentRunId"] == parents[0].info.run_id
@@ -86,12 +86,12 @@ class TestReproduceOnServer:
             assert {"test_dE_m", "test_dphi_deg", "val_dE_m", "standard/test/dE_m"} <= set(metrics)
             assert metrics["test_dE_m"] == metrics["standard/test/dE_m"]
         heads = sorted(c.data.tags["translation_head"] for c in children)
-        assert heads == ["re_net_t", "regression", "regression"]
+        assert heads == ["laplace", "re_net_t", "regression", "regression"]
 
     def test_training_runs_live_with_real_durations(self, reproduced):
         _, client, tmp = reproduced
         _, runs = runs_of(client, "uavbench-smoke/training")
-        assert len(runs) == 3  # one per unit, not one per invocation
+        assert len(runs) == 4  # one per unit, not one per invocation
         _, rows = runs_of(client, "uavbench-smoke/table3")
         by_id = {r.info.run_id: r for r in runs}
         for run in runs:
