@@ -13,8 +13,9 @@ position (a right peak and far-away wrong ones). Least squares predicts the cond
 which is pulled towards the wrong modes on every frame that has them; minimising this NLL over
 ``mu`` for a fixed ``b`` gives the conditional *median* per axis, which stays at the dominant
 mode. Measured on standard/val with one frozen matching encoder (gravity-aided, heads on
-standard/train, 10 epochs, seeds 0 and 1): median horizontal error 23.3 / 23.2 m against 32.3 /
-31.2 m for least squares; the matcher's own arg-max reads 15.7 m.
+standard/train, 10 epochs, seeds 0 and 1): median horizontal error 23.0 / 23.2 m against 32.3 /
+31.8 m for least squares (``regression``); the matcher's own refined arg-max reads 15.7 m
+(DEVELOPERS.md, issue 21).
 
 Numerics: ``s`` is clamped to ``[-LOG_SCALE_LIMIT, LOG_SCALE_LIMIT]`` (``b`` from 0.0025 to 403
 standard units, i.e. ~0.4 m to 60 km at a std of 150 m): without a floor, a label fitted exactly
