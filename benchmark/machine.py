@@ -17,3 +17,33 @@ def cpu_model() -> str:
     except OSError:
         pass
     return platform.processor() or platform.machine() or "unknown CPU"
+
+
+_SIGNATURE_FIELDS = ("cpu family", "model", "stepping", "microcode", "cache size")
+
+
+def cpu_signature(cpuinfo: str | None = None) -> str:
+    """The first processor's family, model, stepping, microcode and cache size from
+    ``/proc/cpuinfo`` (or the text ``cpuinfo``), e.g. ``"cpu family 6, model 143, stepping 8,
+    microcode 0x2b000590, cache size 491520 KB"``; ``"unknown"`` where there is no such file.
+
+    Why beside the model name and flags: two virtual machines reporting the same name and flags
+    trained different matching encoders from byte-identical data (DEVELOPERS.md, Machine); the
+    library code paths MKL and oneDNN choose can depend on what this line tells apart."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return "unknown"
+    found: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            if found:
+                break  # the end of the first processor's block
+            continue
+        key, _, value = line.partition(":")
+        key = key.strip()
+        if key in _SIGNATURE_FIELDS and key not in found:
+            found[key] = value.strip()
+    parts = [f"{k} {found[k]}" for k in _SIGNATURE_FIELDS if k in found]
+    return ", ".join(parts) if parts else "unknown"

@@ -123,6 +123,7 @@ class TestCollect:
             assert record["software"][key], key
         assert record["software"]["torch"] == torch.__version__
         assert record["machine"]["cpu_model"] and "cpu_flags" in record["machine"]
+        assert record["machine"]["cpu_signature"]  # family, model, stepping, ... or "unknown"
 
     def test_same_weights_other_run_same_state_digest(self, reproduction):
         """The checkpoint file is not reproducible (epoch wall time, dataset path); the weights

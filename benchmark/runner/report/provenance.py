@@ -106,8 +106,9 @@ def _torch_libraries() -> dict[str, str]:
 
 
 def machine() -> dict[str, str]:
-    """Platform, CPU model, kernel-relevant CPU flags, core count and thread environment."""
-    from benchmark.machine import cpu_model
+    """Platform, CPU model and signature (family, model, stepping, microcode, cache size),
+    kernel-relevant CPU flags, core count and thread environment."""
+    from benchmark.machine import cpu_model, cpu_signature
     from benchmark.models.precision_support import cpu_flags
 
     model, flags = cpu_model(), cpu_flags()
@@ -115,6 +116,7 @@ def machine() -> dict[str, str]:
         "hostname": platform.node(),
         "platform": platform.platform(),
         "cpu_model": model,
+        "cpu_signature": cpu_signature(),
         "cpu_flags": " ".join(f for f in KERNEL_FLAGS if f in flags) if flags else "unknown",
         "cpu_count": str(os.cpu_count()),
     }
