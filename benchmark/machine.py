@@ -27,9 +27,9 @@ def cpu_signature(cpuinfo: str | None = None) -> str:
     ``/proc/cpuinfo`` (or the text ``cpuinfo``), e.g. ``"cpu family 6, model 143, stepping 8,
     microcode 0x2b000590, cache size 491520 KB"``; ``"unknown"`` where there is no such file.
 
-    Why beside the model name and flags: two virtual machines reporting the same name and flags
-    trained different matching encoders from byte-identical data (DEVELOPERS.md, Machine); the
-    library code paths MKL and oneDNN choose can depend on what this line tells apart."""
+    Why beside the model name and flags: the library code paths MKL and oneDNN choose can depend
+    on what this line tells apart (``MKL_CBWR`` branches give the matching encoder other bits;
+    DEVELOPERS.md, Machine), so two reports that disagree can be checked for it."""
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text()
