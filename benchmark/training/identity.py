@@ -55,10 +55,12 @@ def numbers_hash(cfg: TrainConfig, precision: str | None = None) -> str:
     data = to_dict(cfg)
     del data["device"], data["precision"]
     # A frozen pretrained encoder is named by its key, never its path; without one the section
-    # is left out, so keys of runs from before it existed are unchanged.
+    # is left out, so keys of runs from before it existed are unchanged. ``clip``: the heads-only
+    # protocol clips each head by its own gradient norm (``loop.clip_groups``, stop 30); units
+    # trained with one norm over all heads before it have other keys and are trained again.
     pretrained = data.pop("pretrained")
     if pretrained["checkpoint"]:
-        data["pretrained"] = {"key": pretrained["key"]}
+        data["pretrained"] = {"key": pretrained["key"], "clip": "per_head"}
     precision = precision or effective_precision(cfg)
     if precision != "fp32":
         data["precision"] = precision

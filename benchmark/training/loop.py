@@ -183,6 +183,29 @@ def make_optimizer(
     raise ValueError(f"optim.name={o.name!r}: expected 'sgd', 'adam' or 'adamw'")
 
 
+def clip_groups(model: torch.nn.Module, per_head: bool) -> list[list[torch.Tensor]]:
+    """The parameter groups whose gradient norms are clipped, each by its own norm.
+
+    End to end (``per_head`` False) one group holds every trainable parameter: the heads share
+    the encoder, and one norm is the paper's training. On a frozen encoder (``per_head`` True)
+    the heads share nothing, so each top-level child of ``model`` (each element of a
+    ``ModuleList``) is a group of its own: with one norm, a head with large gradients (an NLL)
+    would shrink every other head's steps, and a row's attitude would depend on its translation
+    loss (measured in DEVELOPERS.md, issue 21). Frozen parameters are in no group."""
+    trainable = [p for p in model.parameters() if p.requires_grad]
+    if not per_head:
+        return [trainable] if trainable else []
+    groups = []
+    for child in model.children():
+        for module in child if isinstance(child, torch.nn.ModuleList) else [child]:
+            params = [p for p in module.parameters() if p.requires_grad]
+            if params:
+                groups.append(params)
+    if sum(len(g) for g in groups) != len(trainable):  # a parameter held by the model itself
+        raise ValueError("clip_groups: the model has trainable parameters outside its children")
+    return groups
+
+
 def _lr_at(cfg: TrainConfig, epoch: int) -> float:
     """Learning rate of (0-based) ``epoch``; cosine decays to 0 over ``optim.epochs``."""
     if cfg.optim.lr_schedule == "cosine":
@@ -354,6 +377,7 @@ def _train_one_epoch(
         generator=torch.Generator().manual_seed(derive_seed(cfg.seed, epoch, 3)),
     )
     model.train()
+    groups = clip_groups(model, per_head=cfg.pretrained.enabled)
     sums: dict[str, float] = {}
     count, start = 0, time.perf_counter()
     for step, batch in enumerate(loader):
@@ -374,13 +398,15 @@ def _train_one_epoch(
             scaler.scale(total).backward()
             if cfg.optim.grad_clip is not None:
                 scaler.unscale_(optimizer)
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+                for group in groups:
+                    torch.nn.utils.clip_grad_norm_(group, cfg.optim.grad_clip)
             scaler.step(optimizer)
             scaler.update()
         else:
             total.backward()
             if cfg.optim.grad_clip is not None:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.optim.grad_clip)
+                for group in groups:
+                    torch.nn.utils.clip_grad_norm_(group, cfg.optim.grad_clip)
             optimizer.step()
         b = batch["R"].shape[0]
         for key, value in losses.items():

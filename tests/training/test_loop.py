@@ -23,6 +23,7 @@ from benchmark.training import (
     train,
     translation_labels,
 )
+from benchmark.training.loop import clip_groups
 
 TIMING = {"epoch_time_s", "pairs_per_s"}
 
@@ -260,3 +261,57 @@ class TestSameNumbersAsBeforeIssue13:
         torch.testing.assert_close(
             torch.tensor(T), torch.tensor(want_T), rtol=0, atol=LOOP_T_ATOL_M
         )
+
+
+class TestClipGroups:
+    """``clip_groups``: one norm end to end, one norm per head on a frozen encoder; each group's
+    clipped gradient checked against the closed form g * max_norm / ||g|| (torch's own clip is
+    what the loop calls, so the reference here is the formula, not torch)."""
+
+    @staticmethod
+    def model() -> torch.nn.Module:
+        m = torch.nn.Module()
+        m.encoder = torch.nn.Linear(3, 3)
+        m.attitude_head = torch.nn.Linear(3, 2)
+        m.translation_head = torch.nn.Linear(3, 2)
+        m.aux_attitude_heads = torch.nn.ModuleList([torch.nn.Linear(3, 1), torch.nn.Linear(3, 1)])
+        return m
+
+    def test_end_to_end_is_one_group_of_every_trainable_parameter(self):
+        m = self.model()
+        (group,) = clip_groups(m, per_head=False)
+        assert [id(p) for p in group] == [id(p) for p in m.parameters()]
+
+    def test_frozen_encoder_gives_one_group_per_head(self):
+        m = self.model()
+        m.encoder.requires_grad_(False)
+        groups = clip_groups(m, per_head=True)
+        expected = [m.attitude_head, m.translation_head, *m.aux_attitude_heads]
+        assert [[id(p) for p in g] for g in groups] == [
+            [id(p) for p in h.parameters()] for h in expected
+        ]
+        assert clip_groups(m, per_head=False)[0] == [p for p in m.parameters() if p.requires_grad]
+
+    def test_a_large_head_no_longer_shrinks_another(self):
+        # Every gradient of a head is the constant s, so its norm is s * sqrt(n_params): a head
+        # above max_norm = 1 is scaled by 1 / (s sqrt(n)), one below it is left as it was.
+        m = self.model()
+        m.encoder.requires_grad_(False)
+        heads = [m.attitude_head, m.translation_head, *m.aux_attitude_heads]
+        scales = [0.01, 100.0, 0.02, 50.0]
+        for head, s in zip(heads, scales, strict=True):
+            for p in head.parameters():
+                p.grad = torch.full_like(p, s)
+        for group in clip_groups(m, per_head=True):
+            torch.nn.utils.clip_grad_norm_(group, 1.0)
+        for head, s in zip(heads, scales, strict=True):
+            n = sum(p.numel() for p in head.parameters())
+            expected = s if s * math.sqrt(n) <= 1.0 else 1.0 / math.sqrt(n)
+            for p in head.parameters():
+                torch.testing.assert_close(p.grad, torch.full_like(p, expected), rtol=1e-5, atol=0)
+
+    def test_a_parameter_outside_the_children_is_refused(self):
+        m = self.model()
+        m.scale = torch.nn.Parameter(torch.ones(()))
+        with pytest.raises(ValueError, match="outside its children"):
+            clip_groups(m, per_head=True)
