@@ -30,7 +30,8 @@ class SharedEncoder:
     regression translation head on ``train_split`` with ``optim``, the encoder's own loss
     included (its ``volume_nll_weight``). Its checkpoint is the ``pretrained`` checkpoint of the
     rows' units, which the runner therefore trains first. The rows' heads train with
-    ``heads_optim`` (cheap: a few seconds an epoch on cached features)."""
+    ``heads_optim`` (cheap: a few seconds an epoch on cached features), each head's gradient
+    clipped by its own norm (``benchmark.training.loop.clip_groups``)."""
 
     optim: OptimConfig
     train_split: str = "standard/train"  # several joined by "+" (one training set)
