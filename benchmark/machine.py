@@ -7,15 +7,21 @@ import platform
 from pathlib import Path
 
 
+def read_cpuinfo() -> str | None:
+    """The text of ``/proc/cpuinfo``, or None where there is none (macOS, Windows) or it cannot
+    be read: the one place that reads it (model name, signature, flags)."""
+    try:
+        return Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return None
+
+
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo`` on Linux, else ``platform.processor()``), or the
     machine type, or ``"unknown CPU"``."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
+    for line in (read_cpuinfo() or "").splitlines():
+        if line.startswith("model name"):
+            return line.split(":", 1)[1].strip()
     return platform.processor() or platform.machine() or "unknown CPU"
 
 
@@ -31,10 +37,7 @@ def cpu_signature(cpuinfo: str | None = None) -> str:
     on what this line tells apart (``MKL_CBWR`` branches give the matching encoder other bits;
     DEVELOPERS.md, Machine), so two reports that disagree can be checked for it."""
     if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            return "unknown"
+        cpuinfo = read_cpuinfo() or ""
     found: dict[str, str] = {}
     for line in cpuinfo.splitlines():
         if not line.strip():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import benchmark.machine as machine
 from benchmark.machine import cpu_signature
 
 TWO_PROCESSORS = """processor\t: 0
@@ -44,3 +45,18 @@ class TestCpuSignature:
 
     def test_this_machine_gives_a_string(self):
         assert isinstance(cpu_signature(), str) and cpu_signature()
+
+
+class TestReadCpuinfo:
+    def test_unreadable_file_gives_none_and_the_fallbacks(self, monkeypatch):
+        class Unreadable:
+            def __init__(self, *_):
+                pass
+
+            def read_text(self):
+                raise PermissionError("/proc/cpuinfo")
+
+        monkeypatch.setattr(machine, "Path", Unreadable)
+        assert machine.read_cpuinfo() is None
+        assert machine.cpu_signature() == "unknown"
+        assert machine.cpu_model()  # platform's answer or "unknown CPU", never an exception

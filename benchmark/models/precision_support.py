@@ -28,11 +28,10 @@ otherwise; an explicit ``--precision bf16`` measures it anyway.
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import torch
 
-from benchmark.machine import cpu_model
+from benchmark.machine import cpu_model, read_cpuinfo
 
 BENCH_PRECISIONS = ("fp32", "bf16")
 NATIVE_BF16_FLAGS = ("avx512_bf16", "amx_bf16", "bf16")  # x86 (Linux names), Arm (Features)
@@ -60,12 +59,9 @@ def cpu_flags() -> set[str]:
     ``avx512_bf16``, ``amx_bf16``, ...); where there is no ``/proc/cpuinfo`` (macOS, Windows),
     the x86 ones torch's cpuinfo reports (``torch.cpu.get_capabilities()``), translated to the
     same names; empty if neither answers."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith(("flags", "Features")):
-                return set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
+    for line in (read_cpuinfo() or "").splitlines():
+        if line.startswith(("flags", "Features")):
+            return set(line.split(":", 1)[1].split())
     try:
         capabilities = torch.cpu.get_capabilities()
     except (AttributeError, RuntimeError):  # an older torch, or cpuinfo failed to initialise
