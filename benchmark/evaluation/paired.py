@@ -14,7 +14,8 @@ replicate draws the flights with replacement and, independently for each model, 
 replacement, and compares the two models' seed-mean errors on the drawn frames. The interval then
 covers both the test-set sampling (which flights) and the training noise (which seed), the two
 sources a rerun on another machine changes. :func:`spearman_bootstrap` does the same for a rank
-correlation (a head's uncertainty against its error).
+correlation (a head's uncertainty against its error), :func:`median_bootstrap` for a median (the
+median horizontal error, the median yaw error).
 """
 
 from __future__ import annotations
@@ -227,6 +228,81 @@ def pooled_bootstrap(
     _check_boot(n_boot, confidence, "pooled_bootstrap")
     mean, replicates = pooled_replicates(err_a, err_b, groups, n_boot=n_boot, seed=seed)
     return (mean, *percentile_interval(replicates, confidence))
+
+
+def median_replicates(
+    values: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+) -> tuple[float, np.ndarray]:
+    """Median of per-frame values per seed, averaged over seeds, and its flight-and-seed bootstrap
+    replicates (a table cell such as the median horizontal error).
+
+    Args:
+        values: ``(S, N)`` (or ``(N,)``) per-frame values of S seeds on the same N frames.
+        groups: ``(N,)`` flight id of each frame.
+        n_boot: replicates (>= 1); seed: of ``numpy.random.default_rng``.
+    Returns:
+        ``(median, replicates (n_boot,))``: ``median`` = mean over seeds of ``np.median(values[s])``
+        on all frames (what the per-seed summaries average). A replicate draws the flights as
+        :func:`pooled_replicates` does (first generator call), then S seeds with replacement, and
+        averages the drawn seeds' medians of the multiset holding each frame as often as its
+        flight was drawn (``np.median`` of the concatenated frames: the middle element, or the
+        mean of the two middle ones for an even count).
+
+    The multiset median needs no expanded copy: with a seed's values sorted once, the k-th
+    element of a replicate's multiset is the first sorted value whose cumulative multiplicity
+    exceeds k, so a replicate costs O(N) and memory stays (block, N).
+    """
+    v = _as_seed_matrix(values, "values")
+    g = np.asarray(groups).reshape(-1)
+    if v.shape[1] != g.shape[0]:
+        raise ValueError(
+            f"median_bootstrap: values {v.shape} and groups {g.shape} must hold the same frames"
+        )
+    _check_boot(n_boot, 0.5, "median_bootstrap")
+    n_seeds = v.shape[0]
+    point = float(np.median(v, axis=1).mean())
+    labels, inverse = np.unique(g, return_inverse=True)
+    rng = np.random.default_rng(seed)
+    draws = rng.integers(0, len(labels), size=(int(n_boot), len(labels)))
+    seed_draws = rng.integers(0, n_seeds, size=(int(n_boot), n_seeds))
+    counts = _row_counts(draws, len(labels))  # (n_boot, G) times each flight was drawn
+    orders = [np.argsort(v[s], kind="stable") for s in range(n_seeds)]
+    per_seed = np.empty((int(n_boot), n_seeds))
+    for start in range(0, int(n_boot), 256):  # blocks bound the (block, N) temporaries
+        weights = counts[start : start + 256][:, inverse]  # (block, N) frame multiplicities
+        for s, order in enumerate(orders):
+            cumulative = np.cumsum(weights[:, order], axis=1)
+            per_seed[start : start + 256, s] = _multiset_median(v[s, order], cumulative)
+    replicates = np.take_along_axis(per_seed, seed_draws, axis=1).mean(axis=1)
+    return point, replicates
+
+
+def _multiset_median(sorted_values: np.ndarray, cumulative: np.ndarray) -> np.ndarray:
+    """Median of the multisets holding ``sorted_values[n]`` as often as the rows of
+    ``cumulative (R, N)`` (cumulative multiplicities, last column the size W >= 1) say: ``(R,)``,
+    the element at 0-based position ``(W - 1) // 2`` averaged with the one at ``W // 2``."""
+    total = cumulative[:, -1]
+
+    def element(k: np.ndarray) -> np.ndarray:  # k-th element: first cumulative count above k
+        return sorted_values[(cumulative <= k[:, None]).sum(axis=1)]
+
+    return 0.5 * (element((total - 1) // 2) + element(total // 2))
+
+
+def median_bootstrap(
+    values: np.ndarray,
+    groups: np.ndarray,
+    n_boot: int = 2000,
+    seed: int = 0,
+    confidence: float = 0.95,
+) -> tuple[float, float, float]:
+    """``(median, lo, hi)``: :func:`median_replicates`' point estimate and percentile interval."""
+    _check_boot(n_boot, confidence, "median_bootstrap")
+    point, replicates = median_replicates(values, groups, n_boot=n_boot, seed=seed)
+    return (point, *percentile_interval(replicates, confidence))
 
 
 def spearman_replicates(

@@ -8,6 +8,7 @@ import pytest
 from scipy import stats
 
 from benchmark.evaluation.paired import (
+    median_bootstrap,
     paired_bootstrap,
     pooled_bootstrap,
     spearman_bootstrap,
@@ -210,6 +211,18 @@ class TestPooledBootstrap:
             pooled_bootstrap(**args)
 
 
+def drawn_replicates(g, n_seeds, n_boot, seed):
+    """``(frames, seeds)`` of each replicate with the draws of the one-model bootstraps (spearman,
+    median): G flights with replacement, then ``n_seeds`` seeds; ``frames`` are the drawn flights'
+    frame indices concatenated (a flight drawn twice appears twice)."""
+    labels = np.unique(g)
+    rng = np.random.default_rng(seed)
+    flights = rng.integers(0, len(labels), size=(n_boot, len(labels)))
+    seeds = rng.integers(0, n_seeds, size=(n_boot, n_seeds))
+    for r in range(n_boot):
+        yield np.concatenate([np.flatnonzero(g == labels[k]) for k in flights[r]]), seeds[r]
+
+
 class TestSpearmanBootstrap:
     def data(self, n_seeds=2):
         rng = np.random.default_rng(4)
@@ -226,17 +239,11 @@ class TestSpearmanBootstrap:
 
     @staticmethod
     def scipy_loop(x, y, g, n_boot, seed):
-        """Same draws as the pooled bootstrap; each replicate = mean over drawn seeds of scipy's
-        spearmanr on the drawn flights' concatenated frames."""
-        labels = np.unique(g)
-        rng = np.random.default_rng(seed)
-        flights = rng.integers(0, len(labels), size=(n_boot, len(labels)))
-        seeds = rng.integers(0, x.shape[0], size=(n_boot, x.shape[0]))
-        reps = []
-        for r in range(n_boot):
-            frames = np.concatenate([np.flatnonzero(g == labels[k]) for k in flights[r]])
-            reps.append(np.mean([stats.spearmanr(x[s, frames], y[s, frames]).statistic
-                                 for s in seeds[r]]))  # fmt: skip
+        """Each replicate = mean over drawn seeds of scipy's spearmanr on the drawn frames."""
+        reps = [
+            np.mean([stats.spearmanr(x[s, frames], y[s, frames]).statistic for s in seeds])
+            for frames, seeds in drawn_replicates(g, x.shape[0], n_boot, seed)
+        ]
         return np.percentile(reps, 2.5), np.percentile(reps, 97.5)
 
     def test_replicates_match_scipy_loop(self):
@@ -266,3 +273,52 @@ class TestSpearmanBootstrap:
         x, y, g = self.data(2)
         with pytest.raises(ValueError, match="must agree"):
             spearman_bootstrap(x, y[:1], g)
+
+
+class TestMedianBootstrap:
+    @staticmethod
+    def data(n_seeds=2, seed=5):
+        rng = np.random.default_rng(seed)
+        g = np.repeat(np.arange(9), rng.integers(1, 8, 9))  # flights of unequal length
+        return rng.gamma(2.0, 10.0, size=(n_seeds, g.size)), g
+
+    @staticmethod
+    def expanded_loop(v, g, n_boot, seed):
+        """The definition: each replicate = mean over the drawn seeds of ``np.median`` on the
+        drawn flights' concatenated frames."""
+        reps = [
+            np.mean([np.median(v[s, frames]) for s in seeds])
+            for frames, seeds in drawn_replicates(g, v.shape[0], n_boot, seed)
+        ]
+        return np.percentile(reps, 2.5), np.percentile(reps, 97.5)
+
+    def test_point_is_mean_of_numpy_medians(self):
+        v, g = self.data(3)
+        point, lo, hi = median_bootstrap(v, g, n_boot=300)
+        assert point == pytest.approx(np.median(v, axis=1).mean(), rel=1e-12)
+        assert lo < point < hi
+
+    @pytest.mark.parametrize("n_seeds", [1, 2, 3])
+    def test_replicates_match_expanded_loop(self, n_seeds):
+        v, g = self.data(n_seeds)
+        _, lo, hi = median_bootstrap(v, g, n_boot=300, seed=4)  # > one block of 256
+        assert (lo, hi) == pytest.approx(self.expanded_loop(v, g, 300, 4), rel=1e-12)
+
+    def test_ties_and_unsorted_flight_labels(self):
+        v, g = self.data(2)
+        v = np.round(v / 10.0)  # many equal values
+        _, lo, hi = median_bootstrap(v, g[::-1] * 7 + 3, n_boot=60, seed=1)
+        assert (lo, hi) == pytest.approx(self.expanded_loop(v, g[::-1] * 7 + 3, 60, 1))
+
+    def test_one_flight_one_seed_has_no_spread(self):
+        v = np.arange(7.0)
+        assert median_bootstrap(v, np.zeros(7), n_boot=20) == (3.0, 3.0, 3.0)
+
+    def test_bad_input_named(self):
+        v, g = self.data(2)
+        with pytest.raises(ValueError, match="must hold the same frames"):
+            median_bootstrap(v, g[:-1])
+        with pytest.raises(ValueError, match="values must be finite"):
+            median_bootstrap(np.array([1.0, np.nan]), np.zeros(2))
+        with pytest.raises(ValueError, match="n_boot must be an integer >= 1"):
+            median_bootstrap(v, g, n_boot=0)

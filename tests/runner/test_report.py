@@ -233,14 +233,32 @@ class TestCells:
             & (frame.split == "standard/test") & (frame.satellite == "true")
         ]  # fmt: skip
         assert len(part) == 3  # three seeds
-        got = cell_interval(part, ["dphi_deg", "acc10"], workdir)
+        got = cell_interval(part, ["dphi_deg", "acc10", "median_horizontal_m", "loglik"], workdir)
         assert got["interval"] == FLIGHT_BOOT and got["n_flights"] == 3
-        assert "acc10_lo" not in got  # not a per-frame mean: keeps the seed interval
+        assert "loglik_lo" not in got  # no log_likelihood column: keeps the seed interval
         e = np.stack([errors[u, "standard/test"][0]["dphi_deg"] for u in part.unit])
         g = errors[part.unit.iloc[0], "standard/test"][1]
         reps = naive_bootstrap(e, g, 2000, 0)
         lo, hi = np.quantile(reps, [0.025, 0.975])
         assert (got["dphi_deg_lo"], got["dphi_deg_hi"]) == pytest.approx((lo, hi), rel=1e-8)
+        # acc@10°: the mean of the indicator δφ <= 10, resampled as the errors are
+        acc = np.quantile(naive_bootstrap((e <= 10.0).astype(float), g, 2000, 0), [0.025, 0.975])
+        assert (got["acc10_lo"], got["acc10_hi"]) == pytest.approx(acc, rel=1e-8)
+        # the median horizontal error: np.median of each drawn seed's drawn flights' frames
+        per_unit = [errors[u, "standard/test"][0] for u in part.unit]
+        h = np.stack([np.hypot(e_u["dE_m"], e_u["dN_m"]) for e_u in per_unit])
+        rng = np.random.default_rng(0)
+        flights = np.unique(g)
+        draws_f = rng.integers(0, len(flights), size=(2000, len(flights)))
+        draws_s = rng.integers(0, 3, size=(2000, 3))
+        medians = [
+            np.mean([np.median(np.concatenate([h[s][g == flights[f]] for f in fb])) for s in sb])
+            for fb, sb in zip(draws_f, draws_s, strict=True)
+        ]
+        expected = np.quantile(medians, [0.025, 0.975])
+        assert (got["median_horizontal_m_lo"], got["median_horizontal_m_hi"]) == pytest.approx(
+            expected, rel=1e-10
+        )
 
         # the rendered Markdown cell: mean over seeds ± half-width of that interval
         metrics = [m for m in REPORT_METRICS if m in frame.columns]
@@ -251,6 +269,7 @@ class TestCells:
         expected = f"{e.mean():.2f} ± {(hi - lo) / 2:.2f}"
         assert expected in line.split(" | ")
         assert "2000 bootstrap replicates that resample the test flights" in text
+        assert "Student-t" not in interval_note(summary)  # every row has its per-frame files
 
     def test_without_per_frame_files_the_seed_t_interval(self, synthetic):
         from scipy import stats

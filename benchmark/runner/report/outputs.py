@@ -32,7 +32,7 @@ from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.claims.ranking import ranking_markdown
 from benchmark.runner.claims.spread import (
-    FRAME_METRICS,
+    CELL_METRICS,
     cell_interval,
     frame_interval,
     prediction_paths,
@@ -327,7 +327,7 @@ def _reference_interval(
 ) -> dict | None:
     """The flight bootstrap bounds of a reference row (``part``: its one results row) from its
     per-frame table, as a model's (None for any other row, or without the table)."""
-    wanted = [m for m in metrics if m in FRAME_METRICS]
+    wanted = [m for m in metrics if m in CELL_METRICS]
     if part.empty or not wanted or "reference" not in part:
         return None
     first = part.iloc[0]

@@ -380,17 +380,15 @@ def interval_note(summary: pd.DataFrame) -> str:
     parts = [f"Each cell: the mean {seeds} ± the half-width of its 95% interval."]
     if "flight×seed bootstrap" in kinds:
         parts.append(
-            "Mean errors (δE ... δφ): percentile interval of 2000 bootstrap replicates that "
-            "resample the test flights (frames of a flight are correlated) and the seeds, both "
-            "with replacement; the constant predictor, which has no seed, resamples flights only. "
-            "A test set of one flight gives no flight spread: with one seed no interval."
+            "Every per-frame metric (mean errors δE ... δφ, medians, acc@, log-lik, "
+            "ρ(unc, err)): percentile interval of 2000 bootstrap replicates that resample the "
+            "test flights (frames of a flight are correlated) and the seeds, both with "
+            "replacement, the statistic recomputed on each replicate's frames; the constant "
+            "predictor, which has no seed, resamples flights only. A test set of one flight "
+            "gives no flight spread: with one seed no interval."
         )
-    if n > 1:
-        parts.append(
-            "Other metrics"
-            + (" (and rows without per-frame files)" if "seed t" in kinds else "")
-            + f": Student-t interval over the {n} seeds' values."
-        )
+    if n > 1 and "seed t" in kinds:
+        parts.append(f"Rows without per-frame files: Student-t interval over the {n} seeds.")
     elif "flight×seed bootstrap" not in kinds:
         parts.append("One seed and no per-frame errors: single values, no interval.")
     return " ".join(parts)
