@@ -394,20 +394,16 @@ def _train_one_epoch(
             values = {k: float(v.detach()) for k, v in losses.items()}
             check_finite("training loss", f"epoch {epoch + 1}, step {step + 1}", values, lr)
         optimizer.zero_grad(set_to_none=True)
-        if scaler.is_enabled():  # fp16: scaled loss; a step with inf gradients is skipped
-            scaler.scale(total).backward()
-            if cfg.optim.grad_clip is not None:
-                scaler.unscale_(optimizer)
-                for group in groups:
-                    torch.nn.utils.clip_grad_norm_(group, cfg.optim.grad_clip)
-            scaler.step(optimizer)
-            scaler.update()
-        else:
-            total.backward()
-            if cfg.optim.grad_clip is not None:
-                for group in groups:
-                    torch.nn.utils.clip_grad_norm_(group, cfg.optim.grad_clip)
-            optimizer.step()
+        # fp16: a scaled loss, gradients unscaled before clipping, a step with inf gradients
+        # skipped. A disabled scaler (fp32, bf16) passes through: scale() returns the loss,
+        # unscale_() and update() do nothing, step() is optimizer.step().
+        scaler.scale(total).backward()
+        if cfg.optim.grad_clip is not None:
+            scaler.unscale_(optimizer)
+            for group in groups:
+                torch.nn.utils.clip_grad_norm_(group, cfg.optim.grad_clip)
+        scaler.step(optimizer)
+        scaler.update()
         b = batch["R"].shape[0]
         for key, value in losses.items():
             sums[key] = sums.get(key, 0.0) + float(value.detach()) * b
