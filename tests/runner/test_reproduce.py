@@ -149,6 +149,9 @@ class TestReproduceSmoke:
             assert run_key(cfg, manifest) == unit_dir.name
             assert (unit_dir / "train" / "checkpoint.pt").is_file()
             assert (unit_dir / "history.json").is_file()
+            # the worker's heartbeat of its last epoch (the driver's progress line reads it)
+            beat = json.loads((unit_dir / "progress.json").read_text())
+            assert beat == {"epoch": cfg.optim.epochs, "epochs": cfg.optim.epochs}
             names = {p.name for p in (unit_dir / "eval").iterdir()}
             split = cfg.data.val_split or cfg.data.train_split.replace("train", "test")
             stem = split.replace("/", "__")

@@ -38,6 +38,7 @@ from benchmark.tracking import (
     tracker_from_spec,
 )
 from benchmark.training.config import TrainConfig
+from benchmark.training.loop import EpochCallback
 from benchmark.training.pipeline import TrainEvalResult, train_and_evaluate
 
 EPOCH_METRIC = "epoch"  # logged every epoch: a continued run knows which epochs it already has
@@ -95,13 +96,17 @@ def track_unit(
     unit_dir: Path,
     eval_splits: list[str],
     eval_batch: int,
+    heartbeat: EpochCallback | None = None,
 ) -> tuple[TrainEvalResult, str]:
     """Train and evaluate the unit into ``unit_dir``, logging to ``run`` as it goes; returns the
     results and the logged model's URI (``""`` if the backend keeps none). ``run`` is ended by
-    the caller."""
+    the caller. ``heartbeat(epoch, record)`` is called at every epoch end too (replayed ones
+    included)."""
     logged = int(run.tags.pop("_logged_epochs", "0"))
 
     def on_epoch_end(epoch: int, record: dict[str, float]) -> None:
+        if heartbeat is not None:
+            heartbeat(epoch, record)
         if epoch <= logged:  # a continued run already has it (the loop replays its history)
             return
         values = {k: v for k, v in record.items() if k != "epoch" and _finite(v)}

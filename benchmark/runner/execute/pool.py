@@ -11,11 +11,13 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
+from benchmark.runner.execute import heartbeat
 from benchmark.runner.execute.ray_executor import (
     check_ray_tracking,
     execute_units_ray,
@@ -126,14 +128,33 @@ def execute_units(
                 futures = {pool.submit(run_unit, task): unit for unit, task in todo}
             finally:
                 signal.signal(signal.SIGINT, previous)
-            for future in cf.as_completed(futures):
-                unit = futures[future]
-                on_done(unit, future.result())
-                bar.update(1, postfix=f"done {unit.title}")
+            _wait_reporting(futures, on_done, bar, [task for _, task in todo])
         except BaseException:
             _stop_pool(pool)
             raise
         pool.shutdown(wait=True)
+
+
+def _wait_reporting(
+    futures: dict[cf.Future, Unit], on_done: OnDone, bar: Progress, tasks: list[UnitTask]
+) -> None:
+    """``on_done`` for each future as it completes; while none completes, every
+    ``heartbeat.POLL_S`` the progress line names the units being trained and their epoch
+    (``heartbeat.running_status``), drawn when that changed."""
+    since = time.time()
+    dirs = {task.key: task.unit_dir for task in tasks}
+    pending, shown = set(futures), ""
+    while pending:
+        done, pending = cf.wait(pending, timeout=heartbeat.POLL_S, return_when=cf.FIRST_COMPLETED)
+        for future in done:
+            unit = futures[future]
+            on_done(unit, future.result())
+            bar.update(1, postfix=f"done {unit.title}")
+        running = [(futures[f].title, dirs[futures[f].key]) for f in pending]
+        status = heartbeat.running_status(running, since)
+        if status and status != shown:
+            bar.status(status)
+        shown = status
 
 
 def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:

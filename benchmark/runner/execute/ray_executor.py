@@ -37,6 +37,7 @@ from urllib.parse import urlsplit
 
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
+from benchmark.runner.execute import heartbeat
 from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 
 INSTALL_LINE = 'pip install -e ".[ray]"'
@@ -199,8 +200,17 @@ def execute_units_ray(
                 ref = remote.options(name=name).remote(task, digests[str(task.cfg.data.root)], cwd)
                 pending[ref] = (unit, task, time.monotonic())
             bar.status(f"{len(pending)} unit(s) submitted")
+            since, shown = time.time(), ""
             while pending:
-                done, _ = ray.wait(list(pending), num_returns=1)
+                done, _ = ray.wait(list(pending), num_returns=1, timeout=heartbeat.POLL_S)
+                if not done:  # the running units' epochs (heartbeats on a shared file system)
+                    running = [(getattr(u, "title", t.key), t.unit_dir) for u, t, _ in
+                               pending.values()]  # fmt: skip
+                    status = heartbeat.running_status(running, since)
+                    if status and status != shown:
+                        bar.status(status)
+                    shown = status
+                    continue
                 unit, task, submitted = pending.pop(done[0])
                 result = _fetch(ray, done[0], task.key, submitted, max_retries)
                 on_done(unit, result)

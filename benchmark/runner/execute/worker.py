@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.data.swap import SATELLITE_MODES
+from benchmark.runner.execute.heartbeat import write_heartbeat
 from benchmark.runner.execute.live import UnitTracking, open_unit_run, track_unit
 from benchmark.training.config import TrainConfig
 from benchmark.training.pipeline import (
@@ -114,23 +115,31 @@ def run_unit(task: UnitTask) -> UnitResult:
 
 
 def _run_unit(task: UnitTask, start: float) -> UnitResult:
+    epochs = task.cfg.optim.epochs
+    write_heartbeat(task.unit_dir, 0, epochs)  # the driver's progress line: this unit started
+
+    def beat(epoch: int, _record: dict[str, float]) -> None:
+        write_heartbeat(task.unit_dir, epoch, epochs)
+
     if task.tracking is None:
         done = train_and_evaluate(
-            task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch
-        )
+            task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
+            eval_batch=task.eval_batch,
+        )  # fmt: skip
         return _result(task, done, start)
     run, reused = open_unit_run(task.tracking)
     if reused is not None:  # a FINISHED run of this unit: compute (or read) the numbers only
         done = train_and_evaluate(
-            task.cfg, task.unit_dir, task.eval_splits, eval_batch=task.eval_batch
-        )
+            task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
+            eval_batch=task.eval_batch,
+        )  # fmt: skip
         result = _result(task, done, start)
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
         result.started_ms, result.ended_ms = reused.start_time_ms, reused.end_time_ms
         return result
     with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (one worker: inline)
         done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
-                                     task.eval_batch)  # fmt: skip
+                                     task.eval_batch, heartbeat=beat)  # fmt: skip
     result = _result(task, done, start)
     result.run_id, result.model_uri = run.run_id, model_uri
     result.started_ms, result.ended_ms = run.start_time_ms, run.end_time_ms

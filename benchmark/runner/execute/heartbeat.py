@@ -1,0 +1,71 @@
+"""What a unit being trained in a worker is doing now, for the reproduction's progress line.
+
+A pool worker trains a unit for minutes (a shared matching encoder: over half an hour) and the
+driver hears of it only when it ends, so its progress line would stand still that long. The
+worker therefore writes a small heartbeat file into the unit's directory when it starts and at
+the end of every epoch (:func:`write_heartbeat`, an atomic replace); the driver, while it waits,
+reads the heartbeats of the units still pending (:func:`running_status`) and shows them. Files
+older than the current invocation are ignored: a unit an earlier, killed invocation was training
+is not running now until a worker picks it up again.
+
+A file, not a queue: it needs nothing shared between the processes (spawned pool workers, local
+Ray workers) and survives a crash as a record of how far the unit got.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+HEARTBEAT_FILE = "progress.json"
+POLL_S = 30.0  # how often a waiting driver reads the running units' heartbeats
+
+
+def write_heartbeat(unit_dir: Path, epoch: int, epochs: int) -> None:
+    """Record that the unit in ``unit_dir`` has finished ``epoch`` of ``epochs`` (0: started).
+    Best effort: a failed write (disk full) must not fail the training it reports on."""
+    path = Path(unit_dir) / HEARTBEAT_FILE
+    tmp = path.with_name(f".{HEARTBEAT_FILE}.{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps({"epoch": int(epoch), "epochs": int(epochs)}))
+        os.replace(tmp, path)  # a reader sees the old or the new file, never half of one
+    except OSError:
+        with contextlib.suppress(OSError):  # the directory itself may be what failed
+            tmp.unlink(missing_ok=True)
+
+
+def read_heartbeat(unit_dir: Path, since: float) -> tuple[int, int] | None:
+    """``(epoch, epochs)`` of the unit's heartbeat if written at or after ``since`` (a
+    ``time.time()``), else None (absent, older, or unreadable)."""
+    path = Path(unit_dir) / HEARTBEAT_FILE
+    try:
+        if path.stat().st_mtime < since:
+            return None
+        record = json.loads(path.read_text())
+        return int(record["epoch"]), int(record["epochs"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def running_status(pending: Iterable[tuple[str, Path]], since: float) -> str:
+    """``"running: <title> epoch 3/12; <title> starting"`` for the pending units (``(title,
+    unit_dir)``) whose heartbeat is from this invocation (``since``), "" when none has one yet.
+    A unit at its last epoch is evaluating."""
+    parts = []
+    for title, unit_dir in pending:
+        beat = read_heartbeat(unit_dir, since)
+        if beat is None:
+            continue
+        epoch, epochs = beat
+        if epoch <= 0:
+            state = "starting"
+        elif epoch >= epochs:
+            state = "evaluating"
+        else:
+            state = f"epoch {epoch}/{epochs}"
+        parts.append(f"{title} {state}")
+    return "running: " + "; ".join(parts) if parts else ""
