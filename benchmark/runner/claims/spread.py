@@ -34,7 +34,8 @@ from benchmark.runner.execute.worker import eval_key, split_filename
 # Per-frame error columns of a predictions CSV whose mean is a table cell.
 FRAME_METRICS = ("dE_m", "dN_m", "dU_m", "dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg")
 # Cells that are another statistic of per-frame columns, as ``benchmark.evaluation.metrics.
-# summarize`` computes them per seed: metric -> (statistic, the columns it reads).
+# summarize`` computes them per seed. Medians: metric -> the columns it reads (two: the
+# horizontal distance hypot(δE, δN)).
 MEDIANS = {"median_dpsi_deg": ("dpsi_deg",), "median_dphi_deg": ("dphi_deg",),
            "median_horizontal_m": ("dE_m", "dN_m")}  # fmt: skip
 ACCURACIES = {f"acc{t:g}": t for t in ACCURACY_THRESHOLDS_DEG}  # fraction of frames δφ <= t

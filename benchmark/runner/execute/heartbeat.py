@@ -17,8 +17,11 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import time
 from collections.abc import Iterable
 from pathlib import Path
+
+from benchmark.progress import Progress
 
 HEARTBEAT_FILE = "progress.json"
 POLL_S = 30.0  # how often a waiting driver reads the running units' heartbeats
@@ -69,3 +72,17 @@ def running_status(pending: Iterable[tuple[str, Path]], since: float) -> str:
             state = f"epoch {epoch}/{epochs}"
         parts.append(f"{title} {state}")
     return "running: " + "; ".join(parts) if parts else ""
+
+
+class RunningLine:
+    """The waiting driver's progress line: :meth:`show` draws :func:`running_status` on ``bar``
+    (a ``benchmark.progress.Progress``) when it changed, counting heartbeats from its creation."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar, self.since, self.shown = bar, time.time(), ""
+
+    def show(self, pending: Iterable[tuple[str, Path]]) -> None:
+        status = running_status(pending, self.since)
+        if status and status != self.shown:
+            self.bar.status(status)
+        self.shown = status

@@ -11,7 +11,6 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import signal
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -141,20 +140,16 @@ def _wait_reporting(
     """``on_done`` for each future as it completes; while none completes, every
     ``heartbeat.POLL_S`` the progress line names the units being trained and their epoch
     (``heartbeat.running_status``), drawn when that changed."""
-    since = time.time()
+    line = heartbeat.RunningLine(bar)
     dirs = {task.key: task.unit_dir for task in tasks}
-    pending, shown = set(futures), ""
+    pending = set(futures)
     while pending:
         done, pending = cf.wait(pending, timeout=heartbeat.POLL_S, return_when=cf.FIRST_COMPLETED)
         for future in done:
             unit = futures[future]
             on_done(unit, future.result())
             bar.update(1, postfix=f"done {unit.title}")
-        running = [(futures[f].title, dirs[futures[f].key]) for f in pending]
-        status = heartbeat.running_status(running, since)
-        if status and status != shown:
-            bar.status(status)
-        shown = status
+        line.show([(futures[f].title, dirs[futures[f].key]) for f in pending])
 
 
 def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:

@@ -200,16 +200,12 @@ def execute_units_ray(
                 ref = remote.options(name=name).remote(task, digests[str(task.cfg.data.root)], cwd)
                 pending[ref] = (unit, task, time.monotonic())
             bar.status(f"{len(pending)} unit(s) submitted")
-            since, shown = time.time(), ""
+            line = heartbeat.RunningLine(bar)
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=heartbeat.POLL_S)
                 if not done:  # the running units' epochs (heartbeats on a shared file system)
-                    running = [(getattr(u, "title", t.key), t.unit_dir) for u, t, _ in
-                               pending.values()]  # fmt: skip
-                    status = heartbeat.running_status(running, since)
-                    if status and status != shown:
-                        bar.status(status)
-                    shown = status
+                    line.show([(getattr(u, "title", t.key), t.unit_dir) for u, t, _ in
+                               pending.values()])  # fmt: skip
                     continue
                 unit, task, submitted = pending.pop(done[0])
                 result = _fetch(ray, done[0], task.key, submitted, max_retries)
