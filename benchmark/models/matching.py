@@ -28,7 +28,12 @@ Pipeline, per pair (``B`` pairs, ``C = out_channels``):
    cell. The score of (yaw, position) is the template's mean cosine similarity with the grid at
    that position, times a learned temperature; positions within ``search_m`` (square) of the
    image centre and inside its footprint are candidates. ``log_softmax`` over all (yaw, N, E)
-   gives the pose volume.
+   gives the pose volume. With ``height_planes = P > 0`` the view is height-aware: a 1 x 1
+   convolution of the UAV trunk gives every pixel a distribution over ``P`` horizontal planes
+   (``0, s, .., (P - 1) s`` metres above the ground, ``s = plane_spacing_m``) and "on no plane",
+   and each cell collects the features where its column meets each plane, weighted by the
+   pixel's probability of that plane (``matching_ops.bev_templates_planes``): roofs land where
+   the satellite shows them instead of ``altitude / (altitude - h)`` times farther out.
 5. Features for the heads (fixed length, see :attr:`MatchingEncoder.feature_names`): the yaw
    marginal's circular mean (cos, sin), the expected position, its spread and the arg-max
    position (units of ``search_m``), peak log-probability and normalised entropy, the gravity
@@ -59,7 +64,7 @@ from torch import Tensor, nn
 
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
 from benchmark.models.encoder import parse_variant
-from benchmark.models.matching_ops import bev_templates, correlate, sat_grid
+from benchmark.models.matching_ops import bev_templates, bev_templates_planes, correlate, sat_grid
 from benchmark.models.matching_pixels import (
     denormalize,
     grey_gradient,
@@ -138,6 +143,8 @@ class MatchingEncoder(PairEncoder):
         default_sat_height_m: float = 1000.0,
         grey_gradient: bool = False,
         photometric: float = 0.0,
+        height_planes: int = 0,
+        plane_spacing_m: float = 10.0,
     ) -> None:
         super().__init__()
         if protocol not in PROTOCOLS:
@@ -157,6 +164,12 @@ class MatchingEncoder(PairEncoder):
             raise ValueError("matching encoder: need n_yaw >= 4 and channels, out_channels, "
                              f"gravity_dim >= 1; got {n_yaw}, {channels}, {out_channels}, "
                              f"{gravity_dim}")  # fmt: skip
+        if height_planes < 0 or height_planes == 1:
+            raise ValueError(f"matching encoder: height_planes must be 0 (the ground plane only) "
+                             f"or >= 2, got {height_planes!r}")  # fmt: skip
+        if not (math.isfinite(plane_spacing_m) and plane_spacing_m > 0):
+            raise ValueError(f"matching encoder: plane_spacing_m must be > 0, got "
+                             f"{plane_spacing_m!r}")  # fmt: skip
         if correlation not in ("dft", "fft", "conv"):
             raise ValueError(f"matching encoder: correlation must be 'dft', 'fft' or 'conv', got "
                              f"{correlation!r}")  # fmt: skip
@@ -219,6 +232,20 @@ class MatchingEncoder(PairEncoder):
             # last, so that the default encoder's parameters and their seeded values stay as they
             # were before the option existed)
             self.grey_gradient_log_gain = nn.Parameter(torch.zeros(2))
+        self.height_planes = int(height_planes)
+        self.plane_spacing_m = float(plane_spacing_m)
+        if self.height_planes:
+            heights = torch.arange(self.height_planes, dtype=torch.float32) * self.plane_spacing_m
+            self.register_buffer("plane_heights", heights, persistent=False)
+            # Per-pixel logits over the planes and "on no plane" (created last, like the gain
+            # above). Zero weights and a ground-plane bias: the untrained view is the flat one
+            # (q = e^3 / (e^3 + P) ~ 0.77 on the ground for 6 planes), so training starts from
+            # the matcher without planes and learns where the city stands up.
+            self.plane_logits = nn.Conv2d(channels, self.height_planes + 1, 1)
+            nn.init.zeros_(self.plane_logits.weight)
+            with torch.no_grad():
+                self.plane_logits.bias.zero_()
+                self.plane_logits.bias[0] = 3.0
 
     # --- geometry inputs -------------------------------------------------------------------
     def _geometry(self, context: Mapping[str, Tensor] | None, ref: Tensor) -> dict[str, Tensor]:
@@ -280,10 +307,13 @@ class MatchingEncoder(PairEncoder):
             used = torch.cat([geo["prior_attitude"], geo["prior_altitude_m"][:, None]], dim=1)
         else:
             used = predicted
-        # Altitude below 5 m would put the horizon at the image centre and nothing on the ground.
+        # Altitude below 5 m (above the top plane) would put the horizon at the image centre and
+        # nothing on the ground.
+        floor = 5.0 + (float(self.plane_heights[-1]) if self.height_planes else 0.0)
+        logits = self.plane_logits(uav_hidden) if self.height_planes else None
         log_volume = self.match(
-            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=5.0), geo["fov"],
-            geo["sat_footprint_m"],
+            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=floor), geo["fov"],
+            geo["sat_footprint_m"], plane_logits=logits,
         )  # fmt: skip
         # The heads see the values the protocol has at test time: in vision-only training the
         # bird's-eye view uses the priors, but the features carry the prediction twice.
@@ -307,23 +337,38 @@ class MatchingEncoder(PairEncoder):
         footprint_m: Tensor,
         uav_stride: tuple[int, int] | None = None,
         sat_stride: tuple[int, int] | None = None,
+        plane_logits: Tensor | None = None,
     ) -> Tensor:
         """The pose volume ``log p (B, K, P, P)`` (yaw, row = north first, column = east) of
         feature maps ``uav_feat (B, C, h, w)`` and ``sat_feat (B, C, h', w')`` (one satellite map
         per pair; strides default to the trunks'), for the camera ``pitch, roll`` (rad),
         ``altitude`` (m above the ground), ``fov`` (rad), all ``(B,)``, and the satellite
-        footprint ``(B, 2)`` metres. Features are L2-normalised per cell here."""
+        footprint ``(B, 2)`` metres. Features are L2-normalised per cell here. With
+        ``height_planes``, ``plane_logits (B, P + 1, h, w)`` on the UAV features' grid lift them
+        onto the planes (``matching_ops.bev_templates_planes``); the score is then the mean
+        cosine weighted by each cell's plane probability."""
         size = self.input_size
         r, n = self.template_cells, self.search_cells
-        templates, mask = bev_templates(
-            nnf.normalize(uav_feat, dim=1), uav_stride or self.uav_stride, size, self.yaws, r,
-            self.cell_m, pitch, roll, altitude, fov,
-        )  # fmt: skip
+        stride = uav_stride or self.uav_stride
+        feats = nnf.normalize(uav_feat, dim=1)
+        if self.height_planes:
+            if plane_logits is None:
+                raise ValueError("matching encoder: height_planes is set, so match() needs the "
+                                 "plane_logits of the UAV features")  # fmt: skip
+            templates, mask = bev_templates_planes(
+                feats, plane_logits, self.plane_heights, stride, size, self.yaws, r, self.cell_m,
+                pitch, roll, altitude, fov,
+            )  # fmt: skip
+        else:
+            templates, mask = bev_templates(
+                feats, stride, size, self.yaws, r, self.cell_m, pitch, roll, altitude, fov
+            )
         grid = sat_grid(sat_feat, sat_stride or self.sat_stride, size, footprint_m, n + r,
                         self.cell_m)  # fmt: skip
         grid = nnf.normalize(grid, dim=1)
         corr = correlate(grid, templates, self.correlation)  # (B, K, P, P)
-        count = mask.flatten(2).sum(-1).clamp(min=1).to(corr.dtype)  # valid cells per template
+        # valid cells per template (their total plane probability with height planes)
+        count = mask.flatten(2).sum(-1).clamp(min=1).to(corr.dtype)
         scores = corr / count[..., None, None] * (TEMPERATURE_GAIN * self.log_temperature).exp()
         half = 0.5 * footprint_m
         inside = (self.pos_n.abs()[None, :, None] <= half[:, 1, None, None]) & (
@@ -490,8 +535,10 @@ def matching(
     target (cells/bins), ``temperature`` (initial), ``correlation`` (``"dft"`` by matrix
     products, ``"fft"`` or ``"conv"``: the same numbers to float32 rounding; ``dft`` is the
     fastest on this CPU), ``default_*`` (the geometry assumed without a ``context``),
-    ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones) and
-    ``photometric`` (strength of the training images' colour jitter, 0: none)."""
+    ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones),
+    ``photometric`` (strength of the training images' colour jitter, 0: none), and
+    ``height_planes`` / ``plane_spacing_m`` (the height-aware view: 0 planes = the flat
+    ground)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(

@@ -25,6 +25,7 @@ from benchmark.models.matching_geometry import (
 
 __all__ = [
     "bev_templates",
+    "bev_templates_planes",
     "correlate",
     "correlate_conv",
     "correlate_dft",
@@ -32,6 +33,19 @@ __all__ = [
     "fft_size",
     "sat_grid",
 ]
+
+
+def _template_cells(
+    like: Tensor, yaws: Tensor, radius: int, cell_m: float
+) -> tuple[Tensor, Tensor]:
+    """The template cells of every yaw in the UAV's level frame, ``(B, K, t, t, 2)`` (B and the
+    dtype and device from ``like``), and the disc of radius ``radius`` cells, ``(t, t)`` bool."""
+    b, k = like.shape[0], yaws.shape[0]
+    grid = offset_grid(radius, cell_m, dtype=like.dtype).to(like.device)
+    t = grid.shape[0]
+    level = rotate_to_level(grid.unsqueeze(0), yaws.view(k, 1, 1))  # (K, t, t, 2)
+    disc = grid.square().sum(-1) <= (radius * cell_m) ** 2 + 1e-6
+    return level.unsqueeze(0).expand(b, k, t, t, 2), disc
 
 
 def bev_templates(
@@ -59,12 +73,9 @@ def bev_templates(
     """
     b, c = uav_features.shape[:2]
     k = yaws.shape[0]
-    grid = offset_grid(radius, cell_m, dtype=uav_features.dtype).to(uav_features.device)
-    t = grid.shape[0]
-    level = rotate_to_level(grid.unsqueeze(0), yaws.view(k, 1, 1))  # (K, t, t, 2)
-    level = level.unsqueeze(0).expand(b, k, t, t, 2)
+    level, disc = _template_cells(uav_features, yaws, radius, cell_m)
+    t = disc.shape[0]
     uv, valid = ground_to_uav_pixel(level, pitch, roll, altitude, fov, size)
-    disc = grid.square().sum(-1) <= (radius * cell_m) ** 2 + 1e-6  # (t, t)
     mask = valid & disc
     coords = pixel_to_grid(uv, size, stride).reshape(b, k * t, t, 2)
     sampled = nnf.grid_sample(
@@ -72,6 +83,72 @@ def bev_templates(
     )  # (B, C, K t, t)
     templates = sampled.view(b, c, k, t, t).permute(0, 2, 1, 3, 4)
     return templates * mask.unsqueeze(2).to(templates.dtype), mask
+
+
+def bev_templates_planes(
+    uav_features: Tensor,
+    plane_logits: Tensor,
+    plane_heights: Tensor,
+    stride: tuple[int, int],
+    size: int,
+    yaws: Tensor,
+    radius: int,
+    cell_m: float,
+    pitch: Tensor,
+    roll: Tensor,
+    altitude: Tensor,
+    fov: Tensor,
+) -> tuple[Tensor, Tensor]:
+    """Height-aware bird's-eye templates: :func:`bev_templates` on ``P`` horizontal planes.
+
+    A flat-ground view puts a roof ``h`` metres up at ``altitude / (altitude - h)`` times its
+    true distance (1.4x for a 30 m roof seen from 100 m), and in a city of tall blocks most of a
+    shallow view is roofs and facades. Here every pixel carries a distribution over the planes
+    ``plane_heights (P,)`` (metres above the ground) and one more class, "on no plane" (sky,
+    facades: what a nadir image does not show): ``softmax(plane_logits (B, P + 1, h, w))`` over
+    channels, on the features' grid. The cell ``(dE, dN)`` at yaw ``psi`` is projected once per
+    plane (the point ``h_p`` above the ground is ``altitude - h_p`` below the camera) to pixel
+    ``u_p`` and collects ``sum_p q_p(u_p) F(u_p)``: a pixel contributes where the column it sees
+    meets the plane it believes it is on (after OrienterNet's depth-distribution lifting, with
+    heights instead of depths, since the satellite is nadir).
+
+    Returns ``templates (B, K, C, t, t)`` and ``weight (B, K, t, t)``, the cell's total
+    probability ``sum_p q_p(u_p)`` over the planes where it projects validly (float in
+    ``[0, P]``; 0 outside the disc). Planes at or above the camera are refused.
+    """
+    b, c = uav_features.shape[:2]
+    n_planes = plane_heights.shape[0]
+    if (
+        plane_logits.shape[:2] != (b, n_planes + 1)
+        or plane_logits.shape[-2:] != (uav_features.shape[-2:])
+    ):
+        raise ValueError(
+            f"bev_templates_planes: plane_logits must be (B, P + 1, h, w) = ({b}, {n_planes + 1}, "
+            f"{tuple(uav_features.shape[-2:])}), got {tuple(plane_logits.shape)}"
+        )
+    prob = torch.softmax(plane_logits, dim=1)[:, :n_planes]  # (B, P, h, w)
+    k = yaws.shape[0]
+    level, disc = _template_cells(uav_features, yaws, radius, cell_m)
+    t = disc.shape[0]
+    templates = uav_features.new_zeros(b, k, c, t, t)
+    weight = uav_features.new_zeros(b, k, t, t)
+    for p in range(n_planes):
+        below = altitude - plane_heights[p]
+        if bool((below <= 0).any()):
+            raise ValueError(
+                f"bev_templates_planes: plane {float(plane_heights[p]):g} m is not below every "
+                f"camera (altitudes {altitude.min().item():.1f}..{altitude.max().item():.1f} m)"
+            )
+        uv, valid = ground_to_uav_pixel(level, pitch, roll, below, fov, size)
+        coords = pixel_to_grid(uv, size, stride).reshape(b, k * t, t, 2)
+        both = torch.cat([uav_features, prob[:, p : p + 1]], dim=1)  # one interpolation pass
+        sampled = nnf.grid_sample(
+            both, coords, mode="bilinear", padding_mode="zeros", align_corners=True
+        ).view(b, c + 1, k, t, t)
+        q = sampled[:, c] * (valid & disc).to(sampled.dtype)  # (B, K, t, t)
+        templates = templates + sampled[:, :c].permute(0, 2, 1, 3, 4) * q.unsqueeze(2)
+        weight = weight + q
+    return templates, weight
 
 
 def sat_grid(

@@ -168,10 +168,12 @@ class TestVolumeNll:
 class TestMatchingEncoderContract:
     @pytest.mark.parametrize("b", [1, 8])
     @pytest.mark.parametrize("protocol", ["vision_only", "gravity_aided"])
-    def test_shapes_and_loss_keys(self, b, protocol):
+    @pytest.mark.parametrize("planes", [0, 4])
+    def test_shapes_and_loss_keys(self, b, protocol, planes):
         torch.manual_seed(0)
         model = create_model(encoder="matching", variant="/", input_size=32,
-                             encoder_options={"protocol": protocol})  # fmt: skip
+                             encoder_options={"protocol": protocol,
+                                              "height_planes": planes})  # fmt: skip
         assert isinstance(model.encoder, PairEncoder)
         f = model.encoder.feature_dim
         assert model.attitude_head.in_features == f == len(model.encoder.feature_names)
@@ -229,6 +231,25 @@ class TestMatchingEncoderContract:
             ctx = _context(2)
             ctx["sat_footprint_m"] = torch.ones(2)
             model(torch.rand(2, 3, 32, 32), torch.rand(2, 3, 32, 32), context=ctx)
+
+    def test_height_planes_start_from_the_flat_view_and_keep_the_default(self):
+        # Without the option the encoder has the parameters (names, order, seeded values) it
+        # had before the option existed; with it the only new ones are the plane logits, and
+        # the untrained logits give every pixel the same plane distribution (ground ~0.77).
+        torch.manual_seed(0)
+        flat = create_model(encoder="matching", variant="/", input_size=32)
+        torch.manual_seed(0)
+        planes = create_model(encoder="matching", variant="/", input_size=32,
+                              encoder_options={"height_planes": 6})  # fmt: skip
+        a, b = dict(flat.encoder.named_parameters()), dict(planes.encoder.named_parameters())
+        assert set(b) - set(a) == {"plane_logits.weight", "plane_logits.bias"}
+        for name, value in a.items():
+            torch.testing.assert_close(b[name], value, rtol=0, atol=0)
+        q = torch.softmax(planes.encoder.plane_logits.bias, 0)
+        assert float(q[0]) == pytest.approx(math.exp(3) / (math.exp(3) + 6))
+        with pytest.raises(ValueError, match="height_planes"):
+            create_model(encoder="matching", variant="/", input_size=32,
+                         encoder_options={"height_planes": 1})  # fmt: skip
 
     def test_protocol_is_part_of_the_config(self):
         from benchmark.models import ModelConfig

@@ -21,7 +21,7 @@ from benchmark.models.matching_geometry import (
     rotate_to_level,
     sat_pixel_of_offset,
 )
-from benchmark.models.matching_ops import bev_templates, sat_grid
+from benchmark.models.matching_ops import bev_templates, bev_templates_planes, sat_grid
 from benchmark.sim.camera import Camera, project_enu_to_pixel
 
 MAGENTA = np.array([255, 0, 255], np.uint8)
@@ -198,3 +198,118 @@ class TestOffsetGrid:
     def test_rows_north_first(self):
         g = offset_grid(2, 5.0)
         assert g[0, 0].tolist() == [-10.0, 10.0] and g[4, 4].tolist() == [10.0, -10.0]
+
+
+def _ramp(size: int) -> torch.Tensor:
+    """``(1, 2, size, size)`` float64 features holding each pixel's own ``(u, v)``: bilinear
+    sampling of a linear ramp returns the sampled position exactly."""
+    v, u = torch.meshgrid(
+        torch.arange(size, dtype=torch.float64), torch.arange(size, dtype=torch.float64),
+        indexing="ij",
+    )  # fmt: skip
+    return torch.stack([u, v])[None]
+
+
+class TestBevTemplatesPlanes:
+    """The height-aware lifting against the simulator's camera model (a point ``h`` metres up)."""
+
+    yaw, pitch, roll, alt, fov = 0.7, math.radians(-25.0), math.radians(3.0), 90.0, 60.0
+    heights = (0.0, 15.0, 30.0)
+
+    def _run(self, logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        f64 = torch.float64
+        yaws = torch.tensor([self.yaw], dtype=f64)
+        one = lambda x: torch.tensor([x], dtype=f64)  # noqa: E731
+        t, w = bev_templates_planes(
+            _ramp(96), logits, torch.tensor(self.heights, dtype=f64), (1, 1), 96, yaws, 8,
+            25.0, one(self.pitch), one(self.roll), one(self.alt), one(math.radians(self.fov)),
+        )  # fmt: skip
+        return t, w, offset_grid(8, 25.0, dtype=f64)
+
+    def _sim(self, de: float, dn: float, h: float) -> tuple[np.ndarray, bool]:
+        uv, front = project_enu_to_pixel(
+            np.array([[de, dn, h]]), np.array([0.0, 0.0, self.alt]), self.yaw, self.pitch,
+            self.roll, Camera.square(96, self.fov),
+        )  # fmt: skip
+        inside = bool(front[0]) and bool(np.all((uv[0] >= -0.5) & (uv[0] <= 95.5)))
+        return uv[0], inside
+
+    @pytest.mark.parametrize("plane", [0, 1, 2])
+    def test_one_plane_samples_where_the_raised_point_projects(self, plane):
+        # All probability on one plane: each cell reads the pixel of the point h_p metres above
+        # that cell's ground (project_enu_to_pixel), with weight 1 where it is in view.
+        logits = torch.full((1, 4, 96, 96), -60.0, dtype=torch.float64)
+        logits[:, plane] = 60.0
+        t, w, grid = self._run(logits)
+        seen = 0
+        for i in range(17):
+            for j in range(17):
+                de, dn = grid[i, j].tolist()
+                if de * de + dn * dn > (8 * 25.0) ** 2:
+                    assert float(w[0, 0, i, j]) == 0.0  # outside the disc
+                    continue
+                uv, inside = self._sim(de, dn, self.heights[plane])
+                if not inside:
+                    assert float(w[0, 0, i, j]) == pytest.approx(0.0, abs=1e-12)
+                elif np.all((uv >= 0) & (uv <= 95)):  # not in the half-pixel border, where the
+                    # zero padding of the bilinear sampling fades features and weight alike
+                    assert float(w[0, 0, i, j]) == pytest.approx(1.0, abs=1e-9)
+                    np.testing.assert_allclose(t[0, 0, :, i, j].numpy(), uv, atol=1e-6)
+                    seen += 1
+        assert seen > 20
+
+    def test_mixture_is_the_probability_weighted_sum(self):
+        # Spatially constant probabilities q_p: cell = sum_p q_p F(u_p), weight = sum_p q_p
+        # over the planes where the cell is in view.
+        q = torch.tensor([0.5, 0.2, 0.2, 0.1], dtype=torch.float64)
+        logits = q.log().view(1, 4, 1, 1).expand(1, 4, 96, 96).contiguous()
+        t, w, grid = self._run(logits)
+        checked = 0
+        for i, j in ((8, 8), (2, 8), (4, 10), (6, 5), (3, 6)):
+            de, dn = grid[i, j].tolist()
+            expect_t, expect_w = np.zeros(2), 0.0
+            for p, h in enumerate(self.heights):
+                uv, inside = self._sim(de, dn, h)
+                if inside:
+                    expect_t += float(q[p]) * uv
+                    expect_w += float(q[p])
+            ok = all(np.all(np.abs(self._sim(de, dn, h)[0] - 47.5) < 47.5) for h in self.heights
+                     if self._sim(de, dn, h)[1])  # fmt: skip
+            assert float(w[0, 0, i, j]) == pytest.approx(expect_w, abs=1e-9)
+            if ok:
+                np.testing.assert_allclose(t[0, 0, :, i, j].numpy(), expect_t, atol=1e-6)
+                checked += expect_w > 0
+        assert checked >= 2
+
+    def test_gradcheck_float64(self):
+        g = torch.Generator().manual_seed(2)
+        f64 = torch.float64
+        feats = torch.randn(2, 2, 12, 12, generator=g, dtype=f64, requires_grad=True)
+        logits = torch.randn(2, 3, 12, 12, generator=g, dtype=f64, requires_grad=True)
+        pitch = torch.tensor([-0.6, -0.4], dtype=f64, requires_grad=True)
+        alt = torch.tensor([80.0, 90.0], dtype=f64, requires_grad=True)
+        roll = torch.tensor([0.05, -0.1], dtype=f64)
+        fov = torch.full((2,), 1.0, dtype=f64)
+        yaws = torch.tensor([0.3, 2.0], dtype=f64)
+        heights = torch.tensor([0.0, 20.0], dtype=f64)
+
+        def warp(f, lg, p, a):
+            t, w = bev_templates_planes(f, lg, heights, (2, 2), 24, yaws, 2, 23.0, p, roll, a, fov)
+            return t, w
+
+        assert torch.autograd.gradcheck(warp, (feats, logits, pitch, alt), atol=1e-6)
+
+    def test_bad_inputs_are_refused(self):
+        f64 = torch.float64
+        feats = torch.zeros(1, 2, 12, 12, dtype=f64)
+        args = ((2, 2), 24, torch.zeros(1, dtype=f64), 2, 23.0, torch.tensor([-0.5], dtype=f64),
+                torch.zeros(1, dtype=f64))  # fmt: skip
+        fov = torch.ones(1, dtype=f64)
+        with pytest.raises(ValueError, match="plane_logits must be"):
+            bev_templates_planes(feats, torch.zeros(1, 2, 12, 12, dtype=f64),
+                                 torch.tensor([0.0, 10.0], dtype=f64), *args,
+                                 torch.tensor([80.0], dtype=f64), fov)  # fmt: skip
+        with pytest.raises(ValueError, match="not below every camera"):
+            bev_templates_planes(feats, torch.zeros(1, 3, 12, 12, dtype=f64),
+                                 torch.tensor([0.0, 90.0], dtype=f64), *args,
+                                 torch.tensor([80.0], dtype=f64), fov)  # fmt: skip
