@@ -309,7 +309,7 @@ class MatchingEncoder(PairEncoder):
             used = predicted
         # Altitude below 5 m (above the top plane) would put the horizon at the image centre and
         # nothing on the ground.
-        floor = 5.0 + (float(self.plane_heights[-1]) if self.height_planes else 0.0)
+        floor = 5.0 + max(self.height_planes - 1, 0) * self.plane_spacing_m
         logits = self.plane_logits(uav_hidden) if self.height_planes else None
         log_volume = self.match(
             uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=floor), geo["fov"],

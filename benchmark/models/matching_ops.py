@@ -120,11 +120,17 @@ def bev_templates_planes(
     n_planes = plane_heights.shape[0]
     if (
         plane_logits.shape[:2] != (b, n_planes + 1)
-        or plane_logits.shape[-2:] != (uav_features.shape[-2:])
+        or plane_logits.shape[-2:] != uav_features.shape[-2:]
     ):
         raise ValueError(
             f"bev_templates_planes: plane_logits must be (B, P + 1, h, w) = ({b}, {n_planes + 1}, "
             f"{tuple(uav_features.shape[-2:])}), got {tuple(plane_logits.shape)}"
+        )
+    top = plane_heights.max()
+    if bool((altitude <= top).any()):
+        raise ValueError(
+            f"bev_templates_planes: plane {float(top):g} m is not below every camera "
+            f"(altitudes {altitude.min().item():.1f}..{altitude.max().item():.1f} m)"
         )
     prob = torch.softmax(plane_logits, dim=1)[:, :n_planes]  # (B, P, h, w)
     k = yaws.shape[0]
@@ -133,12 +139,7 @@ def bev_templates_planes(
     templates = uav_features.new_zeros(b, k, c, t, t)
     weight = uav_features.new_zeros(b, k, t, t)
     for p in range(n_planes):
-        below = altitude - plane_heights[p]
-        if bool((below <= 0).any()):
-            raise ValueError(
-                f"bev_templates_planes: plane {float(plane_heights[p]):g} m is not below every "
-                f"camera (altitudes {altitude.min().item():.1f}..{altitude.max().item():.1f} m)"
-            )
+        below = altitude - plane_heights[p]  # the camera's height above plane p
         uv, valid = ground_to_uav_pixel(level, pitch, roll, below, fov, size)
         coords = pixel_to_grid(uv, size, stride).reshape(b, k * t, t, 2)
         both = torch.cat([uav_features, prob[:, p : p + 1]], dim=1)  # one interpolation pass
