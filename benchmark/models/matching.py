@@ -234,6 +234,10 @@ class MatchingEncoder(PairEncoder):
             self.grey_gradient_log_gain = nn.Parameter(torch.zeros(2))
         self.height_planes = int(height_planes)
         self.plane_spacing_m = float(plane_spacing_m)
+        # The bird's-eye view clamps the altitude here: less than 5 m above the top plane would
+        # put the horizon at the image centre and nothing on the ground. A float, not read from
+        # the plane_heights buffer, so the forward pass needs no host read.
+        self.min_altitude_m = 5.0 + max(self.height_planes - 1, 0) * self.plane_spacing_m
         if self.height_planes:
             heights = torch.arange(self.height_planes, dtype=torch.float32) * self.plane_spacing_m
             self.register_buffer("plane_heights", heights, persistent=False)
@@ -307,13 +311,10 @@ class MatchingEncoder(PairEncoder):
             used = torch.cat([geo["prior_attitude"], geo["prior_altitude_m"][:, None]], dim=1)
         else:
             used = predicted
-        # Altitude below 5 m (above the top plane) would put the horizon at the image centre and
-        # nothing on the ground.
-        floor = 5.0 + max(self.height_planes - 1, 0) * self.plane_spacing_m
         logits = self.plane_logits(uav_hidden) if self.height_planes else None
         log_volume = self.match(
-            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=floor), geo["fov"],
-            geo["sat_footprint_m"], plane_logits=logits,
+            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=self.min_altitude_m),
+            geo["fov"], geo["sat_footprint_m"], plane_logits=logits,
         )  # fmt: skip
         # The heads see the values the protocol has at test time: in vision-only training the
         # bird's-eye view uses the priors, but the features carry the prediction twice.
