@@ -34,6 +34,16 @@ Pipeline, per pair (``B`` pairs, ``C = out_channels``):
    and each cell collects the features where its column meets each plane, weighted by the
    pixel's probability of that plane (``matching_ops.bev_templates_planes``): roofs land where
    the satellite shows them instead of ``altitude / (altitude - h)`` times farther out.
+   With ``altitude_offsets_m = (d_1, .., d_S)`` the volume has a scale dimension: the
+   templates are built at ``S`` altitudes ``h + d_s`` around the view's altitude ``h`` and one
+   ``log_softmax`` runs over (altitude, yaw, N, E); the heads see the altitude marginal. On
+   flat ground the altitude only scales the bird's-eye view about the point below the UAV (a
+   ray's ground offset is ``h`` times its direction's slope), so a wrong height shrinks or
+   stretches the template against the satellite grid, and the hypotheses let the match pick
+   the scale. Searched where the altitude is uncertain: in training (around the prior plus a
+   uniform jitter of one spacing, so the true height falls anywhere between hypotheses) and in
+   vision-only evaluation (around the gravity branch's height, which at 96 px is barely better
+   than the flights' mean); gravity-aided evaluation trusts the altimeter and builds one view.
 5. Features for the heads (fixed length, see :attr:`MatchingEncoder.feature_names`): the yaw
    marginal's circular mean (cos, sin), the expected position, its spread and the arg-max
    position (units of ``search_m``), peak log-probability and normalised entropy, the gravity
@@ -47,12 +57,15 @@ The encoder's own loss (``loss``): ``volume_nll_weight`` x the NLL of the pose v
 pose (the cross-entropy with the true pose smoothed over neighbouring cells and yaw bins by
 Gaussians of ``smoothing`` cells / bins) + ``gravity_weight`` x the gravity branch's robust
 (smooth L1) error on pitch, roll (per 2 deg) and height (per 5 m). ``volume_nll_weight=0`` leaves
-the matcher to the heads' loss (the paper's protocol of one loss per head).
+the matcher to the heads' loss (the paper's protocol of one loss per head). With
+``altitude_offsets_m`` the NLL is that of the joint volume at the true pose and height (the
+height target a Gaussian of half the hypotheses' smallest spacing, :meth:`volume_nll_altitudes`).
 """
 
 from __future__ import annotations
 
 import inspect
+import itertools
 import math
 import typing
 from collections.abc import Callable, Mapping
@@ -145,6 +158,7 @@ class MatchingEncoder(PairEncoder):
         photometric: float = 0.0,
         height_planes: int = 0,
         plane_spacing_m: float = 10.0,
+        altitude_offsets_m: tuple[float, ...] = (),
     ) -> None:
         super().__init__()
         if protocol not in PROTOCOLS:
@@ -170,6 +184,18 @@ class MatchingEncoder(PairEncoder):
         if not (math.isfinite(plane_spacing_m) and plane_spacing_m > 0):
             raise ValueError(f"matching encoder: plane_spacing_m must be > 0, got "
                              f"{plane_spacing_m!r}")  # fmt: skip
+        alt_offsets = tuple(float(d) for d in altitude_offsets_m)
+        if alt_offsets and (
+            len(alt_offsets) < 2
+            or not all(math.isfinite(d) for d in alt_offsets)
+            or any(b <= a for a, b in itertools.pairwise(alt_offsets))
+        ):
+            raise ValueError(f"matching encoder: altitude_offsets_m must be empty (one altitude) "
+                             f"or at least 2 finite, strictly increasing offsets in metres, got "
+                             f"{altitude_offsets_m!r}")  # fmt: skip
+        if alt_offsets and height_planes:
+            raise ValueError("matching encoder: altitude_offsets_m and height_planes cannot be "
+                             "combined (the height-aware view has no altitude search)")  # fmt: skip
         if correlation not in ("dft", "fft", "conv"):
             raise ValueError(f"matching encoder: correlation must be 'dft', 'fft' or 'conv', got "
                              f"{correlation!r}")  # fmt: skip
@@ -238,6 +264,14 @@ class MatchingEncoder(PairEncoder):
         # put the horizon at the image centre and nothing on the ground. A float, not read from
         # the plane_heights buffer, so the forward pass needs no host read.
         self.min_altitude_m = 5.0 + max(self.height_planes - 1, 0) * self.plane_spacing_m
+        self.altitude_offsets_m = alt_offsets
+        # The training jitter's width and the height target's scale (twice its sigma).
+        self.altitude_spacing_m = min(
+            (b - a for a, b in itertools.pairwise(alt_offsets)), default=0.0
+        )
+        self.register_buffer(
+            "altitude_offsets", torch.tensor(alt_offsets, dtype=torch.float32), persistent=False
+        )
         if self.height_planes:
             heights = torch.arange(self.height_planes, dtype=torch.float32) * self.plane_spacing_m
             self.register_buffer("plane_heights", heights, persistent=False)
@@ -311,11 +345,27 @@ class MatchingEncoder(PairEncoder):
             used = torch.cat([geo["prior_attitude"], geo["prior_altitude_m"][:, None]], dim=1)
         else:
             used = predicted
-        logits = self.plane_logits(uav_hidden) if self.height_planes else None
-        log_volume = self.match(
-            uav_feat, sat_feat, used[:, 0], used[:, 1], used[:, 2].clamp(min=self.min_altitude_m),
-            geo["fov"], geo["sat_footprint_m"], plane_logits=logits,
-        )  # fmt: skip
+        joint_extras: dict[str, Tensor] = {}
+        if self.altitude_offsets_m and (self.training or self.protocol == "vision_only"):
+            centre = used[:, 2].detach()
+            if self.training:  # the true height anywhere between two hypotheses, not on one
+                centre = centre + (torch.rand_like(centre) - 0.5) * self.altitude_spacing_m
+            altitudes = (centre[:, None] + self.altitude_offsets.to(centre)).clamp(
+                min=self.min_altitude_m
+            )  # (B, S)
+            joint = self.match_altitudes(
+                uav_feat, sat_feat, used[:, 0], used[:, 1], altitudes, geo["fov"],
+                geo["sat_footprint_m"],
+            )  # fmt: skip
+            log_volume = torch.logsumexp(joint, dim=1)
+            joint_extras = {"log_volume_joint": joint, "altitudes": altitudes}
+        else:
+            logits = self.plane_logits(uav_hidden) if self.height_planes else None
+            log_volume = self.match(
+                uav_feat, sat_feat, used[:, 0], used[:, 1],
+                used[:, 2].clamp(min=self.min_altitude_m), geo["fov"], geo["sat_footprint_m"],
+                plane_logits=logits,
+            )  # fmt: skip
         # The heads see the values the protocol has at test time: in vision-only training the
         # bird's-eye view uses the priors, but the features carry the prediction twice.
         shown = used if self.protocol == "gravity_aided" else predicted
@@ -324,6 +374,7 @@ class MatchingEncoder(PairEncoder):
             "log_volume": log_volume,
             "gravity": predicted,
             "sat_height_m": geo["sat_height_m"],
+            **joint_extras,
         }
         return PairEncoding(features=feats, extras=extras)
 
@@ -348,8 +399,7 @@ class MatchingEncoder(PairEncoder):
         ``height_planes``, ``plane_logits (B, P + 1, h, w)`` on the UAV features' grid lift them
         onto the planes (``matching_ops.bev_templates_planes``); the score is then the mean
         cosine weighted by each cell's plane probability."""
-        size = self.input_size
-        r, n = self.template_cells, self.search_cells
+        size, r = self.input_size, self.template_cells
         stride = uav_stride or self.uav_stride
         feats = nnf.normalize(uav_feat, dim=1)
         if self.height_planes:
@@ -364,9 +414,58 @@ class MatchingEncoder(PairEncoder):
             templates, mask = bev_templates(
                 feats, stride, size, self.yaws, r, self.cell_m, pitch, roll, altitude, fov
             )
-        grid = sat_grid(sat_feat, sat_stride or self.sat_stride, size, footprint_m, n + r,
-                        self.cell_m)  # fmt: skip
-        grid = nnf.normalize(grid, dim=1)
+        grid = self._sat_grid(sat_feat, sat_stride, footprint_m)
+        scores = self._scores(templates, mask, grid, footprint_m)
+        return torch.log_softmax(scores.flatten(1), dim=1).view_as(scores)
+
+    def match_altitudes(
+        self,
+        uav_feat: Tensor,
+        sat_feat: Tensor,
+        pitch: Tensor,
+        roll: Tensor,
+        altitudes: Tensor,
+        fov: Tensor,
+        footprint_m: Tensor,
+        uav_stride: tuple[int, int] | None = None,
+        sat_stride: tuple[int, int] | None = None,
+    ) -> Tensor:
+        """The joint volume ``log p (B, S, K, P, P)`` over (altitude, yaw, north, east) for the
+        altitude hypotheses ``altitudes (B, S)`` metres above the ground; other arguments as
+        :meth:`match` (flat ground). One ``log_softmax`` over all ``S K P P`` cells, so the
+        hypotheses compete: ``logsumexp`` over ``S`` is the pose volume, the sum over
+        ``(K, P, P)`` of ``exp`` the altitude's posterior. The satellite grid is resampled
+        once; each altitude's bank of ``K`` templates is correlated on its own (one correlation
+        of all ``S K`` templates made a training step 1.3x slower on this CPU: its spectra no
+        longer fit the cache)."""
+        size, r = self.input_size, self.template_cells
+        stride = uav_stride or self.uav_stride
+        feats = nnf.normalize(uav_feat, dim=1)
+        grid = self._sat_grid(sat_feat, sat_stride, footprint_m)
+        banks = []
+        for altitude in altitudes.unbind(1):
+            templates, mask = bev_templates(
+                feats, stride, size, self.yaws, r, self.cell_m, pitch, roll, altitude, fov
+            )
+            banks.append(self._scores(templates, mask, grid, footprint_m))
+        scores = torch.stack(banks, dim=1)  # (B, S, K, P, P)
+        return torch.log_softmax(scores.flatten(1), dim=1).view_as(scores)
+
+    def _sat_grid(
+        self, sat_feat: Tensor, sat_stride: tuple[int, int] | None, footprint_m: Tensor
+    ) -> Tensor:
+        """The satellite features on the north-up metric grid, L2-normalised per cell,
+        ``(B, C, G, G)``."""
+        n, r = self.search_cells, self.template_cells
+        grid = sat_grid(sat_feat, sat_stride or self.sat_stride, self.input_size, footprint_m,
+                        n + r, self.cell_m)  # fmt: skip
+        return nnf.normalize(grid, dim=1)
+
+    def _scores(self, templates: Tensor, mask: Tensor, grid: Tensor, footprint_m: Tensor) -> Tensor:
+        """Masked scores ``(B, K, P, P)`` of ``templates (B, K, C, t, t)`` with their valid
+        cells ``mask (B, K, t, t)`` against the satellite ``grid (B, C, G, G)``: each template's
+        mean cosine over its valid cells times the temperature; positions off the footprint get
+        ``MASKED``."""
         corr = correlate(grid, templates, self.correlation)  # (B, K, P, P)
         # valid cells per template (their total plane probability with height planes)
         count = mask.flatten(2).sum(-1).clamp(min=1).to(corr.dtype)
@@ -375,8 +474,7 @@ class MatchingEncoder(PairEncoder):
         inside = (self.pos_n.abs()[None, :, None] <= half[:, 1, None, None]) & (
             self.pos_e.abs()[None, None, :] <= half[:, 0, None, None]
         )  # (B, P, P)
-        scores = torch.where(inside[:, None], scores, scores.new_tensor(MASKED))
-        return torch.log_softmax(scores.flatten(1), dim=1).view_as(scores)
+        return torch.where(inside[:, None], scores, scores.new_tensor(MASKED))
 
     def _summary(
         self, log_volume: Tensor, predicted: Tensor, used: Tensor, sat_height: Tensor
@@ -453,29 +551,66 @@ class MatchingEncoder(PairEncoder):
         E and N (normalised in log space, so a pose beyond the searched square puts its mass on
         the nearest candidates). Cells with ``log p <= MASKED / 2`` are the ones :meth:`match`
         excluded (off the footprint) and get no target mass."""
+        log_t = self._log_pose_target(yaw, east, north)
+        return self._cross_entropy(log_t, log_volume)
+
+    def volume_nll_altitudes(
+        self,
+        log_joint: Tensor,
+        altitudes: Tensor,
+        yaw: Tensor,
+        east: Tensor,
+        north: Tensor,
+        height: Tensor,
+    ) -> Tensor:
+        """``(B,)`` NLL of the pose and the height ``height (B,)`` m above the ground under the
+        joint volume ``log_joint (B, S, K, P, P)`` of :meth:`match_altitudes` at ``altitudes
+        (B, S)``: :meth:`volume_nll`'s smoothed pose target times a Gaussian over the hypotheses
+        of sigma half their smallest spacing (a height midway between two hypotheses splits its
+        mass between them), normalised over all cells together."""
+        sigma = 0.5 * (self.altitude_spacing_m or 10.0)
+        log_a = -0.5 * ((altitudes - height[:, None]) / sigma).square()  # (B, S)
+        log_t = self._log_pose_target(yaw, east, north)[:, None] + log_a[:, :, None, None, None]
+        return self._cross_entropy(log_t, log_joint)
+
+    def _log_pose_target(self, yaw: Tensor, east: Tensor, north: Tensor) -> Tensor:
+        """Unnormalised log target ``(B, K, P, P)``: Gaussians of ``smoothing`` bins in yaw
+        (wrapped) and ``smoothing`` cells in E and N around the pose."""
         bin_w = 2 * math.pi / self.n_yaw
         dyaw = torch.remainder(self.yaws[None] - yaw[:, None] + math.pi, 2 * math.pi) - math.pi
         sy = self.smoothing * bin_w
         sp = self.smoothing * self.cell_m
-        log_t = (
+        return (
             (-0.5 * (dyaw / sy).square())[:, :, None, None]
             + (-0.5 * ((self.pos_n[None] - north[:, None]) / sp).square())[:, None, :, None]
             + (-0.5 * ((self.pos_e[None] - east[:, None]) / sp).square())[:, None, None, :]
         )
-        log_t = log_t + (log_volume <= MASKED / 2).to(log_t.dtype) * MASKED  # off the footprint
+
+    @staticmethod
+    def _cross_entropy(log_target: Tensor, log_volume: Tensor) -> Tensor:
+        """``(B,)`` cross-entropy of the target ``softmax(log_target)`` with ``log_volume`` (same
+        shape, ``(B, ...)``); cells the match excluded (``log p <= MASKED / 2``) get no mass."""
+        log_t = log_target + (log_volume <= MASKED / 2).to(log_target.dtype) * MASKED
         target = torch.softmax(log_t.flatten(1), dim=1)
         return -(target * log_volume.flatten(1)).sum(1)
 
     def loss(self, extras: Mapping[str, Tensor], R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
         """``enc = volume_nll_weight * enc_volume + gravity_weight * enc_gravity`` (batch means):
-        ``enc_volume`` the NLL of the true pose (:meth:`volume_nll`), ``enc_gravity`` the
-        smooth-L1 error of the predicted pitch, roll (per 2 deg) and height (per 5 m; height =
-        ``dU + sat_height_m``). Both are always reported; a weight of 0 takes a term out of the
-        gradient."""
+        ``enc_volume`` the NLL of the true pose (:meth:`volume_nll`; of the true pose and height
+        when ``extras`` holds the altitude search's joint volume, :meth:`volume_nll_altitudes`),
+        ``enc_gravity`` the smooth-L1 error of the predicted pitch, roll (per 2 deg) and height
+        (per 5 m; height = ``dU + sat_height_m``). Both are always reported; a weight of 0 takes
+        a term out of the gradient."""
         lv = extras["log_volume"]
         yaw, pitch, roll, T = self.true_pose(R_gt.to(lv.dtype), T_gt.to(lv.dtype))
-        nll = self.volume_nll(lv, yaw, T[:, 0], T[:, 1]).mean()
-        truth = torch.stack([pitch, roll, T[:, 2] + extras["sat_height_m"]], 1)
+        height = T[:, 2] + extras["sat_height_m"]
+        if "log_volume_joint" in extras:  # the altitude search: the joint NLL, pose and height
+            nll = self.volume_nll_altitudes(
+                extras["log_volume_joint"], extras["altitudes"], yaw, T[:, 0], T[:, 1], height
+            ).mean()
+        else:
+            nll = self.volume_nll(lv, yaw, T[:, 0], T[:, 1]).mean()
+        truth = torch.stack([pitch, roll, height], 1)
         scale = truth.new_tensor(GRAVITY_SCALE)
         grav = nnf.smooth_l1_loss(extras["gravity"] / scale, truth / scale, reduction="none")
         grav = grav.sum(1).mean()
@@ -539,7 +674,8 @@ def matching(
     ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones),
     ``photometric`` (strength of the training images' colour jitter, 0: none), and
     ``height_planes`` / ``plane_spacing_m`` (the height-aware view: 0 planes = the flat
-    ground)."""
+    ground), and ``altitude_offsets_m`` (metres around the view's altitude: the volume's scale
+    dimension; empty: one altitude)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(

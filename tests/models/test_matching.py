@@ -340,3 +340,171 @@ class TestTrainEndToEnd:
         history = done.trained.history[0]
         assert {"train_loss_enc_volume", "train_loss_enc_gravity", "val_loss_enc"} <= set(history)
         assert math.isfinite(done.metrics["standard/test"]["median_dpsi_deg"])
+
+
+class TestMatchAltitudes:
+    """``altitude_offsets_m``: the volume's scale dimension (``match_altitudes``)."""
+
+    @pytest.mark.parametrize("pose", POSES[:2])
+    def test_peaks_at_the_true_altitude_yaw_and_position(self, flat_scene, pose):
+        # On flat ground a wrong height scales the bird's-eye view about the point below the
+        # UAV (by h' / h), so the raw-pixel match scores best at the height it was rendered at.
+        from benchmark.sim.camera import Camera
+        from benchmark.sim.render import render_uav
+
+        city, sat = flat_scene
+        yaw_deg, de, dn, pitch_deg = pose
+        yaw, pitch, roll, alt = math.radians(yaw_deg), math.radians(pitch_deg), 0.05, 80.0
+        img = render_uav(city, np.array([de, dn, alt]), yaw, pitch, roll, Camera.square(96, 60.0))
+        enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0,
+                              altitude_offsets_m=(-24.0, 0.0, 24.0)).double()  # fmt: skip
+        t64 = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+        altitudes = t64([56.0, 80.0, 104.0])  # (1, 3)
+        with torch.no_grad():
+            fov, fp = t64(math.radians(60.0)), t64([480.0, 480.0])
+            joint = enc.match_altitudes(_raw(img), _raw(sat), t64(pitch), t64(roll), altitudes,
+                                        fov, fp, (1, 1), (1, 1))  # fmt: skip
+        assert joint.shape == (1, 3, 36, 17, 17)
+        assert float(joint.exp().sum()) == pytest.approx(1.0, abs=1e-9)
+        posterior = joint.exp().sum(dim=(2, 3, 4))[0]  # (S,)
+        assert int(posterior.argmax()) == 1 and float(posterior[1]) > 0.9
+        y, e, n = enc.decode_volume(torch.logsumexp(joint, 1))
+        assert abs((math.degrees(float(y)) - yaw_deg + 180.0) % 360.0 - 180.0) <= 5.0 + 1e-6
+        assert (float(e), float(n)) == (de, dn)
+        # The joint NLL prefers the true height to a wrong one by a clear margin.
+        args = (t64(yaw), t64(de), t64(dn))
+        at = float(enc.volume_nll_altitudes(joint, altitudes, *args, t64(80.0)))
+        assert at < float(enc.volume_nll_altitudes(joint, altitudes, *args, t64(56.0))) - 1
+
+    def test_one_altitude_twice_is_match(self):
+        # Two identical hypotheses split each cell's mass in half: the joint is match() - log 2
+        # and its marginal is match() itself (an independent path: no altitude code in match).
+        g = torch.Generator().manual_seed(3)
+        enc = MatchingEncoder(32, n_yaw=8, cell_m=20.0, search_m=60.0, template_m=60.0,
+                              altitude_offsets_m=(-5.0, 5.0)).double()  # fmt: skip
+        uav = torch.randn(2, 4, 16, 16, generator=g, dtype=torch.float64)
+        sat = torch.randn(2, 4, 16, 32, generator=g, dtype=torch.float64)
+        pitch = torch.tensor([-0.6, -0.5], dtype=torch.float64)
+        roll = torch.tensor([0.02, -0.04], dtype=torch.float64)
+        alt = torch.tensor([85.0, 95.0], dtype=torch.float64)
+        fov = torch.full((2,), 1.0, dtype=torch.float64)
+        fp = torch.tensor([[2000.0, 1000.0]], dtype=torch.float64).expand(2, 2)
+        single = enc.match(uav, sat, pitch, roll, alt, fov, fp)
+        joint = enc.match_altitudes(uav, sat, pitch, roll, torch.stack([alt, alt], 1), fov, fp)
+        torch.testing.assert_close(joint[:, 0], single - math.log(2.0))
+        torch.testing.assert_close(torch.logsumexp(joint, 1), single)
+
+    def test_gradcheck_float64(self):
+        g = torch.Generator().manual_seed(4)
+        enc = MatchingEncoder(24, n_yaw=4, cell_m=30.0, search_m=30.0, template_m=30.0,
+                              correlation="fft", altitude_offsets_m=(-8.0, 8.0))  # fmt: skip
+        enc = enc.double()
+        uav = torch.randn(1, 2, 12, 12, generator=g, dtype=torch.float64, requires_grad=True)
+        sat = torch.randn(1, 2, 12, 24, generator=g, dtype=torch.float64, requires_grad=True)
+        alts = torch.tensor([[82.0, 98.0]], dtype=torch.float64, requires_grad=True)
+        t64 = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
+
+        def joint(u, s, a):
+            return enc.match_altitudes(u, s, t64(-0.6), t64(0.03), a, t64(1.0),
+                                       t64([2000.0, 1000.0]))  # fmt: skip
+
+        assert torch.autograd.gradcheck(joint, (uav, sat, alts), atol=1e-6)
+
+
+class TestVolumeNllAltitudes:
+    def test_against_a_direct_sum(self):
+        # The target written out cell by cell (numpy, float64): exp(-dyaw^2 / 2 sy^2 - dN^2 /
+        # 2 sp^2 - dE^2 / 2 sp^2 - (h_s - h)^2 / 2 sa^2), normalised over every cell.
+        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0,
+                              altitude_offsets_m=(-10.0, 0.0, 10.0)).double()  # fmt: skip
+        g = torch.Generator().manual_seed(5)
+        joint = torch.log_softmax(torch.randn(1, 3 * 8 * 25, generator=g, dtype=torch.float64), 1)
+        joint = joint.view(1, 3, 8, 5, 5)
+        alts = torch.tensor([[86.0, 96.0, 106.0]], dtype=torch.float64)
+        yaw, east, north, h = 1.0, 7.0, -12.0, 99.0
+        args = [torch.tensor([v], dtype=torch.float64) for v in (yaw, east, north, h)]
+        got = float(enc.volume_nll_altitudes(joint, alts, *args))
+        lj = joint[0].numpy()
+        w = np.zeros_like(lj)
+        sy, sp, sa = 0.5 * 2 * math.pi / 8, 0.5 * 10.0, 0.5 * 10.0
+        for s in range(3):
+            for k in range(8):
+                d = (k * 2 * math.pi / 8 - yaw + math.pi) % (2 * math.pi) - math.pi
+                for r in range(5):
+                    for c in range(5):
+                        n_m, e_m = (2 - r) * 10.0, (c - 2) * 10.0  # row 0 is north
+                        w[s, k, r, c] = math.exp(
+                            -0.5 * (d / sy) ** 2 - 0.5 * ((n_m - north) / sp) ** 2
+                            - 0.5 * ((e_m - east) / sp) ** 2
+                            - 0.5 * ((float(alts[0, s]) - h) / sa) ** 2
+                        )  # fmt: skip
+        # (the yaw and cell buffers are built in float32: agreement to ~1e-9, not 1e-15)
+        assert got == pytest.approx(float(-(w / w.sum() * lj).sum()), rel=1e-7)
+
+    def test_one_hypothesis_is_the_pose_nll(self):
+        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
+        g = torch.Generator().manual_seed(6)
+        lv = torch.log_softmax(torch.randn(2, 200, generator=g), 1).view(2, 8, 5, 5)
+        args = (torch.tensor([0.4, 3.0]), torch.tensor([5.0, -9.0]), torch.tensor([0.0, 14.0]))
+        one = enc.volume_nll_altitudes(lv[:, None], torch.tensor([[90.0], [70.0]]), *args,
+                                       torch.tensor([100.0, 60.0]))  # fmt: skip
+        torch.testing.assert_close(one, enc.volume_nll(lv, *args))
+
+
+class TestAltitudeSearchInTheEncoder:
+    OFFSETS = (-12.0, 0.0, 12.0)
+
+    @pytest.mark.parametrize("b", [1, 8])
+    def test_where_it_searches_shapes_and_loss(self, b):
+        torch.manual_seed(0)
+        opts = {"protocol": "gravity_aided", "altitude_offsets_m": list(self.OFFSETS)}
+        model = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options=opts)  # fmt: skip
+        uav, sat, ctx = torch.rand(b, 3, 32, 32), torch.rand(b, 3, 32, 32), _context(b)
+        R, T = _labels(b)
+        model.train()
+        out = model(uav, sat, torch.arange(b), context=ctx)
+        joint, alts = out.encoder["log_volume_joint"], out.encoder["altitudes"]
+        assert joint.shape[:3] == (b, 3, 36) and alts.shape == (b, 3)
+        torch.testing.assert_close(out.encoder["log_volume"], torch.logsumexp(joint, 1))
+        # training: around the prior, the centre jittered by at most half a spacing
+        centre = alts[:, 1] - ctx["prior_altitude_m"]
+        assert bool((centre.abs() <= 6.0 + 1e-4).all())
+        torch.testing.assert_close(alts - alts[:, 1:2], torch.tensor([self.OFFSETS]).expand(b, 3))
+        terms = model.loss(out, R, T)
+        assert all(torch.isfinite(v) for v in terms.values())
+        terms["total"].backward()
+        assert all(p.grad is not None for p in model.encoder.parameters())
+        # gravity-aided evaluation trusts the altimeter: one altitude, the plain match
+        model.eval()
+        with torch.no_grad():
+            out = model(uav, sat, torch.arange(b), context=ctx)
+        assert "log_volume_joint" not in out.encoder
+        torch.manual_seed(0)
+        plain = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options={"protocol": "gravity_aided"}).eval()  # fmt: skip
+        plain.load_state_dict(model.state_dict())
+        with torch.no_grad():
+            ref = plain(uav, sat, torch.arange(b), context=ctx)
+        torch.testing.assert_close(out.encoder["log_volume"], ref.encoder["log_volume"])
+        # vision-only evaluation searches around the gravity branch's height
+        model.encoder.protocol = "vision_only"
+        with torch.no_grad():
+            out = model(uav, sat, torch.arange(b), context=ctx)
+        grav = out.encoder["gravity"][:, 2].clamp(min=5.0)
+        torch.testing.assert_close(out.encoder["altitudes"][:, 1], grav)
+
+    def test_options_refused_and_no_new_parameters(self):
+        torch.manual_seed(0)
+        flat = create_model(encoder="matching", variant="/", input_size=32)
+        torch.manual_seed(0)
+        search = create_model(encoder="matching", variant="/", input_size=32,
+                              encoder_options={"altitude_offsets_m": [-12, 0, 12]})  # fmt: skip
+        assert list(flat.state_dict()) == list(search.state_dict())
+        for name, value in flat.state_dict().items():
+            torch.testing.assert_close(search.state_dict()[name], value, rtol=0, atol=0)
+        for bad in ([0.0], [0.0, 0.0], [5.0, -5.0], [0.0, float("nan")]):
+            with pytest.raises(ValueError, match="altitude_offsets_m"):
+                MatchingEncoder(32, altitude_offsets_m=tuple(bad))
+        with pytest.raises(ValueError, match="height_planes"):
+            MatchingEncoder(32, altitude_offsets_m=(-10.0, 10.0), height_planes=4)
