@@ -3,8 +3,9 @@
 For each model (quick: 96 px, width 0.25; paper: 224 px, width 1.0; Pd/Re-Net) and each encoder of
 ``--encoders`` (default both, side by side in the same rounds: ``googlenet``, the paper's Siamese
 GoogLeNet with AGTFM, ``--variant``; ``matching``, issue 21's matching encoder with its default
-options, variant ``/``, the width ignored) it times full training steps (forward, Algorithm 1
-loss plus the encoder's own loss, backward, optimiser update) of
+options, variant ``/``, the width ignored; ``matching_alt3`` on request, the same with three
+altitude hypotheses, ``altitude_offsets_m`` -12/0/+12 m) it times full training steps (forward,
+Algorithm 1 loss plus the encoder's own loss, backward, optimiser update) of
 
 - plain: the same architecture and initial weights in the default memory format, every satellite
   image encoded (no sharing), float32: what a plain PyTorch loop would do;
@@ -21,10 +22,11 @@ plus, once per round, one training pass (forward + both gradients) of each ceili
 encoders' loops too), so machine load affects every column alike. It prints pairs/s, the ratio to
 plain and to our fp32, the step's counted rate and its share of the convolution ceiling of the
 same precision; per model, the matching encoder beside GoogLeNet (pairs/s and FLOPs per step,
-loop by loop) and each encoder's FLOPs by kind; with bf16 beside fp32, a table of bf16/fp32 and
-bf16/plain per model and encoder (the issue's layout). On the CPU a line
-says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and which ISA and kernels ran a
-training convolution in each precision (``bench_ceiling.cpu_bf16_line``).
+loop by loop; ``matching_alt3`` beside ``matching``) and each encoder's FLOPs by kind; with
+bf16 beside fp32, a table of bf16/fp32 and bf16/plain per model and encoder (the issue's
+layout). On the CPU a line says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and
+which ISA and kernels ran a training convolution in each precision
+(``bench_ceiling.cpu_bf16_line``).
 
 The batch (``batch_of``): random pixels, labels and ``context`` with the quick dataset's geometry
 (``benchmark.models.bench_inputs``: the matching encoder's templates land as on real pairs).
@@ -58,7 +60,17 @@ from typing import Any
 import torch
 
 MODELS = {"quick": (96, 0.25), "paper": (224, 1.0)}
-ENCODERS = ("googlenet", "matching")
+# --encoders: a bench name -> (registry name, encoder options). ``matching_alt3`` is the matching
+# encoder with three altitude hypotheses 12 m apart (``altitude_offsets_m``, off by default; the
+# setting measured in DEVELOPERS, issue 21 stop 34): timed beside ``matching`` it shows what the
+# scale dimension costs a training step.
+BENCH_ENCODERS: dict[str, tuple[str, dict[str, Any]]] = {
+    "googlenet": ("googlenet", {}),
+    "matching": ("matching", {}),
+    "matching_alt3": ("matching", {"altitude_offsets_m": (-12.0, 0.0, 12.0)}),
+}
+ENCODERS = ("googlenet", "matching")  # the default: the two registered encoders as they are
+ENCODER_COLUMN = max(map(len, BENCH_ENCODERS))
 # --optimizer: OptimConfig fields (benchmark.training.config); "adam" is the quick profile's
 # (benchmark.runner.plan.repro_profiles, which training may not import), "sgd" the
 # paper's (Sec. 3.3).
@@ -245,20 +257,22 @@ def build(
     encoder: str = "googlenet",
 ):
     """The benchmarked model (seed 0: every loop of an encoder starts from the same weights) and
-    its optimiser, built by training's ``make_optimizer`` (``spec.foreach``). GoogLeNet takes
-    ``config.variant``; the matching encoder has one level (variant ``/``) and its default
-    options."""
+    its optimiser, built by training's ``make_optimizer`` (``spec.foreach``). ``encoder`` is a
+    name of :data:`BENCH_ENCODERS` (its registry name and options). GoogLeNet takes
+    ``config.variant``; the matching encoder has one level (variant ``/``)."""
     from benchmark.models import create_model
     from benchmark.training.config import TrainConfig
     from benchmark.training.loop import make_optimizer
 
+    registered, options = BENCH_ENCODERS[encoder]
     torch.manual_seed(0)
     m = create_model(
-        encoder=encoder,
+        encoder=registered,
+        encoder_options=options,
         width=width,
         input_size=size,
         attitude=config.attitude,
-        variant=config.variant if encoder == "googlenet" else "/",
+        variant=config.variant if registered == "googlenet" else "/",
         channels_last=spec.channels_last,
     )
     m.translation_head.set_statistics(torch.zeros(3), torch.full((3,), 50.0))
@@ -381,8 +395,9 @@ def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -
         share = f"{100 * r.ceiling_share:8.0f}%" if r.ceiling_share is not None else f"{'-':>9s}"
         w = f"{width:5.2f}" if r.encoder == "googlenet" else f"{'-':>5s}"
         rows.append(
-            f"{name:7s} {r.encoder:9s} {size:4d} {w} {r.loop:11s} {r.pairs_per_s:8.2f} "
-            f"{vs_plain} {vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} {share}"
+            f"{name:7s} {r.encoder:{ENCODER_COLUMN}s} {size:4d} {w} {r.loop:11s} "
+            f"{r.pairs_per_s:8.2f} {vs_plain} {vs_fp32} {r.step_gflop:10.3f} {r.gflops:8.2f} "
+            f"{share}"
         )
     return rows
 
@@ -404,21 +419,23 @@ def change_line(name: str, results: list[LoopResult], encoder: str = "googlenet"
     )
 
 
-def encoder_line(name: str, results: list[LoopResult]) -> str | None:
-    """The matching encoder beside GoogLeNet, loop by loop (same rounds): ratio of pairs/s and
-    of counted FLOPs per step; None without both encoders."""
+def encoder_line(
+    name: str, results: list[LoopResult], encoder: str = "matching", other: str = "googlenet"
+) -> str | None:
+    """``encoder`` beside ``other`` (bench names), loop by loop (same rounds): ratio of pairs/s
+    and of counted FLOPs per step; None without both encoders."""
     by = {(r.encoder, r.loop): r for r in results}
     parts = []
     for r in results:
-        other = by.get(("googlenet", r.loop))
-        if r.encoder == "matching" and other is not None:
+        reference = by.get((other, r.loop))
+        if r.encoder == encoder and reference is not None:
             parts.append(
-                f"{r.loop} {r.pairs_per_s / other.pairs_per_s:.2f}x pairs/s, "
-                f"{r.step_gflop / other.step_gflop:.2f}x GFLOP/step"
+                f"{r.loop} {r.pairs_per_s / reference.pairs_per_s:.2f}x pairs/s, "
+                f"{r.step_gflop / reference.step_gflop:.2f}x GFLOP/step"
             )
     if not parts:
         return None
-    return f"{'':7s} matching / googlenet (same rounds): " + "; ".join(parts)
+    return f"{'':7s} {encoder} / {other} (same rounds): " + "; ".join(parts)
 
 
 def kinds_line(result: LoopResult) -> str:
@@ -439,19 +456,20 @@ def bf16_table(rows: list[tuple[str, list[LoopResult]]]) -> list[str]:
                 continue
             vs_plain = f"{bf16.pairs_per_s / plain.pairs_per_s:9.2f}x" if plain else f"{'-':>10s}"
             lines.append(
-                f"{name:7s} {encoder:9s} {fp32.pairs_per_s:12.2f} {bf16.pairs_per_s:12.2f} "
-                f"{bf16.pairs_per_s / fp32.pairs_per_s:9.2f}x {vs_plain}"
+                f"{name:7s} {encoder:{ENCODER_COLUMN}s} {fp32.pairs_per_s:12.2f} "
+                f"{bf16.pairs_per_s:12.2f} {bf16.pairs_per_s / fp32.pairs_per_s:9.2f}x {vs_plain}"
             )
     if not lines:
         return []
-    head = f"{'model':7s} {'encoder':9s} {'fp32 pairs/s':>12s} {'bf16 pairs/s':>12s} "
-    head += f"{'bf16/fp32':>10s} {'bf16/plain':>10s}"
+    head = f"{'model':7s} {'encoder':{ENCODER_COLUMN}s} {'fp32 pairs/s':>12s} "
+    head += f"{'bf16 pairs/s':>12s} {'bf16/fp32':>10s} {'bf16/plain':>10s}"
     return ["bf16 beside fp32 (ours, same rounds):", head, *lines]
 
 
 HEADER = (
-    f"{'model':7s} {'encoder':9s} {'px':>4s} {'width':>5s} {'loop':11s} {'pairs/s':>8s} "
-    f"{'x plain':>8s} {'x fp32':>8s} {'GFLOP/step':>10s} {'GFLOP/s':>8s} {'%ceiling':>9s}"
+    f"{'model':7s} {'encoder':{ENCODER_COLUMN}s} {'px':>4s} {'width':>5s} {'loop':11s} "
+    f"{'pairs/s':>8s} {'x plain':>8s} {'x fp32':>8s} {'GFLOP/step':>10s} {'GFLOP/s':>8s} "
+    f"{'%ceiling':>9s}"
 )
 
 
@@ -501,6 +519,8 @@ def bench_train(config: TrainBenchConfig) -> int:
                   "bench_ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
         lines = [change_line(name, results, encoder) for encoder in encoders]
         lines += [encoder_line(name, results)]
+        lines += [encoder_line(name, results, e, "matching") for e in encoders
+                  if e.startswith("matching_")]  # fmt: skip
         lines += [kinds_line(r) for r in results if r.loop == f"ours {precisions[0]}"]
         print("\n".join(line for line in lines if line), flush=True)
     for line in bf16_table(measured):

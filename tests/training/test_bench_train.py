@@ -27,7 +27,8 @@ TINY += ["--batch-size", "4", "--distinct-sat", "2", "--threads", "1"]
 BOTH = [*TINY, "--encoders", "googlenet,matching"]
 TINY += ["--encoders", "googlenet"]
 ROW = re.compile(
-    r"^quick\s+(googlenet|matching)\s+32\s+(?:0\.10|-)\s+(plain fp32|base fp32|ours fp32|ours bf16)"
+    r"^quick\s+(googlenet|matching|matching_alt3)\s+32\s+(?:0\.10|-)\s+"
+    r"(plain fp32|base fp32|ours fp32|ours bf16)"
     r"\s+([\d.]+)\s+([\d.]+x|-)\s+([\d.]+x|-)\s+([\d.]+)\s+([\d.]+)\s+(\d+%|-)$",
     re.MULTILINE,
 )
@@ -199,6 +200,7 @@ class TestBenchTrain:
             ["--profile", "-1"],
             ["--models", "huge"],
             ["--encoders", "resnet"],
+            ["--encoders", "matching_alt4"],
             ["--encoders", "matching,matching"],
             ["--distinct-sat", "30"],
             ["--steps", "0"],
@@ -285,6 +287,44 @@ class TestMatchingEncoder:
         assert got["spectrum"] == forward + backward
         assert got["sampling"] == 16 * b * c * (k * t * t + g * g)
         assert got["total"] == sum(got[kind] for kind in KINDS_OF_FLOPS)
+
+    def test_altitude_hypotheses_beside_the_matching_encoder(self, capsys):
+        """``matching_alt3`` (three altitudes) in the same rounds as ``matching``: its own
+        rows, a matching_alt3/matching line repeating the printed rates, and FLOPs by kind
+        against the closed forms: the same convolutions (no new weights), three banks of
+        templates sampled and correlated, and the satellite grid sampled once but transformed
+        once per bank (``correlate`` takes the grid, not its spectrum)."""
+        argv = [*TINY[:-2], "--encoders", "matching,matching_alt3", "--precision", "fp32",
+                "--no-ceiling", "--no-base", "--no-plain"]  # fmt: skip
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        one, three = rows(out, "matching"), rows(out, "matching_alt3")
+        assert set(one) == set(three) == {"ours fp32"}, out
+        line = next(x for x in out.splitlines() if "matching_alt3 / matching" in x)
+        got = re.search(r"ours fp32 ([\d.]+)x pairs/s, ([\d.]+)x GFLOP/step", line)
+        assert got is not None, line
+        rate = float(three["ours fp32"][0]) / float(one["ours fp32"][0])
+        assert float(got.group(1)) == pytest.approx(rate, rel=0.02, abs=0.01)
+
+        args = command.parse([*TINY, "--optimizer", "adam"])
+        cpu = torch.device("cpu")
+        spec = bench.loop_specs(["fp32"], cpu, plain=False, base=False, optimizer="adam")[-1]
+        flops = {}
+        for name in ("matching", "matching_alt3"):
+            model, opt = bench.build(32, 0.1, args, spec, cpu, name)
+            step = bench.make_step(model, opt, bench.batch_of(32, 4, 2), True, cpu, "fp32", 10.0)
+            step()
+            flops[name] = step_flops(step)
+        b, k, c, t, g, s = 4, 36, 8, 25, 63, 3
+        L = fft_size(g)
+        v, m = L // 2 + 1, g - t + 1
+        gemms = s * (b * k * c) * (t * t * v + v * t * L) + s * (b * c) * (g * g * v + v * g * L)
+        gemms += s * (b * k) * (v * L * m + m * v * m)
+        one, three = flops["matching"], flops["matching_alt3"]
+        assert three["dft"] == 2 * 8 * gemms == s * one["dft"]
+        assert three["convolution"] == one["convolution"]
+        assert three["sampling"] == 16 * b * c * (s * k * t * t + g * g)
+        assert three["spectrum"] == s * one["spectrum"]
 
 
 class TestCountStepFlops:
