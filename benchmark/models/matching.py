@@ -22,6 +22,9 @@ Pipeline, per pair (``B`` pairs, ``C = out_channels``):
    ``benchmark.data.dataset.PRIOR_SIGMA``); ``"vision_only"`` (the paper's) from the gravity
    branch's prediction at evaluation, and from the same priors in training (teacher forcing: the
    matcher learns on near-true geometry while the gravity branch learns to predict it).
+   ``train_view_noise_deg`` / ``train_view_noise_m`` (off by default) add Gaussian noise to the
+   training view's pitch and roll / height, so that the matcher also learns on views as wrong
+   as the gravity branch's; evaluation never adds any.
 4. Templates: for each of ``n_yaw`` yaws, a disc of radius ``template_m`` of ground cells of
    ``cell_m`` metres, projected into the UAV image and sampled (one bilinear interpolation per
    cell); satellite features resampled to the same north-up metric grid; both L2-normalised per
@@ -159,6 +162,8 @@ class MatchingEncoder(PairEncoder):
         height_planes: int = 0,
         plane_spacing_m: float = 10.0,
         altitude_offsets_m: tuple[float, ...] = (),
+        train_view_noise_deg: float = 0.0,
+        train_view_noise_m: float = 0.0,
     ) -> None:
         super().__init__()
         if protocol not in PROTOCOLS:
@@ -166,7 +171,9 @@ class MatchingEncoder(PairEncoder):
                              f"{protocol!r}")  # fmt: skip
         for name, value in (("volume_nll_weight", volume_nll_weight),
                             ("gravity_weight", gravity_weight),
-                            ("photometric", photometric)):  # fmt: skip
+                            ("photometric", photometric),
+                            ("train_view_noise_deg", train_view_noise_deg),
+                            ("train_view_noise_m", train_view_noise_m)):  # fmt: skip
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"matching encoder: {name} must be >= 0, got {value!r}")
         for name, value in (("cell_m", cell_m), ("search_m", search_m),
@@ -265,6 +272,14 @@ class MatchingEncoder(PairEncoder):
         # the plane_heights buffer, so the forward pass needs no host read.
         self.min_altitude_m = 5.0 + max(self.height_planes - 1, 0) * self.plane_spacing_m
         self.altitude_offsets_m = alt_offsets
+        # Extra Gaussian noise on the training view's pitch, roll (rad) and height (m), on top of
+        # the sensor priors': vision-only evaluation builds the view from the gravity branch,
+        # whose errors are larger than the IMU's and the altimeter's.
+        self.train_view_sigma = (
+            math.radians(train_view_noise_deg),
+            math.radians(train_view_noise_deg),
+            float(train_view_noise_m),
+        )
         # The training jitter's width and the height target's scale (twice its sigma).
         self.altitude_spacing_m = min(
             (b - a for a, b in itertools.pairwise(alt_offsets)), default=0.0
@@ -345,6 +360,8 @@ class MatchingEncoder(PairEncoder):
             used = torch.cat([geo["prior_attitude"], geo["prior_altitude_m"][:, None]], dim=1)
         else:
             used = predicted
+        if self.training and any(self.train_view_sigma):
+            used = used + torch.randn_like(used) * used.new_tensor(self.train_view_sigma)
         joint_extras: dict[str, Tensor] = {}
         if self.altitude_offsets_m and (self.training or self.protocol == "vision_only"):
             centre = used[:, 2].detach()
@@ -675,7 +692,8 @@ def matching(
     ``photometric`` (strength of the training images' colour jitter, 0: none), and
     ``height_planes`` / ``plane_spacing_m`` (the height-aware view: 0 planes = the flat
     ground), and ``altitude_offsets_m`` (metres around the view's altitude: the volume's scale
-    dimension; empty: one altitude)."""
+    dimension; empty: one altitude), ``train_view_noise_deg`` and ``train_view_noise_m``
+    (extra noise on the training view's pitch and roll, degrees, and height, metres)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(

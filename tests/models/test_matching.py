@@ -508,3 +508,43 @@ class TestAltitudeSearchInTheEncoder:
                 MatchingEncoder(32, altitude_offsets_m=tuple(bad))
         with pytest.raises(ValueError, match="height_planes"):
             MatchingEncoder(32, altitude_offsets_m=(-10.0, 10.0), height_planes=4)
+
+
+class TestTrainViewNoise:
+    """``train_view_noise_deg`` / ``_m``: extra Gaussian noise on the training view's pitch,
+    roll and height (the vision-only test view comes from the gravity branch, noisier than the
+    sensor priors); evaluation builds the view from the priors untouched."""
+
+    def _used(self, model, b, train):
+        enc = model.encoder
+        cols = [enc.feature_names.index(n) for n in ("pitch_used", "roll_used", "alt_used")]
+        uav, sat, ctx = torch.rand(b, 3, 32, 32), torch.rand(b, 3, 32, 32), _context(b)
+        model.train(train)
+        with torch.no_grad():
+            feats = model.encode_pairs(uav, sat, torch.arange(b), ctx).features
+        used = feats[:, cols] / torch.tensor([1.0, 1.0, 0.01])  # the summary's scaling undone
+        prior = torch.cat([ctx["prior_attitude"], ctx["prior_altitude_m"][:, None]], 1)
+        return used - prior
+
+    def test_training_view_gets_the_stated_noise_and_evaluation_none(self):
+        torch.manual_seed(0)
+        opts = {"protocol": "gravity_aided", "train_view_noise_deg": 3.0,
+                "train_view_noise_m": 10.0}  # fmt: skip
+        model = create_model(encoder="matching", variant="/", input_size=32, encoder_options=opts)
+        diff = self._used(model, 400, train=True)
+        # sample standard deviations of 400 draws: within 15 % of the stated sigmas
+        sigma = torch.tensor([math.radians(3.0), math.radians(3.0), 10.0])
+        torch.testing.assert_close(diff.std(0), sigma, rtol=0.15, atol=0)
+        assert float(diff.mean(0)[2].abs()) < 3 * 10.0 / 20  # 3 standard errors
+        torch.testing.assert_close(self._used(model, 8, train=False), torch.zeros(8, 3),
+                                   rtol=0, atol=1e-4)  # fmt: skip
+
+    def test_off_by_default_and_negative_refused(self):
+        torch.manual_seed(0)
+        model = create_model(encoder="matching", variant="/", input_size=32,
+                             encoder_options={"protocol": "gravity_aided"})  # fmt: skip
+        torch.testing.assert_close(self._used(model, 8, train=True), torch.zeros(8, 3),
+                                   rtol=0, atol=1e-4)  # fmt: skip
+        for name in ("train_view_noise_deg", "train_view_noise_m"):
+            with pytest.raises(ValueError, match=name):
+                MatchingEncoder(32, **{name: -1.0})
