@@ -415,22 +415,21 @@ class MatchingEncoder(PairEncoder):
         footprint ``(B, 2)`` metres. Features are L2-normalised per cell here. With
         ``height_planes``, ``plane_logits (B, P + 1, h, w)`` on the UAV features' grid lift them
         onto the planes (``matching_ops.bev_templates_planes``); the score is then the mean
-        cosine weighted by each cell's plane probability."""
-        size, r = self.input_size, self.template_cells
-        stride = uav_stride or self.uav_stride
-        feats = nnf.normalize(uav_feat, dim=1)
-        if self.height_planes:
-            if plane_logits is None:
-                raise ValueError("matching encoder: height_planes is set, so match() needs the "
-                                 "plane_logits of the UAV features")  # fmt: skip
-            templates, mask = bev_templates_planes(
-                feats, plane_logits, self.plane_heights, stride, size, self.yaws, r, self.cell_m,
-                pitch, roll, altitude, fov,
-            )  # fmt: skip
-        else:
-            templates, mask = bev_templates(
-                feats, stride, size, self.yaws, r, self.cell_m, pitch, roll, altitude, fov
-            )
+        cosine weighted by each cell's plane probability. On flat ground it is
+        :meth:`match_altitudes` with one altitude."""
+        if not self.height_planes:
+            return self.match_altitudes(
+                uav_feat, sat_feat, pitch, roll, altitude[:, None], fov, footprint_m, uav_stride,
+                sat_stride,
+            )[:, 0]  # fmt: skip
+        if plane_logits is None:
+            raise ValueError("matching encoder: height_planes is set, so match() needs the "
+                             "plane_logits of the UAV features")  # fmt: skip
+        templates, mask = bev_templates_planes(
+            nnf.normalize(uav_feat, dim=1), plane_logits, self.plane_heights,
+            uav_stride or self.uav_stride, self.input_size, self.yaws, self.template_cells,
+            self.cell_m, pitch, roll, altitude, fov,
+        )  # fmt: skip
         grid = self._sat_grid(sat_feat, sat_stride, footprint_m)
         scores = self._scores(templates, mask, grid, footprint_m)
         return torch.log_softmax(scores.flatten(1), dim=1).view_as(scores)
@@ -449,12 +448,12 @@ class MatchingEncoder(PairEncoder):
     ) -> Tensor:
         """The joint volume ``log p (B, S, K, P, P)`` over (altitude, yaw, north, east) for the
         altitude hypotheses ``altitudes (B, S)`` metres above the ground; other arguments as
-        :meth:`match` (flat ground). One ``log_softmax`` over all ``S K P P`` cells, so the
-        hypotheses compete: ``logsumexp`` over ``S`` is the pose volume, the sum over
-        ``(K, P, P)`` of ``exp`` the altitude's posterior. The satellite grid is resampled
-        once; each altitude's bank of ``K`` templates is correlated on its own (one correlation
-        of all ``S K`` templates made a training step 1.3x slower on this CPU: its spectra no
-        longer fit the cache)."""
+        :meth:`match` (flat ground; :meth:`match` is this with ``S = 1``). One ``log_softmax``
+        over all ``S K P P`` cells, so the hypotheses compete: ``logsumexp`` over ``S`` is the
+        pose volume, the sum over ``(K, P, P)`` of ``exp`` the altitude's posterior. The
+        satellite grid is resampled once; each altitude's bank of ``K`` templates is correlated
+        on its own (one correlation of all ``S K`` templates made a training step 1.3x slower on
+        this CPU: its spectra no longer fit the cache)."""
         size, r = self.input_size, self.template_cells
         stride = uav_stride or self.uav_stride
         feats = nnf.normalize(uav_feat, dim=1)
