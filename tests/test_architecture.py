@@ -27,8 +27,9 @@ ALLOWED: dict[str, set[str]] = {
     "locks": set(),  # the one-writer lock file (simulate, reproduce)
     "sim": {"geometry", "progress"},
     "data": {"geometry", "sim", "progress", "errors", "locks", "machine"},
-    # baselines: the registry's plugin discovery; config: YAML scalars of head options
-    "models": {"geometry", "errors", "baselines", "config", "machine"},
+    # config: YAML scalars of head options. Not baselines: the registry finds the heads through
+    # the entry point group uavbench.heads (pyproject.toml), so no import points up.
+    "models": {"geometry", "errors", "config", "machine"},
     "baselines": {"geometry", "models"},
     "analysis": {"geometry", "data", "errors"},  # heading_cue reads datasets (PairDataset)
     "evaluation": {"geometry", "data", "models", "progress", "errors"},
@@ -49,8 +50,6 @@ TRACKING_CLIENTS = (
 )
 # The command layer's entry points: the console script's old path and `python -m benchmark`.
 COMMAND_ENTRIES = ("benchmark/cli.py", "benchmark/__main__.py")
-# The one import that points up: the model registry discovers the heads in baselines/.
-PLUGIN_DISCOVERY = ("benchmark.models.registry", "baselines")
 # What baselines may import: the head contract, its building blocks and geometry.
 BASELINE_IMPORTS = {
     "benchmark.geometry",
@@ -146,13 +145,12 @@ def test_sim_data_models_use_each_others_public_api(path):
 
 
 def test_no_import_cycles_between_packages():
-    # The registry's discovery of baselines is excluded: it is a plugin load, not a dependency.
     graph: dict[str, set[str]] = {}
     for path in FILES:
         package = own_package(path)
         for name in imports_of(path):
             target = package_of(name)
-            if target in (None, package) or (package, target) == ("models", "baselines"):
+            if target in (None, package):
                 continue
             graph.setdefault(package, set()).add(target)
     state: dict[str, str] = {}
@@ -169,6 +167,44 @@ def test_no_import_cycles_between_packages():
     for node in sorted(graph):
         if node not in state:
             visit(node, [])
+
+
+def dynamic_imports_of(path: Path) -> list[str]:
+    """The leading text of every ``import_module(...)`` / ``__import__(...)`` argument in ``path``
+    that is a string or an f-string (its constant head), which :func:`imports_of` cannot see."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not (isinstance(node, ast.Call) and node.args):
+            continue
+        func = node.func
+        called = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+        if called not in ("import_module", "__import__"):
+            continue
+        arg = node.args[0]
+        if isinstance(arg, ast.Constant) and isinstance(arg.value, str):
+            found.append(arg.value)
+        elif isinstance(arg, ast.JoinedStr) and arg.values:
+            head = arg.values[0]
+            if isinstance(head, ast.Constant):
+                found.append(str(head.value))
+    return found
+
+
+@pytest.mark.parametrize("path", FILES, ids=rel)
+def test_no_module_loads_a_higher_package_by_name(path):
+    # The head registry finds baselines/ through the entry point group uavbench.heads
+    # (pyproject.toml), not by naming it: a dynamic import of a higher package is an arrow up
+    # that the static check above cannot see.
+    package = own_package(path)
+    if package not in ALLOWED:
+        return
+    bad = [
+        name
+        for name in dynamic_imports_of(path)
+        if (target := package_of(name.rstrip("."))) not in (None, package)
+        and target not in ALLOWED[package]
+    ]
+    assert not bad, f"{rel(path)} loads {bad} by name; {package} may import {ALLOWED[package]}"
 
 
 @pytest.mark.parametrize("path", FILES, ids=rel)
@@ -196,7 +232,7 @@ def module_name(path: Path) -> str:
 def module_graph() -> dict[str, set[str]]:
     """Module -> the modules of ours it imports (lazy imports included, as :func:`imports_of`
     finds them). ``from pkg import x`` is an import of ``pkg.x`` when ``x`` is a module, else of
-    ``pkg``; the registry's discovery of baselines/ is left out."""
+    ``pkg``."""
     modules = {module_name(p): p for p in FILES}
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
@@ -218,11 +254,7 @@ def module_graph() -> dict[str, set[str]]:
                 targets |= submodules[target]
             if target in other_names or target not in submodules:
                 targets.add(target)
-        graph[name] = {
-            t
-            for t in targets
-            if t in modules and t != name and (name, package_of(t)) != PLUGIN_DISCOVERY
-        }
+        graph[name] = {t for t in targets if t in modules and t != name}
     return graph
 
 

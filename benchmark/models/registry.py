@@ -8,12 +8,17 @@ Heads::
     head = create_head("re_net_r", in_features=4096)
     list_heads("attitude")  # ['pd_net_e', 'pd_net_q', ...]
 
-Every module of the ``baselines`` package is imported on the first registry lookup (so a new head is
-one new file there), and installed packages can add heads through the entry-point group
-``uavbench.heads`` (an entry point may name a module, which registers its heads on import, or a head
-class, which is registered under the entry point's name). Encoders work the same way with
-``register_encoder`` / ``create_encoder`` / ``list_encoders`` and the group ``uavbench.encoders``.
+Heads are found through the entry-point group ``uavbench.heads`` on the first registry lookup (an
+entry point may name a module, which registers its heads on import, or a head class, which is
+registered under the entry point's name). The built-in heads come the same way as any other
+package's: this project's ``pyproject.toml`` declares the entry point ``baselines = "baselines"``,
+and importing ``baselines`` imports every module in it (so a new head is one new file there). The
+registry therefore names no package above it: the heads depend on the contract, never the reverse.
+Encoders work the same way with ``register_encoder`` / ``create_encoder`` / ``list_encoders`` and
+the group ``uavbench.encoders`` (the two built-in encoders live beside the registry).
 
+An entry point of this project's own distribution that fails to load is a bug in this repository and
+raises; another package's only warns, so that a broken plug-in cannot take the built-in heads down.
 The registries are plain dicts; discovery runs once per process and is idempotent.
 """
 
@@ -22,7 +27,6 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import inspect
-import pkgutil
 import types
 import warnings
 from collections.abc import Callable
@@ -33,6 +37,8 @@ from benchmark.models.heads import AttitudeHead, Head, TranslationHead
 HEAD_ENTRY_POINT_GROUP = "uavbench.heads"
 ENCODER_ENTRY_POINT_GROUP = "uavbench.encoders"
 _BUILTIN_ENCODER_MODULES = ("benchmark.models.googlenet", "benchmark.models.matching")
+# The distribution whose entry points are this repository's own (the built-in heads): strict.
+PROJECT_DISTRIBUTION = "uavbench"
 
 _HEADS: dict[str, type[Head]] = {}
 _ENCODERS: dict[str, Callable[..., Any]] = {}
@@ -96,11 +102,19 @@ def register_encoder(name: str) -> Callable[[F], F]:
     return decorator
 
 
+def _is_own(ep: importlib.metadata.EntryPoint) -> bool:
+    dist = getattr(ep, "dist", None)
+    return dist is not None and dist.name == PROJECT_DISTRIBUTION
+
+
 def _load_entry_points(group: str, registry: dict[str, Any], register: Callable) -> None:
     for ep in importlib.metadata.entry_points(group=group):
         try:
             obj = ep.load()
-        except Exception as err:  # a broken plug-in must not break the built-in heads
+        except Exception as err:
+            if _is_own(ep):  # this repository's own heads: a bug here, let it surface
+                raise
+            # a broken plug-in must not break the built-in heads
             warnings.warn(
                 f"entry point {ep.name!r} ({ep.value}) in group {group!r} failed to load: {err}",
                 stacklevel=3,
@@ -112,21 +126,24 @@ def _load_entry_points(group: str, registry: dict[str, Any], register: Callable)
             try:
                 register(ep.name)(obj)
             except (TypeError, ValueError) as err:
+                if _is_own(ep):
+                    raise
                 warnings.warn(f"entry point {ep.name!r} in group {group!r}: {err}", stacklevel=3)
 
 
 def _discover_heads() -> None:
     if _discovered["heads"]:
         return
-    import baselines
-
-    for info in sorted(pkgutil.iter_modules(baselines.__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        # A baseline that fails to import is a bug in this repository: let the error surface
-        # (and again on the next lookup, since discovery is only marked done after success).
-        importlib.import_module(f"baselines.{info.name}")
+    # A failed load raises before discovery is marked done, so the next lookup tries again.
     _load_entry_points(HEAD_ENTRY_POINT_GROUP, _HEADS, register_head)
+    if not _HEADS:
+        raise RuntimeError(
+            f"no heads registered: the built-in heads (baselines/) are found through the entry "
+            f"point group {HEAD_ENTRY_POINT_GROUP!r} of the installed {PROJECT_DISTRIBUTION!r} "
+            f"distribution, and it declares none here; install the project as the README says "
+            f'(pip install torch==2.13.0 -e ".[dev]"), again after a pull that changed '
+            f"pyproject.toml"
+        )
     _discovered["heads"] = True
 
 

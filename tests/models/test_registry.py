@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
 import sys
 import textwrap
+import types
+from pathlib import Path
 
 import pytest
 import torch
@@ -157,6 +160,62 @@ class TestEntryPoints:
         with pytest.warns(UserWarning, match="broken"):
             names = list_heads()
         assert "pd_re_net" in names and "broken" not in names
+
+
+class TestBuiltinHeadsEntryPoint:
+    """The built-in heads reach the registry through this project's own entry point, so the
+    registry never names ``baselines`` (imports point down)."""
+
+    def test_the_project_declares_baselines_in_the_heads_group(self):
+        eps = [
+            ep
+            for ep in importlib.metadata.entry_points(group="uavbench.heads")
+            if ep.dist is not None and ep.dist.name == "uavbench"
+        ]
+        assert [(ep.name, ep.value) for ep in eps] == [("baselines", "baselines")]
+
+    def test_every_head_file_is_registered(self):
+        # One file per head: each module of baselines/ registers at least one head.
+        import baselines
+
+        files = {
+            p.stem for p in Path(baselines.__path__[0]).glob("*.py") if not p.stem.startswith("_")
+        }
+        modules = {
+            cls.__module__.removeprefix("baselines.") for cls in map(get_head_class, list_heads())
+        }
+        assert files <= modules
+
+    def test_no_entry_point_is_a_clear_error(self, monkeypatch):
+        monkeypatch.setattr(registry_module, "_HEADS", {})
+        monkeypatch.setitem(registry_module._discovered, "heads", False)
+        monkeypatch.setattr(importlib.metadata, "entry_points", lambda group=None, **_: [])
+        with pytest.raises(RuntimeError, match=r"uavbench\.heads.*install the project"):
+            list_heads()
+        assert registry_module._discovered["heads"] is False  # the next lookup tries again
+
+    @pytest.mark.parametrize("dist_name, raises", [("uavbench", True), ("other_pkg", False)])
+    def test_own_broken_entry_point_raises_another_warns(
+        self, clean_registry, monkeypatch, dist_name, raises
+    ):
+        # What the registry reads of an entry point: name, value, dist.name and load().
+        def load():
+            return importlib.import_module("no_such_module_xyz")
+
+        ep = types.SimpleNamespace(
+            name="broken",
+            value="no_such_module_xyz",
+            dist=types.SimpleNamespace(name=dist_name),
+            load=load,
+        )
+        monkeypatch.setattr(importlib.metadata, "entry_points", lambda group=None, **_: [ep])
+        monkeypatch.setitem(clean_registry._discovered, "heads", False)
+        if raises:  # a head of this repository that cannot load is a bug here
+            with pytest.raises(ModuleNotFoundError, match="no_such_module_xyz"):
+                list_heads()
+        else:  # another package's broken plug-in must not take the built-in heads down
+            with pytest.warns(UserWarning, match="broken"):
+                assert "pd_re_net" in list_heads()
 
 
 class TestEncoderRegistry:
