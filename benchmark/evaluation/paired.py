@@ -13,7 +13,11 @@ With several training seeds, :func:`pooled_bootstrap` resamples seeds as well as
 replicate draws the flights with replacement and, independently for each model, its seeds with
 replacement, and compares the two models' seed-mean errors on the drawn frames. The interval then
 covers both the test-set sampling (which flights) and the training noise (which seed), the two
-sources a rerun on another machine changes. :func:`spearman_bootstrap` does the same for a rank
+sources a rerun on another machine changes. When the two models' seed-s runs share what seed s
+trained (heads on the same frozen encoder of seed s, or one model with and without a probe),
+``paired_seeds=True`` draws one set of seeds for both, as the flights are drawn once for both:
+what seed s's shared part does to both models cancels in the difference instead of entering the
+interval twice. :func:`spearman_bootstrap` does the same for a rank
 correlation (a head's uncertainty against its error), :func:`median_bootstrap` for a median (the
 median horizontal error, the median yaw error).
 """
@@ -144,6 +148,7 @@ def pooled_replicates(
     groups: np.ndarray,
     n_boot: int = 2000,
     seed: int = 0,
+    paired_seeds: bool = False,
 ) -> tuple[float, np.ndarray]:
     """The point estimate and the bootstrap replicates behind :func:`pooled_bootstrap`.
 
@@ -154,13 +159,18 @@ def pooled_replicates(
         groups: ``(N,)`` flight id of each frame.
         n_boot: number of replicates (>= 1).
         seed: seed of ``numpy.random.default_rng``.
+        paired_seeds: row s of ``err_a`` and of ``err_b`` come from one training seed's shared
+            run (``S_a == S_b`` required): the seeds are drawn once per replicate for both models
+            (the second generator call, ``integers(0, S, (n_boot, S))``), not independently.
     Returns:
         ``(mean_diff, replicates (n_boot,))``: ``mean_diff`` = mean over all frames of
         ``mean_s err_b[s] - mean_s err_a[s]``. Replicate r draws G of the G flights with
         replacement (first generator call, ``integers(0, G, (n_boot, G))``, the same draws as
         :func:`paired_bootstrap`), then ``S_a`` seeds of a and ``S_b`` seeds of b with replacement;
         its value is the mean over the drawn flights' frames of (mean over b's drawn seeds minus
-        mean over a's drawn seeds). With one seed each it equals :func:`paired_bootstrap`.
+        mean over a's drawn seeds). With one seed each it equals :func:`paired_bootstrap`; with
+        ``paired_seeds`` it is :func:`paired_bootstrap`'s replicate of the per-seed differences
+        ``err_b[s] - err_a[s]`` averaged over the drawn seeds.
     """
     a = _as_seed_matrix(err_a, "err_a")
     b = _as_seed_matrix(err_b, "err_b")
@@ -171,6 +181,11 @@ def pooled_replicates(
             f"{a.shape[1]}, {b.shape[1]}, {g.shape[0]}"
         )
     _check_boot(n_boot, 0.5, "pooled_bootstrap")
+    if paired_seeds and a.shape[0] != b.shape[0]:
+        raise ValueError(
+            f"pooled_bootstrap: paired_seeds needs the same seeds for both models, got "
+            f"{a.shape[0]} and {b.shape[0]}"
+        )
     _, inverse = np.unique(g, return_inverse=True)
     n_groups = int(inverse.max()) + 1
     sizes = np.bincount(inverse, minlength=n_groups).astype(np.float64)
@@ -182,7 +197,7 @@ def pooled_replicates(
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, n_groups, size=(int(n_boot), n_groups))
     seeds_a = rng.integers(0, a.shape[0], size=(int(n_boot), a.shape[0]))
-    seeds_b = rng.integers(0, b.shape[0], size=(int(n_boot), b.shape[0]))
+    seeds_b = seeds_a if paired_seeds else rng.integers(0, b.shape[0], (int(n_boot), b.shape[0]))
     # Linear in everything: the drawn frames' mean of (seed-mean b - seed-mean a) is
     # sum_g c_g (w_b . sums_b[:, g] - w_a . sums_a[:, g]) / sum_g c_g size_g, with c_g the times
     # flight g was drawn and w the seed-draw frequencies (counts / S).
@@ -218,15 +233,19 @@ def pooled_bootstrap(
     n_boot: int = 2000,
     seed: int = 0,
     confidence: float = 0.95,
+    paired_seeds: bool = False,
 ) -> tuple[float, float, float]:
     """Mean paired difference b - a over frames and seeds with its flight-and-seed bootstrap
-    percentile interval (see :func:`pooled_replicates` for shapes and the resampling).
+    percentile interval (see :func:`pooled_replicates` for shapes, the resampling and
+    ``paired_seeds``).
 
     Returns:
         ``(mean_diff, lo, hi)`` in the unit of the errors.
     """
     _check_boot(n_boot, confidence, "pooled_bootstrap")
-    mean, replicates = pooled_replicates(err_a, err_b, groups, n_boot=n_boot, seed=seed)
+    mean, replicates = pooled_replicates(
+        err_a, err_b, groups, n_boot=n_boot, seed=seed, paired_seeds=paired_seeds
+    )
     return (mean, *percentile_interval(replicates, confidence))
 
 

@@ -211,6 +211,70 @@ class TestPooledBootstrap:
             pooled_bootstrap(**args)
 
 
+def naive_paired_seeds(a, b, groups, n_boot, seed, confidence=0.95):
+    """Reference by explicit loops for ``paired_seeds``: the flights, then one draw of seeds used
+    for both models; frame by frame the mean over the drawn seeds of ``b[s] - a[s]``."""
+    labels = np.unique(groups)
+    rng = np.random.default_rng(seed)
+    flights = rng.integers(0, len(labels), size=(n_boot, len(labels)))
+    seeds = rng.integers(0, a.shape[0], size=(n_boot, a.shape[0]))
+    means = []
+    for r in range(n_boot):
+        diffs = [
+            np.mean([b[s, n] - a[s, n] for s in seeds[r]])
+            for k in flights[r]
+            for n in np.flatnonzero(groups == labels[k])
+        ]
+        means.append(np.mean(diffs))
+    tail = (1 - confidence) / 2
+    point = np.mean(b.mean(axis=0) - a.mean(axis=0))
+    return point, np.percentile(means, 100 * tail), np.percentile(means, 100 * (1 - tail))
+
+
+class TestPooledBootstrapPairedSeeds:
+    """Two models whose seed-s runs share a trained part (heads on seed s's frozen encoder)."""
+
+    def test_matches_naive_loops(self):
+        a, b, g = seeded(3, 3)
+        got = pooled_bootstrap(a, b, g, n_boot=60, seed=7, paired_seeds=True)
+        np.testing.assert_allclose(got, naive_paired_seeds(a, b, g, 60, 7), rtol=1e-12)
+
+    def test_shared_seed_effect_cancels(self):
+        """b = a + c seed by seed, a with large per-seed offsets: paired, every replicate is
+        exactly c; drawn independently, the offsets make a wide interval around c."""
+        a, _, g = seeded(4, 4)
+        a = a + np.array([-20.0, -5.0, 5.0, 20.0])[:, None]  # what each seed's encoder does
+        paired = pooled_bootstrap(a, a + 0.75, g, n_boot=2000, seed=3, paired_seeds=True)
+        assert paired == pytest.approx((0.75, 0.75, 0.75), abs=1e-12)
+        _, lo, hi = pooled_bootstrap(a, a + 0.75, g, n_boot=2000, seed=3)
+        assert lo < 0 < hi  # the shared offsets counted twice: no verdict at all
+
+    def test_one_seed_is_the_flight_bootstrap(self):
+        a, b, g = clustered()
+        assert pooled_bootstrap(a, b, g, n_boot=300, seed=2, paired_seeds=True) == pytest.approx(
+            paired_bootstrap(a, b, g, n_boot=300, seed=2), rel=1e-12
+        )
+
+    def test_closed_form_seed_resampling(self):
+        """One flight, per-seed differences d_s = b_s - a_s: a replicate is the mean of S iid
+        draws of the d_s, so the interval is mean(d) +- z sd(d)/sqrt(S) (normal limit)."""
+        rng = np.random.default_rng(4)
+        n_seeds, n = 400, 5
+        shared = rng.normal(0.0, 30.0, n_seeds)[:, None]  # cancels
+        d = rng.normal(2.0, 1.5, n_seeds)
+        a = np.repeat(shared, n, axis=1)
+        b = a + d[:, None]
+        mean, lo, hi = pooled_bootstrap(a, b, np.zeros(n), n_boot=20000, seed=1, paired_seeds=True)
+        assert mean == pytest.approx(d.mean(), rel=1e-12)
+        half = stats.norm.ppf(0.975) * d.std(ddof=0) / np.sqrt(n_seeds)
+        assert lo == pytest.approx(mean - half, abs=0.06 * half)
+        assert hi == pytest.approx(mean + half, abs=0.06 * half)
+
+    def test_different_seed_counts_refused(self):
+        with pytest.raises(ValueError, match=r"paired_seeds needs the same seeds.*got 2 and 1"):
+            pooled_bootstrap(np.zeros((2, 4)), np.ones(4), np.arange(4), paired_seeds=True)
+
+
 def drawn_replicates(g, n_seeds, n_boot, seed):
     """``(frames, seeds)`` of each replicate with the draws of the one-model bootstraps (spearman,
     median): G flights with replacement, then ``n_seeds`` seeds; ``frames`` are the drawn flights'

@@ -12,10 +12,12 @@ import numpy as np
 import pytest
 from test_frames import SPLITS, Repro
 
+from benchmark.evaluation.paired import pooled_bootstrap
 from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EXCLUDED,
+    N_BOOT,
     NOT_RUN,
     SUPPORTED,
     UNRESOLVED,
@@ -23,6 +25,7 @@ from benchmark.runner.claims.evidence import (
     Evidence,
     combine,
     head_family,
+    shares_seed_runs,
 )
 from benchmark.runner.claims.paper import (
     constant_claim,
@@ -159,6 +162,39 @@ class TestPairwise:
         assert pooled.comparisons[0].hi - pooled.comparisons[0].lo > 3 * (
             single.comparisons[0].hi - single.comparisons[0].lo
         )
+
+    def test_heads_on_one_frozen_encoder_pair_their_seeds(self, tmp_path):
+        """Two heads on each seed's shared encoder: the encoder's seed effect (here 0, +30 and
+        -30 deg on every frame) is the same for both and cancels, so B's 1 deg advantage is
+        clear; two end-to-end models with the same errors share nothing, and the seeds' spread
+        leaves the comparison open."""
+        offsets = {0: 0.0, 1: 30.0, 2: -30.0}
+
+        def head(extra):
+            def err(seed, n):
+                rng = np.random.default_rng(seed)
+                return 40.0 + offsets[seed] + extra + rng.normal(0, 0.2, n)
+
+            return err
+
+        shared = Repro(tmp_path / "shared")
+        shared.add("table1", "A", {STD: head(1.0)}, encoder="enc")
+        shared.add("table1", "B", {STD: head(0.0)}, encoder="enc")
+        ev = Evidence(shared.store())
+        a, b = (ev.values(("table1", m, None), STD, "dphi_deg") for m in "AB")
+        assert shares_seed_runs(a, b)
+        c = ev.paired("A − B", a, b, claimed=+1)
+        ref = pooled_bootstrap(b.values, a.values, a.flight, N_BOOT, seed=0, paired_seeds=True)
+        assert (c.diff, c.lo, c.hi) == pytest.approx(ref, rel=1e-12)
+        assert 0.5 < c.lo < c.diff < c.hi < 1.5 and combine([c]) == SUPPORTED
+        apart = Repro(tmp_path / "apart")
+        apart.add("table1", "A", {STD: head(1.0)})
+        apart.add("table1", "B", {STD: head(0.0)})
+        ev = Evidence(apart.store())
+        a, b = (ev.values(("table1", m, None), STD, "dphi_deg") for m in "AB")
+        assert not shares_seed_runs(a, b)
+        c = ev.paired("A − B", a, b, claimed=+1)
+        assert c.lo < 0 < c.hi and combine([c]) == UNRESOLVED
 
     def test_every_metric_must_hold(self, tmp_path):
         c = claim_ab(Repro(tmp_path), 5.0, 20.0, metrics=("dphi_deg", "dE_m", "dN_m"))

@@ -22,7 +22,7 @@ from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.execute.worker import eval_key, split_filename
 from benchmark.runner.plan.specs import Job, RowSpec
 from benchmark.runner.plan.units import Unit
-from benchmark.training.config import TrainConfig
+from benchmark.training.config import PretrainedConfig, TrainConfig
 
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]
 # split -> (flights, frames per flight)
@@ -81,18 +81,25 @@ class Repro:
     def add(self, table: str, label: str, splits: dict[str, object], seeds=(0, 1, 2),
             x: str | None = None, blank: bool = False, train: str = "standard/train",
             swap: dict[str, object] | None = None, shuffle: bool = False,
-            uncertainty: float = 0.0) -> None:  # fmt: skip
+            uncertainty: float = 0.0, encoder: str | None = None) -> None:  # fmt: skip
         """One model over ``seeds``. ``splits[split]`` is its geodesic error in degrees per frame:
         a float (mean of a gamma-distributed error), a callable ``(seed, n) -> (n,)``, or
         ``"constant"`` (the training-mean pose plus 0.5 deg noise). Translation errors follow the
         same scale in metres. ``swap`` gives the errors with the swapped satellite image (default:
-        the same predictions). The ``uncertainty`` column is ``uncertainty * error + N(0, 1)``."""
+        the same predictions). The ``uncertainty`` column is ``uncertainty * error + N(0, 1)``.
+        ``encoder``: the units train heads only, on the frozen encoder unit ``<encoder>-<seed>``
+        (``cfg.pretrained``, as the quick profile's rows do)."""
         model = {"attitude": "pd_re_net", "satellite_input": "blank" if blank else "image"}
         job = Job(table, label, label, x, RowSpec(label, label, model), train, tuple(splits))
         for seed in seeds:
             where = "" if train == "standard/train" else f"-{train}"
             key = f"{table}-{label}-{x}-{seed}{where}".replace("/", "_").replace(" ", "_")
-            self.units.append(Unit(key, TrainConfig(seed=seed), [job]))
+            pretrained = (
+                PretrainedConfig(checkpoint=f"{encoder}-{seed}.pt", key=f"{encoder}-{seed}")
+                if encoder
+                else PretrainedConfig()
+            )
+            self.units.append(Unit(key, TrainConfig(seed=seed, pretrained=pretrained), [job]))
             for split, spec in splits.items():
                 for satellite in ("true", "swap"):
                     use = spec if satellite == "true" else (swap or {}).get(split, spec)
@@ -199,6 +206,17 @@ class TestErrors:
             store.errors("table1", "Re-Net-R", "standard/test", "dphi_deg")
         with pytest.raises(KeyError, match="not evaluated on 'generalized/test'"):
             store.errors("table1", "Pd/Re-Net", "generalized/test", "dphi_deg")
+
+    def test_trained_from_names_the_frozen_encoder_or_the_unit(self, tmp_path):
+        r = Repro(tmp_path)
+        r.add("table1", "A", {"standard/test": 5.0}, seeds=(0, 1), encoder="enc")
+        r.add("table1", "B", {"standard/test": 5.0}, seeds=(0, 1))
+        store = r.store()
+        a = store.errors("table1", "A", "standard/test", "dphi_deg")
+        b = store.errors("table1", "B", "standard/test", "dphi_deg")
+        assert a.trained_from == ("enc-0", "enc-1")
+        assert b.trained_from == ("table1-B-None-0", "table1-B-None-1")
+        assert store.constant("standard/test", "dphi_deg", "standard/train").trained_from == ()
 
     def test_a_label_trained_on_two_splits_is_refused(self, tmp_path):
         # The leakage table holds Pd/Re-Net twice (standard/train and frames/train).

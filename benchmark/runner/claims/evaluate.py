@@ -85,7 +85,9 @@ def render_claims(claims: list[Claim]) -> str:
 RULE_NOTE = (
     "Each Δ is a per-frame paired difference on the same test frames, each model's error averaged "
     "over its seeds; the interval is the 95% percentile interval of a bootstrap resampling whole "
-    f"flights and, per model, seeds ({N_BOOT} replicates). ✓ supported: the interval excludes zero "
+    "flights and seeds: per model, or once for two models whose seed-s runs share one trained "
+    "encoder (the heads on the shared encoder of seed s) or one model with and without a probe "
+    f"({N_BOOT} replicates). ✓ supported: the interval excludes zero "
     "(or the stated threshold) on the claimed side; ✗ contradicted: it excludes it on the other "
     "side, at the Bonferroni-corrected level when a claim has several comparisons (so a 95% "
     "interval on the wrong side can still read ~); ~ not resolved at this scale (always so on a "

@@ -4,9 +4,13 @@ all of them in the report's order: ``evaluate``).
 Evidence. Every comparison "A beats B" is made on the per-frame error difference on the same test
 frames (``benchmark.runner.claims.frame_errors.FrameStore``): ``Δ = err(A) − err(B)``, each model's
 error first averaged over its training seeds. Its 95% interval is the percentile interval of a
-bootstrap that resamples whole flights (frames of a flight are correlated) and, independently for
-each model, its seeds (``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates,
-seed 0).
+bootstrap that resamples whole flights (frames of a flight are correlated) and the seeds
+(``benchmark.evaluation.paired.pooled_bootstrap``, ``N_BOOT`` replicates, seed 0): independently
+for each model, unless the two models share each seed's trained run (``FrameErrors.trained_from``:
+heads on the same frozen encoder of seed s, or one model under a probe), in which case one draw of
+seeds serves both, as one draw of flights does. Drawing shared seeds independently would count
+what the shared encoder of a seed does to both models twice, as if it were a difference between
+them.
 
 Verdict of one comparison: **supported** when the interval excludes zero in the claimed direction,
 **contradicted** when it excludes zero in the other direction, **not resolved at this scale**
@@ -164,10 +168,13 @@ class Evidence:
         threshold: float = 0.0,
         unit: str = "°",
     ) -> Comparison:
-        """Δ = a − b per frame (seed means), flights and seeds resampled."""
+        """Δ = a − b per frame (seed means), flights and seeds resampled (the seeds together when
+        ``a`` and ``b`` share each seed's run, :func:`shares_seed_runs`)."""
         if not np.array_equal(a.index, b.index):
             raise ValueError(f"{where}: the two models were evaluated on different frames")
-        diff, reps = pooled_replicates(b.values, a.values, a.flight, self.n_boot, seed=0)
+        diff, reps = pooled_replicates(
+            b.values, a.values, a.flight, self.n_boot, seed=0, paired_seeds=shares_seed_runs(a, b)
+        )
         lo, hi = percentile_interval(reps, CONFIDENCE)
         flights = len(np.unique(a.flight))
         return Comparison(
@@ -220,8 +227,14 @@ class Evidence:
 _AXES = ("dE_m", "dN_m", "dU_m")
 
 
+def shares_seed_runs(a: FrameErrors, b: FrameErrors) -> bool:
+    """Whether seed s of ``a`` and seed s of ``b`` rest on the same trained run for every s (the
+    same seeds, and the same non-empty ``trained_from``)."""
+    return bool(a.trained_from) and a.seeds == b.seeds and a.trained_from == b.trained_from
+
+
 def _meta(f: FrameErrors) -> tuple:
-    return f.index, f.flight, f.seeds
+    return f.index, f.flight, f.seeds, f.trained_from
 
 
 def decide(c: Comparison, confidence: float = CONFIDENCE) -> str:

@@ -41,12 +41,19 @@ class FrameErrors:
         index: ``(N,)`` int64 frame index within the split, increasing.
         flight: ``(N,)`` flight id of each frame (the bootstrap's resampling unit).
         seeds: ``(S,)`` training seeds, increasing.
+        trained_from: ``(S,)`` per seed, the run whose trained weights the predictions rest on:
+            the frozen encoder's unit key for a heads-only unit (``cfg.pretrained.key``), else
+            the unit's own key; empty for what no run trained (the constant predictor). Two
+            models with the same ``trained_from`` share each seed's run, so their seeds are
+            resampled together (``benchmark.evaluation.paired.pooled_replicates``,
+            ``paired_seeds``).
     """
 
     values: np.ndarray
     index: np.ndarray
     flight: np.ndarray
     seeds: tuple[int, ...]
+    trained_from: tuple[str, ...] = ()
 
     @property
     def seed_mean(self) -> np.ndarray:
@@ -88,7 +95,12 @@ class FrameStore:
         # Pd/Re-Net on standard/train and on frames/train): such a name does not identify one
         # model, so asking for it is an error rather than a silent pick of the last row.
         self._ambiguous: dict[tuple[str, str, str | None], set[str]] = {}
+        # unit key -> the key of the frozen encoder it trained its heads on (heads-only units)
+        self._trained_from: dict[str, str] = {}
         for unit in units:
+            pretrained = getattr(unit.cfg, "pretrained", None)
+            if pretrained is not None and pretrained.enabled and pretrained.key:
+                self._trained_from[unit.key] = pretrained.key
             for job in unit.jobs:
                 model = (job.table, job.label, _norm_x(job.x))
                 by_seed = self._models.setdefault(model, {})
@@ -206,8 +218,9 @@ class FrameStore:
                 f"model ({table!r}, {label!r}, x={x!r}) is not evaluated on {split!r}; "
                 f"its splits: {list(jobs[0][1][1].eval_splits)}"
             )
-        rows, index, flight, first = [], None, None, None
+        rows, index, flight, first, trained_from = [], None, None, None, []
         for _seed, (key, _job) in jobs:
+            trained_from.append(self._trained_from.get(key, key))
             path = self.csv_path(key, split, satellite)
             frame = self._read(path)
             if metric not in frame:
@@ -222,6 +235,7 @@ class FrameStore:
             index=index,
             flight=flight.to_numpy(),
             seeds=tuple(seed for seed, _ in jobs),
+            trained_from=tuple(trained_from),
         )
 
     def _split_poses(self, split: str) -> _Poses:

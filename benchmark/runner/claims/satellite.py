@@ -50,6 +50,7 @@ def swap_rise(ev: Evidence, model: tuple, split: str, metric: str) -> Comparison
     swap = ev.values(model, split, metric, "swap")
     if not np.array_equal(true.index, swap.index) or true.seeds != swap.seeds:
         raise ValueError(f"{model}: true and swap evaluations of {split} hold different frames")
+    # seed by seed already, so the seeds stay paired; compared with a constant zero
     rise = FrameErrors(swap.values - true.values, true.index, true.flight, true.seeds)
     zero = FrameErrors(np.zeros((1, rise.values.shape[1])), rise.index, rise.flight, (0,))
     where = f"{model[1]} {NAMES[metric]}"
