@@ -98,9 +98,8 @@ class FrameStore:
         # unit key -> the key of the frozen encoder it trained its heads on (heads-only units)
         self._trained_from: dict[str, str] = {}
         for unit in units:
-            pretrained = getattr(unit.cfg, "pretrained", None)
-            if pretrained is not None and pretrained.enabled and pretrained.key:
-                self._trained_from[unit.key] = pretrained.key
+            if unit.cfg.pretrained.enabled and unit.cfg.pretrained.key:
+                self._trained_from[unit.key] = unit.cfg.pretrained.key
             for job in unit.jobs:
                 model = (job.table, job.label, _norm_x(job.x))
                 by_seed = self._models.setdefault(model, {})
