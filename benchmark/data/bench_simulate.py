@@ -20,15 +20,18 @@ import tempfile
 import time
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
+if TYPE_CHECKING:
+    from benchmark.sim import City
+
 TARGETS_PAIRS_PER_S = {96: 150.0, 224: 30.0}
 
 
-def bench_poses(city, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
+def bench_poses(city: City, n: int, seed: int, samples: int = 16) -> pd.DataFrame:
     """``n`` UAV poses on default-spec flights around the city's centres (no camera effects);
     flight k is lit by state ``k mod n_lights`` with a fog distance between 1.5 and 6 km."""
     from benchmark.sim import FlightSpec, generate_flight

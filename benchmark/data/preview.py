@@ -13,10 +13,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from benchmark.errors import UsageError
+
+if TYPE_CHECKING:
+    from benchmark.data.dataset import PairDataset
 
 
 def sat_pixel(
@@ -30,7 +34,7 @@ def sat_pixel(
     return u, v
 
 
-def sun_azimuth_deg(row, column: str) -> float | None:
+def sun_azimuth_deg(row: object, column: str) -> float | None:
     """The sun azimuth of ``row[column]`` (radians clockwise from north) in degrees [0, 360), or
     None when the dataset has no such column (or the value is missing)."""
     v = getattr(row, column, None)
@@ -43,7 +47,7 @@ def _sun_text(az_deg: float | None) -> str:
     return "" if az_deg is None else f", sun az {az_deg:.0f} deg"
 
 
-def contact_sheet(ds, indices: list[int], out: Path, title: str) -> None:
+def contact_sheet(ds: PairDataset, indices: list[int], out: Path, title: str) -> None:
     """Render pairs ``indices`` of PairDataset ``ds`` to ``out`` (PNG), two pairs per row."""
     import matplotlib
 

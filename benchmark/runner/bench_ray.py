@@ -18,8 +18,12 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from benchmark.errors import UsageError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 TARGET_RATIO = 1.3  # issue 11: local Ray within 1.3x the process pool's wall time
 TIME_SUFFIXES = ("seconds", "_s", "_ms")  # results.csv columns that are times, not results
@@ -41,7 +45,7 @@ class BenchRayConfig:
     dir: Path | None = None
 
 
-def numbers(results_csv: Path):
+def numbers(results_csv: Path) -> pd.DataFrame:
     """``results.csv`` without its time columns, rows in a fixed order: two reproductions of the
     same plan give equal frames exactly when they computed the same numbers."""
     import pandas as pd

@@ -18,6 +18,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from benchmark.errors import UsageError
 from benchmark.locks import LockBusyError, work_lock
@@ -35,6 +36,9 @@ from benchmark.runner.plan.repro_profiles import ReproProfile, get_repro_profile
 from benchmark.runner.plan.specs import SpecError, load_specs
 from benchmark.runner.plan.units import Unit, plan_units
 from benchmark.runner.report.logbook import Logbook, write_config
+
+if TYPE_CHECKING:
+    from benchmark.tracking import Tracker
 
 
 @dataclass(frozen=True)
@@ -357,7 +361,7 @@ def _write_reports(
         raise _data_error(data_root, profile, 0, err) from None
 
 
-def browse_hint(kind: str, tracker) -> str:
+def browse_hint(kind: str, tracker: Tracker) -> str:
     """How to look at what a reproduction logged to MLflow (``""`` for the other backends and
     for a fallback: ``tracker.summary()``, printed before it, says where those runs are)."""
     if kind != "mlflow" or getattr(tracker, "using_fallback", False):

@@ -55,9 +55,13 @@ import statistics
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
+
+if TYPE_CHECKING:
+    from benchmark.models import PoseModel
+    from benchmark.training.config import OptimConfig
 
 MODELS = {"quick": (96, 0.25), "paper": (224, 1.0)}
 # --encoders: a bench name -> (registry name, encoder options). ``matching_alt3`` is the matching
@@ -186,11 +190,11 @@ def batch_of(
 
 
 def make_step(
-    model,
-    optimizer,
+    model: torch.nn.Module,
+    optimizer: torch.optim.Optimizer,
     batch: dict[str, torch.Tensor],
     share: bool,
-    device,
+    device: torch.device,
     precision: str,
     grad_clip: float | None = None,
 ) -> Callable[[], float]:
@@ -241,7 +245,7 @@ def count_step_flops(step: Callable[[], float]) -> int:
     return step_flops(step)["total"]
 
 
-def optim_config(config: TrainBenchConfig):
+def optim_config(config: TrainBenchConfig) -> OptimConfig:
     """The ``OptimConfig`` of ``config.optimizer`` (batch size ``config.batch_size``)."""
     from benchmark.training.config import OptimConfig
 
@@ -253,9 +257,9 @@ def build(
     width: float,
     config: TrainBenchConfig,
     spec: LoopSpec,
-    device,
+    device: torch.device,
     encoder: str = "googlenet",
-):
+) -> tuple[PoseModel, torch.optim.Optimizer]:
     """The benchmarked model (seed 0: every loop of an encoder starts from the same weights) and
     its optimiser, built by training's ``make_optimizer`` (``spec.foreach``). ``encoder`` is a
     name of :data:`BENCH_ENCODERS` (its registry name and options). GoogLeNet takes

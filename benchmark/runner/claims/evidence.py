@@ -36,6 +36,7 @@ looked k times); not resolved otherwise, and when no comparison takes part.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -315,7 +316,7 @@ def build_claim(
     )
 
 
-def safe_claim(build, claim: str, source: str) -> Claim:
+def safe_claim(build: Callable[[], Claim], claim: str, source: str) -> Claim:
     """Build a claim; a missing predictions file makes it "not run" naming the file."""
     try:
         return build()

@@ -33,6 +33,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from urllib.parse import urlsplit
 
 from benchmark.errors import UsageError
@@ -74,7 +75,7 @@ def _check_resources(cpus: float, gpus: float, retries: int) -> None:
 
 
 # ----------------------------------------------------------------------------- guards
-def import_ray():
+def import_ray() -> ModuleType:
     """The ``ray`` module, or a :class:`UsageError` (exit 2) with the install line."""
     try:
         import ray
