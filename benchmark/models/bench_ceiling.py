@@ -243,10 +243,10 @@ def cpu_bf16_line(precisions: tuple[str, ...] = ("fp32", "bf16")) -> str:
     """One line: is bf16 native on this CPU (each native-bf16 flag present or missing; how
     oneDNN runs bf16 otherwise), ATen's and oneDNN's ISA, and the kernels a training
     convolution ran in each of ``precisions`` (:func:`cpu_kernel_report`)."""
-    from benchmark.models.precision_support import bf16_support_label, cpu_bf16_level, cpu_flags
+    from benchmark.models.precision_support import bf16_support_label, cpu_flags, onednn_bf16_level
 
     flags = cpu_flags()
-    native = cpu_bf16_level(flags) == "native"
+    native = onednn_bf16_level() == "native"
     named = ", ".join(f"{f} {'present' if f in flags else 'missing'}" for f in native_bf16_flags())
     how = "" if native else f": {bf16_support_label(torch.device('cpu'))}"
     report = cpu_kernel_report(tuple(precisions))

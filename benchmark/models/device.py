@@ -96,7 +96,8 @@ def resolve_precision(name: str, device: torch.device) -> str:
 
 def check_precision_supported(precision: str, device: torch.device) -> None:
     """:class:`PrecisionUnsupportedError` when ``precision`` (resolved: fp32/bf16/fp16) is bf16
-    on a CPU without native bf16 (``avx512_bf16``/``amx_bf16``) and ``UAVBENCH_ALLOW_SLOW_BF16``
+    on a CPU without native bf16 (``avx512_bf16``/``amx_bf16``, and oneDNN not capped below them:
+    ``precision_support.onednn_bf16_level``) and ``UAVBENCH_ALLOW_SLOW_BF16``
     is not 1; also bf16 on a CUDA/MPS device without bf16 support. Nothing else is checked (fp32
     runs anywhere; fp16 on a CPU is left as it was)."""
     if precision != "bf16":

@@ -16,6 +16,13 @@ bench ...``) and for the training/evaluation check of ``precision: bf16`` (``mod
   no bf16 kernels; autocast bf16 convolutions fall back to reference code (``bench train``
   measured 0.14x fp32's pairs/s on an AVX2 EPYC).
 
+The level is the hardware's (:func:`cpu_bf16_level`, from the CPU flags) unless oneDNN is told
+to use less: ``ONEDNN_MAX_CPU_ISA`` (or its old name ``DNNL_MAX_CPU_ISA``) below ``AVX512_CORE``
+leaves it no bf16 kernels, below ``AVX512_CORE_BF16`` none that use the bf16 instructions.
+:func:`onednn_bf16_level` is the level oneDNN actually runs here, and what every decision below
+uses (a cap is how one emulates an older CPU, and how one pins oneDNN's numerics across
+machines).
+
 ``torch.autocast`` accepts bf16 on any CPU, so nothing stops a slow run but this module:
 ``bf16_unsupported_reason(device)`` keeps its benchmark meaning (None from ``"converted"`` up:
 oneDNN has kernels, PyTorch's own test), ``bf16_unsupported_reason(device, native=True)`` is
@@ -36,6 +43,14 @@ from benchmark.machine import cpu_model, read_cpuinfo
 BENCH_PRECISIONS = ("fp32", "bf16")
 NATIVE_BF16_FLAGS = ("avx512_bf16", "amx_bf16", "bf16")  # x86 (Linux names), Arm (Features)
 ONEDNN_BF16_FLAGS = ("avx512bw", "avx512vl", "avx512dq")  # mkldnn_bf16_device_check()
+ONEDNN_ISA_ENV = ("ONEDNN_MAX_CPU_ISA", "DNNL_MAX_CPU_ISA")  # oneDNN reads the first set
+# oneDNN's x86 ISA names that cap its bf16 support (the higher ones, ALL and DEFAULT, do not):
+# no AVX-512, no bf16 kernels; AVX-512 without its BF16 extension, converted kernels only.
+_ONEDNN_CAPS = {
+    **dict.fromkeys(("SSE41", "AVX", "AVX2", "AVX2_VNNI", "AVX2_VNNI_2"), "reference"),
+    **dict.fromkeys(("AVX512_CORE", "AVX512_CORE_VNNI"), "converted"),
+}
+_LEVELS = ("reference", "converted", "native")
 # Set to 1 to run precision=bf16 on a CPU without native bf16 anyway (emulated, slow).
 ALLOW_SLOW_BF16_ENV = "UAVBENCH_ALLOW_SLOW_BF16"
 
@@ -81,6 +96,32 @@ def cpu_bf16_level(flags: set[str] | None = None) -> str:
     return "converted" if torch.ops.mkldnn._is_mkldnn_bf16_supported() else "reference"
 
 
+def onednn_isa_cap() -> str | None:
+    """The ISA oneDNN is capped at by ``$ONEDNN_MAX_CPU_ISA`` (or ``$DNNL_MAX_CPU_ISA``),
+    upper case, e.g. ``"AVX2"``; None when neither is set."""
+    for name in ONEDNN_ISA_ENV:
+        value = os.environ.get(name, "").strip()
+        if value:
+            return value.upper()
+    return None
+
+
+def onednn_bf16_level() -> str:
+    """The bf16 level oneDNN runs on this machine: :func:`cpu_bf16_level` of its flags, lowered
+    to what :func:`onednn_isa_cap` leaves (``"reference"`` under ``AVX2``, at most
+    ``"converted"`` under ``AVX512_CORE``). What the checks and labels of this module use."""
+    level = cpu_bf16_level()
+    ceiling = _ONEDNN_CAPS.get(onednn_isa_cap() or "", "native")
+    return min(level, ceiling, key=_LEVELS.index)
+
+
+def _cap_note() -> str:
+    """``" (oneDNN capped at X by $ONEDNN_MAX_CPU_ISA)"`` when a cap lowers the level, or ``""``."""
+    if onednn_bf16_level() == cpu_bf16_level():
+        return ""
+    return f" (oneDNN capped at {onednn_isa_cap()} by ${ONEDNN_ISA_ENV[0]})"
+
+
 def _vector_units(flags: set[str]) -> str:
     """The CPU's AVX/AMX/bf16 flags, for a message: ``"avx, avx2"`` or ``"none of them"``."""
     have = sorted(f for f in flags if f.startswith(("avx", "amx")) or f == "bf16")
@@ -111,7 +152,7 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
         return f"no bf16 check for device type {device.type!r}"
     flags = cpu_flags()
     if native:
-        level = cpu_bf16_level(flags)
+        level = onednn_bf16_level()
         if level == "native":
             return None
         how = (
@@ -120,6 +161,11 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
             else "without AVX-512 oneDNN has no bf16 kernels: autocast bf16 runs slow reference "
             "code"
         )
+        if _cap_note():
+            return (
+                f"oneDNN is capped at {onednn_isa_cap()} by ${ONEDNN_ISA_ENV[0]}, below the bf16 "
+                f"instructions of this CPU ({cpu_model()}; {how})"
+            )
         return (
             f"this CPU ({cpu_model()}) has no native bf16: needs avx512_bf16 or amx_bf16, it has "
             f"{_vector_units(flags)} ({how})"
@@ -128,7 +174,8 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
         return None
     return (
         "this CPU has no bf16 convolution kernels in oneDNN (needs AVX-512, natively AVX-512 BF16 "
-        f"or AMX; it has {_vector_units(flags)}): autocast bf16 would run slow reference code"
+        f"or AMX; it has {_vector_units(flags)}{_cap_note()}): autocast bf16 would run slow "
+        "reference code"
     )
 
 
@@ -139,12 +186,14 @@ def bf16_support_label(device: torch.device) -> str:
     if device.type != "cpu":
         return "native" if bf16_unsupported_reason(device) is None else "unsupported"
     flags = cpu_flags()
-    level = cpu_bf16_level(flags)
+    level = onednn_bf16_level()
     if level == "native":
         which = [f for f in NATIVE_BF16_FLAGS if f in flags]
         return f"native ({', '.join(which)})"
     if level == "converted":
-        return "converted to fp32 in AVX-512 registers (not native)"
+        return f"converted to fp32 in AVX-512 registers (not native){_cap_note()}"
+    if _cap_note():
+        return f"reference code{_cap_note()}"
     return "reference code (no AVX-512)"
 
 

@@ -128,7 +128,10 @@ class TestKernelReport:
         assert capfd.readouterr().out == "outside\n"
 
     def test_line_names_flags(self, monkeypatch):
-        """Native exactly when a native-bf16 flag is present; each flag named present/missing."""
+        """Native exactly when a native-bf16 flag is present (oneDNN uncapped); each flag named
+        present/missing."""
+        for name in precision_support.ONEDNN_ISA_ENV:
+            monkeypatch.delenv(name, raising=False)
         monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx2", "avx512_bf16"})
         monkeypatch.setattr(bench_ceiling.platform, "machine", lambda: "x86_64")
         line = bench_ceiling.cpu_bf16_line(("fp32",))
@@ -139,6 +142,17 @@ class TestKernelReport:
             "bf16 on this CPU: not native (avx512_bf16 missing, amx_bf16 missing: reference code"
         )
         assert f"ATen ISA {torch.backends.cpu.get_cpu_capability()}, oneDNN ISA " in line
+
+    def test_line_says_when_onednn_is_capped(self, monkeypatch):
+        """A CPU with bf16 instructions whose oneDNN is capped below them is not native."""
+        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx2", "avx512_bf16"})
+        monkeypatch.setattr(bench_ceiling.platform, "machine", lambda: "x86_64")
+        monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
+        line = bench_ceiling.cpu_bf16_line(("fp32",))
+        assert line.startswith(
+            "bf16 on this CPU: not native (avx512_bf16 present, amx_bf16 missing: reference code "
+            "(oneDNN capped at AVX2 by $ONEDNN_MAX_CPU_ISA)"
+        ), line
 
     def test_ceiling_command_prints_the_line(self, capsys):
         assert main(["--device", "cpu", "--precision", "fp32", "--repeats", "1",

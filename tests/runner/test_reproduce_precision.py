@@ -14,7 +14,7 @@ import torch
 
 from benchmark.cli import main
 from benchmark.models import precision_support
-from benchmark.models.precision_support import cpu_bf16_level
+from benchmark.models.precision_support import onednn_bf16_level
 from benchmark.runner.report import outputs as outputs_module
 
 AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
@@ -63,7 +63,7 @@ class TestRefusedBeforeAnyWork:
 @pytest.mark.slow
 class TestBf16SmokeReproduction:
     def test_units_train_in_bf16_and_are_tagged(self, tmp_path, smoke_dataset, monkeypatch):
-        if cpu_bf16_level() != "native":
+        if onednn_bf16_level() != "native":
             monkeypatch.setenv("UAVBENCH_ALLOW_SLOW_BF16", "1")
         monkeypatch.setattr(
             outputs_module, "heading_cue_report", lambda root: ("# Heading-cue audit\n", [])

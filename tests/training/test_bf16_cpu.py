@@ -29,6 +29,7 @@ from benchmark.models.precision_support import (
     bf16_support_label,
     bf16_unsupported_reason,
     cpu_bf16_level,
+    onednn_bf16_level,
 )
 
 CPU = torch.device("cpu")
@@ -36,11 +37,15 @@ AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
 AVX512_NO_BF16 = AVX2_ONLY | {"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512_vnni"}
 ZEN4 = AVX512_NO_BF16 | {"avx512_bf16"}
 SAPPHIRE_RAPIDS = AVX512_NO_BF16 | {"avx512_bf16", "amx_tile", "amx_bf16", "amx_int8"}
-NATIVE_HERE = cpu_bf16_level() == "native"
+NATIVE_HERE = onednn_bf16_level() == "native"
 
 
 def fake_cpu(monkeypatch, flags: set[str]) -> None:
+    """Pretend to be a CPU with ``flags`` and an uncapped oneDNN (the run's own cap, e.g. the
+    emulation of an AVX2 machine, would lower every faked level)."""
     monkeypatch.setattr(precision_support, "cpu_flags", lambda: set(flags))
+    for name in precision_support.ONEDNN_ISA_ENV:
+        monkeypatch.delenv(name, raising=False)
 
 
 class TestWhatNativeMeans:
@@ -60,14 +65,52 @@ class TestWhatNativeMeans:
 
     def test_this_cpu_against_torch(self):
         """This machine's level agrees with torch's own cpuinfo (an independent flag reader) and
-        with PyTorch's oneDNN check: native implies avx512_bf16/amx_bf16 in cpuinfo; converted or
-        native exactly when oneDNN has bf16 kernels (x86)."""
+        with PyTorch's oneDNN check: the hardware is native exactly when cpuinfo has
+        avx512_bf16/amx_bf16; oneDNN's level (after any ``ONEDNN_MAX_CPU_ISA`` cap) is converted
+        or native exactly when oneDNN has bf16 kernels (x86)."""
         caps = torch.cpu.get_capabilities()
-        level = cpu_bf16_level()
         if caps.get("architecture") == "x86_64":
-            assert (level == "native") == bool(caps["avx512_bf16"] or caps["amx_bf16"])
+            assert (cpu_bf16_level() == "native") == bool(caps["avx512_bf16"] or caps["amx_bf16"])
             oneDNN = bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
-            assert (level != "reference") == oneDNN
+            assert (onednn_bf16_level() != "reference") == oneDNN
+
+    @pytest.mark.parametrize(
+        ("cap", "flags", "level"),
+        [
+            ("AVX2", SAPPHIRE_RAPIDS, "reference"),
+            ("avx2", ZEN4, "reference"),  # oneDNN reads the name in any case
+            ("AVX512_CORE", ZEN4, "converted"),
+            ("AVX512_CORE_VNNI", SAPPHIRE_RAPIDS, "converted"),
+            ("AVX512_CORE_BF16", ZEN4, "native"),
+            ("AVX512_CORE_AMX", SAPPHIRE_RAPIDS, "native"),
+            ("ALL", ZEN4, "native"),
+            ("AVX512_CORE", AVX2_ONLY, "reference"),  # a cap never raises the hardware's level
+        ],
+    )
+    def test_a_onednn_cap_lowers_the_level(self, monkeypatch, cap, flags, level):
+        fake_cpu(monkeypatch, flags)
+        monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", cap)
+        assert onednn_bf16_level() == level
+        assert cpu_bf16_level() == cpu_bf16_level(set(flags))  # the hardware's, uncapped
+
+    def test_the_old_variable_name_caps_too_and_the_label_says_why(self, monkeypatch):
+        fake_cpu(monkeypatch, ZEN4)
+        monkeypatch.setenv("DNNL_MAX_CPU_ISA", "AVX2")
+        assert onednn_bf16_level() == "reference"
+        assert bf16_support_label(CPU) == (
+            "reference code (oneDNN capped at AVX2 by $ONEDNN_MAX_CPU_ISA)"
+        )
+        reason = bf16_unsupported_reason(CPU, native=True)
+        assert reason is not None and reason.startswith("oneDNN is capped at AVX2 by ")
+
+    def test_the_cap_refuses_native_training(self, monkeypatch):
+        """Training in bf16 is refused where oneDNN may not use the bf16 instructions, even on
+        a CPU that has them."""
+        monkeypatch.delenv(ALLOW_SLOW_BF16_ENV, raising=False)
+        fake_cpu(monkeypatch, SAPPHIRE_RAPIDS)
+        monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX512_CORE")
+        with pytest.raises(PrecisionUnsupportedError, match="capped at AVX512_CORE"):
+            check_precision_supported("bf16", CPU)
 
     def test_labels_for_the_benchmarks(self, monkeypatch):
         fake_cpu(monkeypatch, SAPPHIRE_RAPIDS)

@@ -36,7 +36,7 @@ from benchmark.models.device import (
     resolve_device,
     resolve_precision,
 )
-from benchmark.models.precision_support import ALLOW_SLOW_BF16_ENV, cpu_bf16_level
+from benchmark.models.precision_support import ALLOW_SLOW_BF16_ENV, onednn_bf16_level
 from benchmark.training import (
     CHECKPOINT,
     TrainConfig,
@@ -175,7 +175,7 @@ class TestBf16OnCpu:
     def _bf16_allowed_here(self, monkeypatch):
         """Training in bf16 on a CPU without native bf16 needs the explicit allowance (issue 20,
         tests/training/test_bf16_cpu.py); these tests exercise the arithmetic on every CPU."""
-        if cpu_bf16_level() != "native":
+        if onednn_bf16_level() != "native":
             monkeypatch.setenv(ALLOW_SLOW_BF16_ENV, "1")
 
     def test_autocast_runs_in_bf16_losses_in_fp32(self):
@@ -257,7 +257,9 @@ class TestPlacement:
 
 
 class TestModelInfoLatency:
-    def test_latency_on_cpu_in_bf16(self):
+    def test_latency_on_cpu_in_bf16(self, monkeypatch):
+        if onednn_bf16_level() != "native":  # an AVX2 CPU: bf16 only with the allowance
+            monkeypatch.setenv(ALLOW_SLOW_BF16_ENV, "1")
         from benchmark.models.device import resolve_placement
         from benchmark.models.info import model_info
 
