@@ -15,6 +15,7 @@ from benchmark.progress import Progress
 from benchmark.runner.execute import heartbeat, pool
 from benchmark.runner.execute.heartbeat import (
     HEARTBEAT_FILE,
+    MTIME_SLACK_S,
     read_heartbeat,
     running_status,
     write_heartbeat,
@@ -35,6 +36,19 @@ class TestWriteAndRead:
         os.utime(tmp_path / HEARTBEAT_FILE, (old, old))  # written by an earlier invocation
         assert read_heartbeat(tmp_path, since=time.time() - 60) is None
         assert read_heartbeat(tmp_path, since=old - 1) == (3, 12)
+
+    def test_an_mtime_a_tick_before_since_still_counts(self, tmp_path):
+        """The file system's clock may lag ``time.time()`` (a coarse tick, 2 s granularity,
+        another node's clock): a heartbeat stamped up to ``MTIME_SLACK_S`` before ``since`` is
+        this invocation's; one stamped well before is not."""
+        write_heartbeat(tmp_path, 1, 12)
+        since = time.time()
+        stamp = since - 0.5 * MTIME_SLACK_S
+        os.utime(tmp_path / HEARTBEAT_FILE, (stamp, stamp))
+        assert read_heartbeat(tmp_path, since=since) == (1, 12)
+        stamp = since - 2 * MTIME_SLACK_S
+        os.utime(tmp_path / HEARTBEAT_FILE, (stamp, stamp))
+        assert read_heartbeat(tmp_path, since=since) is None
 
     @pytest.mark.parametrize("text", ["", "{", '{"epoch": 1}', '{"epoch": "x", "epochs": 2}'])
     def test_unreadable_is_none(self, tmp_path, text):
@@ -71,30 +85,41 @@ class TestPoolWaitReporting:
         units = {key: SimpleNamespace(key=key, title=f"unit {key}") for key in ("fast", "slow")}
         tasks = [SimpleNamespace(key=key, unit_dir=tmp_path / key) for key in units]
 
+        # Generous timeouts: on a loaded 2-core machine the driver's poll may lag by seconds, and
+        # a unit that moved on without its step would skip a line the ticker waits for.
         def train(key: str) -> str:
             if key == "slow":
                 for epoch in range(3):
                     write_heartbeat(tmp_path / key, epoch, 3)
-                    step.wait(2.0)
+                    if not step.wait(60.0):
+                        raise TimeoutError(f"no step after epoch {epoch}")
                     step.clear()
             return key
 
         finished = []
         with cf.ThreadPoolExecutor(2) as executor, Progress(2, "reproduce", stream=stream) as bar:
+            submitted = time.time()
             futures = {executor.submit(train, key): unit for key, unit in units.items()}
+
+            missed: list[str] = []  # the ticker's failures, asserted in the test's own thread
 
             def tick():  # advance the slow unit once the line shows its current epoch
                 for expected in ("starting", "epoch 1/3", "epoch 2/3"):
-                    deadline = time.time() + 5
+                    deadline = time.time() + 60
                     while f"unit slow {expected}" not in stream.getvalue():
-                        assert time.time() < deadline, stream.getvalue()
+                        if time.time() > deadline:
+                            missed.append(f"never showed {expected!r}: {stream.getvalue()!r}")
+                            break
                         time.sleep(0.01)
                     step.set()
 
             ticker = threading.Thread(target=tick)
             ticker.start()
-            pool._wait_reporting(futures, lambda u, r: finished.append((u.key, r)), bar, tasks)
+            pool._wait_reporting(
+                futures, lambda u, r: finished.append((u.key, r)), bar, tasks, submitted
+            )
             ticker.join()
+        assert not missed, missed
         assert sorted(finished) == [("fast", "fast"), ("slow", "slow")]
         lines = stream.getvalue().splitlines()
         assert any("running: unit slow epoch 2/3" in line for line in lines)

@@ -25,6 +25,11 @@ from benchmark.progress import Progress
 
 HEARTBEAT_FILE = "progress.json"
 POLL_S = 30.0  # how often a waiting driver reads the running units' heartbeats
+# A file's mtime comes from the kernel's coarse clock (a tick behind time.time()), from a
+# filesystem with 2 s granularity, or from another node's clock (Ray on a shared file system):
+# a heartbeat written just after ``since`` may carry an mtime slightly before it. An earlier
+# invocation's files are minutes older, so a few seconds of slack tell them apart just as well.
+MTIME_SLACK_S = 5.0
 
 
 def write_heartbeat(unit_dir: Path, epoch: int, epochs: int) -> None:
@@ -43,10 +48,11 @@ def write_heartbeat(unit_dir: Path, epoch: int, epochs: int) -> None:
 
 def read_heartbeat(unit_dir: Path, since: float) -> tuple[int, int] | None:
     """``(epoch, epochs)`` of the unit's heartbeat if written at or after ``since`` (a
-    ``time.time()``), else None (absent, older, or unreadable)."""
+    ``time.time()``; its mtime may be up to ``MTIME_SLACK_S`` earlier), else None (absent,
+    older, or unreadable)."""
     path = Path(unit_dir) / HEARTBEAT_FILE
     try:
-        if path.stat().st_mtime < since:
+        if path.stat().st_mtime < since - MTIME_SLACK_S:
             return None
         record = json.loads(path.read_text())
         return int(record["epoch"]), int(record["epochs"])
@@ -76,10 +82,13 @@ def running_status(pending: Iterable[tuple[str, Path]], since: float) -> str:
 
 class RunningLine:
     """The waiting driver's progress line: :meth:`show` draws :func:`running_status` on ``bar``
-    (a ``benchmark.progress.Progress``) when it changed, counting heartbeats from its creation."""
+    (a ``benchmark.progress.Progress``) when it changed, counting heartbeats written from
+    ``since`` (a ``time.time()``; default: the line's creation). Pass the time the units were
+    submitted: a unit quick to start writes its first heartbeat before the line exists."""
 
-    def __init__(self, bar: Progress) -> None:
-        self.bar, self.since, self.shown = bar, time.time(), ""
+    def __init__(self, bar: Progress, since: float | None = None) -> None:
+        self.bar, self.shown = bar, ""
+        self.since = time.time() if since is None else since
 
     def show(self, pending: Iterable[tuple[str, Path]]) -> None:
         status = running_status(pending, self.since)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import multiprocessing
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -123,11 +124,12 @@ def execute_units(
             # then Python installs no KeyboardInterrupt handler) they cannot print a traceback
             # even while still importing, before worker_init runs.
             previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+            submitted = time.time()
             try:
                 futures = {pool.submit(run_unit, task): unit for unit, task in todo}
             finally:
                 signal.signal(signal.SIGINT, previous)
-            _wait_reporting(futures, on_done, bar, [task for _, task in todo])
+            _wait_reporting(futures, on_done, bar, [task for _, task in todo], submitted)
         except BaseException:
             _stop_pool(pool)
             raise
@@ -135,12 +137,17 @@ def execute_units(
 
 
 def _wait_reporting(
-    futures: dict[cf.Future, Unit], on_done: OnDone, bar: Progress, tasks: list[UnitTask]
+    futures: dict[cf.Future, Unit],
+    on_done: OnDone,
+    bar: Progress,
+    tasks: list[UnitTask],
+    submitted: float,
 ) -> None:
     """``on_done`` for each future as it completes; while none completes, every
     ``heartbeat.POLL_S`` the progress line names the units being trained and their epoch
-    (``heartbeat.running_status``), drawn when that changed."""
-    line = heartbeat.RunningLine(bar)
+    (``heartbeat.running_status`` of the heartbeats written since ``submitted``, a
+    ``time.time()`` taken before the futures were submitted), drawn when that changed."""
+    line = heartbeat.RunningLine(bar, since=submitted)
     dirs = {task.key: task.unit_dir for task in tasks}
     pending = set(futures)
     while pending:

@@ -196,12 +196,13 @@ def execute_units_ray(
                 retry_exceptions=False,  # an exception is the unit's own: it would fail again
             )(task_fn)
             cwd = str(Path.cwd())
+            submitted = time.time()
             for unit, task in todo:
                 name = f"unit {getattr(unit, 'title', task.key)}"[:120]
                 ref = remote.options(name=name).remote(task, digests[str(task.cfg.data.root)], cwd)
                 pending[ref] = (unit, task, time.monotonic())
             bar.status(f"{len(pending)} unit(s) submitted")
-            line = heartbeat.RunningLine(bar)
+            line = heartbeat.RunningLine(bar, since=submitted)
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=heartbeat.POLL_S)
                 if not done:  # the running units' epochs (heartbeats on a shared file system)
