@@ -209,7 +209,9 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
 
     workdir.mkdir(parents=True, exist_ok=True)
     tracker = create_tracker(config.tracker, config.tracking_uri, workdir=Path.cwd())
-    provenance = {"git_commit": git_commit() or "unknown", "dataset_manifest": dataset_hash}
+    # The report directory is this run's output: rewriting a committed report is not dirty code.
+    commit = git_commit(ignore=[out]) or "unknown"
+    provenance = {"git_commit": commit, "dataset_manifest": dataset_hash}
     logbook = Logbook(
         tracker,
         profile.name,

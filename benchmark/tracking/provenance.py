@@ -4,35 +4,49 @@ from __future__ import annotations
 
 import hashlib
 import subprocess
+from collections.abc import Iterable
 from pathlib import Path
 
 # Names a dataset directory's manifest may have (the dataset format is owned by benchmark.data).
 MANIFEST_NAMES = ("manifest.json", "manifest.yaml", "manifest.yml")
 
 
-def git_commit(path: str | Path | None = None) -> str | None:
+def git_commit(path: str | Path | None = None, *, ignore: Iterable[str | Path] = ()) -> str | None:
     """HEAD commit hash of the git work tree containing ``path`` (default: this package), or
     ``None`` outside git or without a git executable. A dirty tree gets the suffix ``-dirty``, so a
-    result never claims a commit whose code it did not run."""
+    result never claims a commit whose code it did not run. Changes under the directories
+    ``ignore`` (a run's own outputs, e.g. the report it is writing into a committed
+    ``reports/quick``) do not count; those outside the work tree are skipped."""
     where = Path(path) if path is not None else Path(__file__).resolve().parent
     if where.is_file():
         where = where.parent
     try:
         head = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=10
+            ["git", "rev-parse", "HEAD", "--show-toplevel"],
+            cwd=where,
+            capture_output=True,
+            text=True,
+            timeout=10,
         )
         if head.returncode != 0:
             return None
+        commit, top = head.stdout.splitlines()[:2]
+        excluded = []
+        for directory in ignore:
+            resolved = Path(directory).resolve()
+            if resolved != Path(top).resolve() and resolved.is_relative_to(Path(top).resolve()):
+                relative = resolved.relative_to(Path(top).resolve()).as_posix()
+                excluded.append(f":(top,exclude){relative}")
+        pathspec = ["--", ":/", *excluded] if excluded else []
         status = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
+            ["git", "status", "--porcelain", "--untracked-files=no", *pathspec],
             cwd=where,
             capture_output=True,
             text=True,
             timeout=30,
         )
-    except (OSError, subprocess.SubprocessError):
+    except (OSError, subprocess.SubprocessError, ValueError):
         return None
-    commit = head.stdout.strip()
     dirty = status.returncode == 0 and bool(status.stdout.strip())
     return f"{commit}-dirty" if dirty else commit
 

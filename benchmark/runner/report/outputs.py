@@ -305,7 +305,7 @@ def write_reports(
     written.append(out / "heading_cue.md")
     kept_results = {u.key: UnitResult(u.key, True) for u in kept_units if u.key not in results}
     record = collect_provenance(
-        [*units, *kept_units], {**kept_results, **results}, data_root, workdir
+        [*units, *kept_units], {**kept_results, **results}, data_root, workdir, out
     )
     if plan.kept:  # where the tables kept from an earlier run come from, and their digests
         record["earlier_tables"] = {t.name: t.record() for t in plan.kept}

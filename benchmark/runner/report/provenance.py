@@ -152,14 +152,16 @@ def collect_provenance(
     results: Mapping[str, UnitResult],
     data_root: Path,
     workdir: Path | None,
+    out: Path | None = None,
 ) -> dict[str, Any]:
     """The provenance record of a reproduction (JSON-serialisable; no machine paths as values
     that are compared). Units without a directory under ``workdir`` (results read from a tracking
-    store only) are listed with ``absent`` digests; without ``workdir`` no unit is listed."""
+    store only) are listed with ``absent`` digests; without ``workdir`` no unit is listed. The
+    report's own directory ``out`` does not make the commit dirty (it is being written)."""
     record: dict[str, Any] = {
         "format": PROVENANCE_VERSION,
         "written": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "git_commit": git_commit() or "unknown",
+        "git_commit": git_commit(ignore=[out] if out is not None else []) or "unknown",
         "dataset": {"manifest_sha256": manifest_sha256(data_root)},
         "software": software(),
         "machine": machine(),
