@@ -191,6 +191,32 @@ class TestInvocationJournal:
         assert [r["id"] for r in inv.relevant_invocations(tmp_path, ["b"], first.id)] == [
             "dead", first.id
         ]  # fmt: skip
+        assert got[first.id]["trained_keys"] == ["a"] and got["dead"]["trained_keys"] == ["b"]
+
+    def test_an_invocation_that_trained_other_units_is_not_a_source(self, tmp_path):
+        """A run with more seeds on the same work directory plans the report's units too but
+        trains only its extra ones: it did not produce the report's results."""
+        first = inv.start_invocation(tmp_path, ["a", "b"], "g1")
+        first.unit_done("a", True)
+        first.unit_done("b", True)
+        first.end("finished")
+        more_seeds = inv.start_invocation(tmp_path, ["a", "b", "c"], "g2")
+        more_seeds.unit_done("c", True)
+        more_seeds.end("finished")
+        report = inv.start_invocation(tmp_path, ["a", "b"], "g3")
+        report.end("finished")
+        ids = [r["id"] for r in inv.relevant_invocations(tmp_path, ["a", "b"], report.id)]
+        assert ids == [first.id, report.id]
+        ids = [r["id"] for r in inv.relevant_invocations(tmp_path, ["c"], report.id)]
+        assert ids == [more_seeds.id, report.id]
+
+    def test_a_legacy_line_counts_its_planned_units_as_trained(self, tmp_path):
+        legacy = {"started": "2025-01-01 10:00", "wall_s": 60.0, "trained": 2, "units": 2,
+                  "machine": "m", "git_commit": "g", "unit_keys": ["a", "b"]}  # fmt: skip
+        (tmp_path / inv.JOURNAL).write_text(json.dumps(legacy) + "\n")
+        (only,) = inv.read_invocations(tmp_path)
+        assert only["trained_keys"] == ["a", "b"]
+        assert len(inv.relevant_invocations(tmp_path, ["b"], "none")) == 1
 
     def test_a_live_invocation_reads_running_and_legacy_lines_finished(self, tmp_path):
         holder = hold_lock(tmp_path / inv.LOCK)

@@ -8,8 +8,8 @@ invocation killed mid-way still shows the units it finished. :func:`read_invocat
 records of each invocation (by ``id``) into one summary:
 
     {"id", "started" (UTC, "%Y-%m-%d %H:%M"), "wall_s", "trained" (units trained ok),
-     "failed" (units that failed), "units" (planned), "unit_keys", "machine", "git_commit",
-     "pid", "host", "state"}
+     "failed" (units that failed), "units" (planned), "unit_keys" (planned),
+     "trained_keys" (trained ok or failed), "machine", "git_commit", "pid", "host", "state"}
 
 ``state`` is the ``end`` record's (``finished``, ``failed``, ``interrupted``), else ``running``
 while its process lives (it still holds the work directory's lock, :func:`owner_alive`) and
@@ -156,6 +156,7 @@ def read_invocations(workdir: Path) -> list[dict[str, Any]]:
             inv["t0"] = inv["t_last"] = record.get("t", 0.0)
         elif event == "unit":
             inv["trained" if record.get("ok") else "failed"] += 1
+            inv["keys"].append(str(record.get("key", "")))
             inv["t_last"] = record.get("t", inv.get("t_last", 0.0))
         elif event == "end":
             inv["state"], inv["wall_s"] = record.get("state", "finished"), record.get("wall_s")
@@ -168,7 +169,11 @@ def read_invocations(workdir: Path) -> list[dict[str, Any]]:
             inv["state"] = "running" if running else KILLED_STATE
         if inv.get("wall_s") is None:
             inv["wall_s"] = float(inv.get("t_last", 0.0)) - float(inv.get("t0", 0.0))
-        for key in ("t0", "t_last", "keys"):
+        if "keys" in inv:  # a legacy line has no unit records: it trained all it planned
+            inv["trained_keys"] = sorted(inv.pop("keys"))
+        else:
+            inv["trained_keys"] = list(inv.get("unit_keys", []))
+        for key in ("t0", "t_last"):
             inv.pop(key, None)
         out.append(inv)
     return out
@@ -176,15 +181,15 @@ def read_invocations(workdir: Path) -> list[dict[str, Any]]:
 
 def relevant_invocations(workdir: Path, keys: Iterable[str], this_id: str) -> list[dict]:
     """The invocations that trained (or failed) units among ``keys``, and this one (``this_id``)
-    last: the provenance of a report's results."""
+    last: the provenance of a report's results. An invocation that only planned some of
+    ``keys`` (it trained other units of the work directory: another seed, another table) is not
+    one of them."""
     wanted = set(keys)
     every = read_invocations(workdir)
     this = [inv for inv in every if inv.get("id") == this_id]
     others = [
         inv
         for inv in every
-        if inv.get("id") != this_id
-        and (inv.get("trained") or inv.get("failed"))
-        and wanted & set(inv.get("unit_keys", []))
+        if inv.get("id") != this_id and wanted & set(inv.get("trained_keys", []))
     ]
     return [*others, *this]
