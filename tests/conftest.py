@@ -8,6 +8,38 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import pytest
 
+# --cpu-flags avx2: the CPU flags the project reads (precision_support.cpu_flags) become an
+# AVX2-only machine's, in this process (DEVELOPERS.md, "The other CPU kind, on this one"; pair it
+# with the environment that gives AVX2 kernels). Tests that compare the flags with the hardware
+# take the fixture real_cpu_flags and are skipped then.
+FAKE_CPU_FLAGS = {"avx2": {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}}
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--cpu-flags",
+        choices=sorted(FAKE_CPU_FLAGS),
+        default=None,
+        help="run as on a CPU of this kind (its flags only; kernels follow the environment)",
+    )
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    kind = config.getoption("--cpu-flags")
+    if kind is not None:
+        from benchmark.models import precision_support
+
+        flags = frozenset(FAKE_CPU_FLAGS[kind])
+        precision_support.cpu_flags = lambda: set(flags)
+
+
+@pytest.fixture
+def real_cpu_flags(request: pytest.FixtureRequest) -> None:
+    """For a test that checks the flags against the hardware (/proc/cpuinfo, torch's cpuinfo):
+    skipped under ``--cpu-flags``, where they differ on purpose."""
+    if request.config.getoption("--cpu-flags") is not None:
+        pytest.skip("the CPU flags are faked (--cpu-flags)")
+
 
 @pytest.fixture(scope="session")
 def smoke_dataset(tmp_path_factory):

@@ -82,6 +82,7 @@ class TestBenchTrain:
         assert float(got["ours fp32"][3]) < float(got["plain fp32"][3])
         assert "load" in out.splitlines()[0] and out.splitlines()[-1].startswith("end: load")
 
+    @pytest.mark.usefixtures("real_cpu_flags")
     def test_cpu_line_names_the_bf16_flags_and_isa(self, capsys):
         """The line's present/missing flags are /proc/cpuinfo's (read here independently) and
         its ATen ISA is torch's; bf16 is native exactly when a native-bf16 flag is present."""

@@ -63,6 +63,7 @@ class TestWhatNativeMeans:
     def test_levels_from_cpu_flags(self, flags, level):
         assert cpu_bf16_level(flags) == level
 
+    @pytest.mark.usefixtures("real_cpu_flags")
     def test_this_cpu_against_torch(self):
         """This machine's level agrees with torch's own cpuinfo (an independent flag reader) and
         with PyTorch's oneDNN check: the hardware is native exactly when cpuinfo has
