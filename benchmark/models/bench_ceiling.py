@@ -246,7 +246,7 @@ def cpu_bf16_line(precisions: tuple[str, ...] = ("fp32", "bf16")) -> str:
     from benchmark.models.precision_support import bf16_support_label, cpu_flags, onednn_bf16_level
 
     flags = cpu_flags()
-    native = onednn_bf16_level() == "native"
+    native = onednn_bf16_level(flags) == "native"
     named = ", ".join(f"{f} {'present' if f in flags else 'missing'}" for f in native_bf16_flags())
     how = "" if native else f": {bf16_support_label(torch.device('cpu'))}"
     report = cpu_kernel_report(tuple(precisions))

@@ -106,18 +106,20 @@ def onednn_isa_cap() -> str | None:
     return None
 
 
-def onednn_bf16_level() -> str:
-    """The bf16 level oneDNN runs on this machine: :func:`cpu_bf16_level` of its flags, lowered
-    to what :func:`onednn_isa_cap` leaves (``"reference"`` under ``AVX2``, at most
-    ``"converted"`` under ``AVX512_CORE``). What the checks and labels of this module use."""
-    level = cpu_bf16_level()
+def onednn_bf16_level(flags: set[str] | None = None) -> str:
+    """The bf16 level oneDNN runs on this machine: :func:`cpu_bf16_level` of its ``flags``
+    (default :func:`cpu_flags`), lowered to what :func:`onednn_isa_cap` leaves (``"reference"``
+    under ``AVX2``, at most ``"converted"`` under ``AVX512_CORE``). What the checks and labels of
+    this module use."""
+    level = cpu_bf16_level(flags)
     ceiling = _ONEDNN_CAPS.get(onednn_isa_cap() or "", "native")
     return min(level, ceiling, key=_LEVELS.index)
 
 
-def _cap_note() -> str:
-    """``" (oneDNN capped at X by $ONEDNN_MAX_CPU_ISA)"`` when a cap lowers the level, or ``""``."""
-    if onednn_bf16_level() == cpu_bf16_level():
+def _cap_note(flags: set[str], level: str) -> str:
+    """``" (oneDNN capped at X by $ONEDNN_MAX_CPU_ISA)"`` when the cap lowered the hardware's
+    level (``cpu_bf16_level(flags)``) to ``level``, or ``""``."""
+    if level == cpu_bf16_level(flags):
         return ""
     return f" (oneDNN capped at {onednn_isa_cap()} by ${ONEDNN_ISA_ENV[0]})"
 
@@ -151,8 +153,9 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
     if device.type != "cpu":
         return f"no bf16 check for device type {device.type!r}"
     flags = cpu_flags()
+    level = onednn_bf16_level(flags)
+    note = _cap_note(flags, level)
     if native:
-        level = onednn_bf16_level()
         if level == "native":
             return None
         how = (
@@ -161,7 +164,7 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
             else "without AVX-512 oneDNN has no bf16 kernels: autocast bf16 runs slow reference "
             "code"
         )
-        if _cap_note():
+        if note:
             return (
                 f"oneDNN is capped at {onednn_isa_cap()} by ${ONEDNN_ISA_ENV[0]}, below the bf16 "
                 f"instructions of this CPU ({cpu_model()}; {how})"
@@ -174,7 +177,7 @@ def bf16_unsupported_reason(device: torch.device, *, native: bool = False) -> st
         return None
     return (
         "this CPU has no bf16 convolution kernels in oneDNN (needs AVX-512, natively AVX-512 BF16 "
-        f"or AMX; it has {_vector_units(flags)}{_cap_note()}): autocast bf16 would run slow "
+        f"or AMX; it has {_vector_units(flags)}{note}): autocast bf16 would run slow "
         "reference code"
     )
 
@@ -186,15 +189,14 @@ def bf16_support_label(device: torch.device) -> str:
     if device.type != "cpu":
         return "native" if bf16_unsupported_reason(device) is None else "unsupported"
     flags = cpu_flags()
-    level = onednn_bf16_level()
+    level = onednn_bf16_level(flags)
+    note = _cap_note(flags, level)
     if level == "native":
         which = [f for f in NATIVE_BF16_FLAGS if f in flags]
         return f"native ({', '.join(which)})"
     if level == "converted":
-        return f"converted to fp32 in AVX-512 registers (not native){_cap_note()}"
-    if _cap_note():
-        return f"reference code{_cap_note()}"
-    return "reference code (no AVX-512)"
+        return f"converted to fp32 in AVX-512 registers (not native){note}"
+    return f"reference code{note or ' (no AVX-512)'}"
 
 
 def slow_bf16_allowed() -> bool:
