@@ -31,12 +31,12 @@ def git_commit(path: str | Path | None = None, *, ignore: Iterable[str | Path] =
         if head.returncode != 0:
             return None
         commit, top = head.stdout.splitlines()[:2]
+        root = Path(top).resolve()
         excluded = []
         for directory in ignore:
             resolved = Path(directory).resolve()
-            if resolved != Path(top).resolve() and resolved.is_relative_to(Path(top).resolve()):
-                relative = resolved.relative_to(Path(top).resolve()).as_posix()
-                excluded.append(f":(top,exclude){relative}")
+            if resolved != root and resolved.is_relative_to(root):
+                excluded.append(f":(top,exclude){resolved.relative_to(root).as_posix()}")
         pathspec = ["--", ":/", *excluded] if excluded else []
         status = subprocess.run(
             ["git", "status", "--porcelain", "--untracked-files=no", *pathspec],

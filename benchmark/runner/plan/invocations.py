@@ -147,7 +147,9 @@ def read_invocations(workdir: Path) -> list[dict[str, Any]]:
             continue
         if "event" not in record:  # a line of the earlier format: one per finished invocation
             legacy += 1
-            merged[f"legacy-{legacy}"] = {**record, "state": "finished", "failed": 0}
+            # no unit records: it trained all it planned
+            keys = list(record.get("unit_keys", []))
+            merged[f"legacy-{legacy}"] = {**record, "state": "finished", "failed": 0, "keys": keys}
             continue
         inv = merged.setdefault(record.get("id", "?"), {"trained": 0, "failed": 0, "keys": []})
         event = record["event"]
@@ -169,10 +171,7 @@ def read_invocations(workdir: Path) -> list[dict[str, Any]]:
             inv["state"] = "running" if running else KILLED_STATE
         if inv.get("wall_s") is None:
             inv["wall_s"] = float(inv.get("t_last", 0.0)) - float(inv.get("t0", 0.0))
-        if "keys" in inv:  # a legacy line has no unit records: it trained all it planned
-            inv["trained_keys"] = sorted(inv.pop("keys"))
-        else:
-            inv["trained_keys"] = list(inv.get("unit_keys", []))
+        inv["trained_keys"] = sorted(set(inv.pop("keys")))
         for key in ("t0", "t_last"):
             inv.pop(key, None)
         out.append(inv)
