@@ -15,18 +15,6 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Untyped public functions of the simulator, left as they are on purpose: any byte of
-# ``benchmark/sim`` enters the dataset's generator digest (``benchmark.sim.source_digest``), so
-# typing them re-renders every dataset and retrains every cached reproduction unit. They are to
-# be typed with the next change of the simulator; the list may only shrink.
-SIM_UNTYPED = {
-    "benchmark/sim/city_blocks.py": {"pick", "fill_park"},
-    "benchmark/sim/city_details.py": {"bus_lanes", "meander", "add_railway"},
-    "benchmark/sim/city_districts.py": {"partition"},
-    "benchmark/sim/render_core.py": {"ground_bilinear", "trace", "render_image"},
-    "benchmark/sim/world_city.py": {"ground_height", "surface_height", "clearance"},
-}
-
 
 def _is_public(name: str) -> bool:
     return not name.startswith("_") or (name.startswith("__") and name.endswith("__"))
@@ -73,21 +61,9 @@ FILES = sorted(p for folder in ("benchmark", "baselines") for p in (ROOT / folde
 @pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_public_signatures_are_typed(path: Path) -> None:
     name = str(path.relative_to(ROOT))
-    allowed = SIM_UNTYPED.get(name, set())
     found = untyped_public_functions(path.read_text())
-    untyped = [f"{fn} (line {line}: {', '.join(miss)})" for fn, line, miss in found
-               if fn not in allowed]  # fmt: skip
+    untyped = [f"{fn} (line {line}: {', '.join(miss)})" for fn, line, miss in found]
     assert not untyped, f"{name}: public signatures without types: {'; '.join(untyped)}"
-
-
-def test_the_simulator_exceptions_are_still_untyped() -> None:
-    """The exception list names only what still needs it: a function typed since (or renamed)
-    must leave the list, so that it cannot hide a new untyped one of the same name."""
-    stale = []
-    for name, functions in SIM_UNTYPED.items():
-        untyped = {fn for fn, _, _ in untyped_public_functions((ROOT / name).read_text())}
-        stale += [f"{name}: {fn}" for fn in sorted(functions - untyped)]
-    assert not stale, f"typed now, remove from SIM_UNTYPED: {stale}"
 
 
 class TestUntypedPublicFunctions:

@@ -10,6 +10,7 @@ add a few buildings without reshuffling the rest.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,7 +87,7 @@ def lerp(lo_hi: tuple[float, float], t: np.ndarray) -> np.ndarray:
     return lo_hi[0] + (lo_hi[1] - lo_hi[0]) * t
 
 
-def pick(colours, t: np.ndarray) -> np.ndarray:
+def pick(colours: Sequence[Sequence[float]], t: np.ndarray) -> np.ndarray:
     table = np.asarray(colours, np.float32)
     return table[np.minimum((t * len(table)).astype(np.int64), len(table) - 1)]
 
@@ -302,7 +303,9 @@ def fill_parking(S: Style, cv: Canvas, P: BlockPixels) -> None:
     _set(cv, P.idx, car, struct=1.5, rgb=ccol, mat=MAT_SMALL)
 
 
-def fill_park(S: Style, cv: Canvas, P: BlockPixels, noise_a: np.ndarray, noise_b: np.ndarray):
+def fill_park(
+    S: Style, cv: Canvas, P: BlockPixels, noise_a: np.ndarray, noise_b: np.ndarray
+) -> None:
     """Grass with tree clumps, winding gravel paths (iso-lines of a noise field), maybe a pond."""
     clump = np.clip(0.5 + noise_b, 0.0, 1.0)
     _grass(S, cv, P, np.ones(P.idx.shape, bool), 0.0)

@@ -137,7 +137,16 @@ def fill_plaza(S: Style, cv: Canvas, P: BlockPixels) -> None:
     )
 
 
-def bus_lanes(rgb, on, d, half, other, half_other, width, S: Style) -> np.ndarray:
+def bus_lanes(
+    rgb: np.ndarray,
+    on: np.ndarray,
+    d: np.ndarray,
+    half: np.ndarray,
+    other: np.ndarray,
+    half_other: np.ndarray,
+    width: np.ndarray,
+    S: Style,
+) -> np.ndarray:
     """Paint red bus lanes along the kerbs of major roads; returns the lane mask (no parking)."""
     lane = on & (width >= S.road_major) & (d > half - 3.6) & (d < half - 0.3)
     lane &= other > half_other + 4.0
@@ -145,7 +154,14 @@ def bus_lanes(rgb, on, d, half, other, half_other, width, S: Style) -> np.ndarra
     return lane
 
 
-def meander(rng: np.random.Generator, E, N, half_n: float, amp: float, wavelength: float):
+def meander(
+    rng: np.random.Generator,
+    E: np.ndarray,
+    N: np.ndarray,
+    half_n: float,
+    amp: float,
+    wavelength: float,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Signed distance (metres) to a gently curving line across the tile, the along-line coordinate
     and the line's mean direction (radians)."""
     ang = rng.uniform(0, math.pi)
@@ -159,7 +175,15 @@ def meander(rng: np.random.Generator, E, N, half_n: float, amp: float, wavelengt
     return ((c - centre) / np.sqrt(1.0 + slope * slope)).astype(np.float32), s, ang
 
 
-def add_railway(rng, cv: Canvas, E, N, keep: np.ndarray, half_n: float, S: Style) -> np.ndarray:
+def add_railway(
+    rng: np.random.Generator,
+    cv: Canvas,
+    E: np.ndarray,
+    N: np.ndarray,
+    keep: np.ndarray,
+    half_n: float,
+    S: Style,
+) -> np.ndarray:
     """A double-track railway: ballast, four rails, verges, 0-2 trains; major roads bridge it.
 
     ``keep`` (H*W bool, flat) marks texels the railway must not overwrite (major roads). Returns

@@ -123,7 +123,9 @@ def plan_districts(S: Style, seed: int, size_e: float, size_n: float) -> tuple[D
     return tuple(dists)
 
 
-def partition(S: Style, seed: int, E: np.ndarray, N: np.ndarray, mpp: float, centres: np.ndarray):
+def partition(
+    S: Style, seed: int, E: np.ndarray, N: np.ndarray, mpp: float, centres: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """District label (int16), metric distance to the nearest boundary and the along-boundary
     coordinate (float32, metres), for a Voronoi partition of warped coordinates (smooth, curving
     boundaries).

@@ -131,7 +131,7 @@ def _trilinear_rgb(tex, toff, tdims, lod, gx, gy):
 
 
 @njit(cache=True, error_model="numpy")
-def ground_bilinear(ground, gscale, gx, gy):
+def ground_bilinear(ground: np.ndarray, gscale: float, gx: float, gy: float) -> float:
     """Terrain height (metres) at level-0 grid coordinates from the coarse ground grid."""
     hh = ground.shape[0]
     ww = ground.shape[1]
@@ -287,8 +287,17 @@ def _facade(hx, hy, hz, t, dx, dy, axis, ci, cj, pix_angle, world):
 
 
 @njit(cache=True, error_model="numpy", inline="always")  # inlined: ~5 % faster
-def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
-    """Colour (0..255, float64 ``(3,)``) seen along one ray.
+def trace(
+    ox: float,
+    oy: float,
+    oz: float,
+    dx: float,
+    dy: float,
+    dz: float,
+    pix_angle: float,
+    world: tuple,
+) -> tuple[float, float, float]:
+    """Colour (0..255, three float64 channels) seen along one ray.
 
     ``world = (hpyr, hoff, hdims, tex, toff, tdims, mat, orient, ground, palette, params)``: the
     max-mip heights, the texture pyramid, material/orientation grids, the coarse terrain grid, the
@@ -448,7 +457,16 @@ def trace(ox, oy, oz, dx, dy, dz, pix_angle, world):
 
 
 @njit(cache=True, error_model="numpy")
-def render_image(out, R, pos, f, cx, cy, ss, world):
+def render_image(
+    out: np.ndarray,
+    R: np.ndarray,
+    pos: np.ndarray,
+    f: float,
+    cx: float,
+    cy: float,
+    ss: int,
+    world: tuple,
+) -> None:
     """Fill ``out`` (H, W, 3) uint8 by casting ``ss x ss`` rays per pixel (box filter).
 
     ``R`` is ``R_b^n`` (3, 3); ``pos`` the ENU camera centre; ``f, cx, cy`` the pinhole intrinsics

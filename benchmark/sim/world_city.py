@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from benchmark.sim.lighting import sun_angles
 from benchmark.sim.textures import max_pyramid, mean_pyramid
@@ -185,7 +186,7 @@ class City:
         e0, n0 = self.origin
         return (np.asarray(E, np.float64) - e0) / scale, (np.asarray(N, np.float64) - n0) / scale
 
-    def ground_height(self, E, N) -> np.ndarray:
+    def ground_height(self, E: ArrayLike, N: ArrayLike) -> np.ndarray:
         """Terrain height (metres, no buildings or trees) at ENU ``(E, N)``, vectorised, float64.
 
         Bilinear on the 4-texel terrain grid, mirror-extended beyond the tile like the renderer.
@@ -193,7 +194,7 @@ class City:
         x, y = self._grid(E, N, self.metres_per_px * GROUND_SCALE)
         return _bilinear_mirror(self.ground, x - 0.5, y - 0.5)
 
-    def surface_height(self, E, N) -> np.ndarray:
+    def surface_height(self, E: ArrayLike, N: ArrayLike) -> np.ndarray:
         """Height of the surface (terrain + structures) of the texel containing ``(E, N)``."""
         x, y = self._grid(E, N, self.metres_per_px)
         H, W = self.shape
@@ -201,7 +202,7 @@ class City:
         j = _mirror_index(np.floor(y).astype(np.int64), H)
         return self.height[j, i].astype(np.float64)
 
-    def clearance(self, E, N) -> np.ndarray:
+    def clearance(self, E: ArrayLike, N: ArrayLike) -> np.ndarray:
         """Conservative maximum surface height (metres, absolute) within at least 8 m of (E, N).
 
         A camera at height ``U > clearance(E, N)`` is outside all geometry within 8 m horizontally.
