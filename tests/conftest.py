@@ -8,11 +8,13 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import pytest
 
+from tests.cpu_kinds import AVX2_ONLY
+
 # --cpu-flags avx2: the CPU flags the project reads (precision_support.cpu_flags) become an
 # AVX2-only machine's, in this process (DEVELOPERS.md, "The other CPU kind, on this one"; pair it
 # with the environment that gives AVX2 kernels). Tests that compare the flags with the hardware
 # take the fixture real_cpu_flags and are skipped then.
-FAKE_CPU_FLAGS = {"avx2": {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}}
+FAKE_CPU_FLAGS = {"avx2": AVX2_ONLY}
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

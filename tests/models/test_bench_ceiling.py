@@ -13,6 +13,7 @@ from benchmark.commands.bench import run_target
 from benchmark.models import bench_ceiling, precision_support
 from benchmark.models.bench_ceiling import SHAPES, conv_job, conv_step_flops, measure_ceiling
 from benchmark.models.precision_support import precision_plan
+from tests.cpu_kinds import fake_cpu
 
 CPU = torch.device("cpu")
 
@@ -130,13 +131,11 @@ class TestKernelReport:
     def test_line_names_flags(self, monkeypatch):
         """Native exactly when a native-bf16 flag is present (oneDNN uncapped); each flag named
         present/missing."""
-        for name in precision_support.ONEDNN_ISA_ENV:
-            monkeypatch.delenv(name, raising=False)
-        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx2", "avx512_bf16"})
+        fake_cpu(monkeypatch, {"avx2", "avx512_bf16"})
         monkeypatch.setattr(bench_ceiling.platform, "machine", lambda: "x86_64")
         line = bench_ceiling.cpu_bf16_line(("fp32",))
         assert line.startswith("bf16 on this CPU: native (avx512_bf16 present, amx_bf16 missing)")
-        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx", "avx2"})
+        fake_cpu(monkeypatch, {"avx", "avx2"})
         line = bench_ceiling.cpu_bf16_line(("fp32",))
         assert line.startswith(
             "bf16 on this CPU: not native (avx512_bf16 missing, amx_bf16 missing: reference code"
@@ -145,7 +144,7 @@ class TestKernelReport:
 
     def test_line_says_when_onednn_is_capped(self, monkeypatch):
         """A CPU with bf16 instructions whose oneDNN is capped below them is not native."""
-        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx2", "avx512_bf16"})
+        fake_cpu(monkeypatch, {"avx2", "avx512_bf16"})
         monkeypatch.setattr(bench_ceiling.platform, "machine", lambda: "x86_64")
         monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
         line = bench_ceiling.cpu_bf16_line(("fp32",))

@@ -13,11 +13,10 @@ from benchmark.cli import main
 from benchmark.data.dataset import CONTEXT_KEYS
 from benchmark.data.dataset import PRIOR_SIGMA as DATASET_PRIOR_SIGMA
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
-from benchmark.models import precision_support
 from benchmark.models.bench_inputs import PRIOR_SIGMA, synthetic_labels
 from benchmark.models.precision_support import ALLOW_SLOW_BF16_ENV
+from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
-AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
 MATCHING = ["model-info", "--encoder", "matching", "--variant", "/", "--size", "32"]
 MATCHING += ["--repeats", "1", "--warmup", "0"]
 
@@ -54,7 +53,7 @@ def test_model_info_runs_a_gravity_aided_matching_encoder(capsys):
 
 
 def test_model_info_bf16_is_gated_like_training(monkeypatch, capsys):
-    monkeypatch.setattr(precision_support, "cpu_flags", lambda: set(AVX2_ONLY))
+    fake_cpu(monkeypatch, AVX2_ONLY)
     monkeypatch.delenv(ALLOW_SLOW_BF16_ENV, raising=False)
     assert main([*MATCHING, "--precision", "bf16"]) == 2
     err = capsys.readouterr().err.strip()

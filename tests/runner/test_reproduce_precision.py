@@ -13,11 +13,9 @@ import pytest
 import torch
 
 from benchmark.cli import main
-from benchmark.models import precision_support
 from benchmark.models.precision_support import onednn_bf16_level
 from benchmark.runner.report import outputs as outputs_module
-
-AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
+from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
 
 def reproduce(tmp_path, dataset, *extra: str) -> int:
@@ -46,7 +44,7 @@ class TestRefusedBeforeAnyWork:
         self, tmp_path, smoke_dataset, capsys, monkeypatch
     ):
         monkeypatch.delenv("UAVBENCH_ALLOW_SLOW_BF16", raising=False)
-        monkeypatch.setattr(precision_support, "cpu_flags", lambda: set(AVX2_ONLY))
+        fake_cpu(monkeypatch, AVX2_ONLY)
         assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "bf16") == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and "avx512_bf16" in err and "avx2" in err

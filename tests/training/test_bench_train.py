@@ -22,6 +22,7 @@ from benchmark.models.matching_ops import fft_size
 from benchmark.training import bench
 from benchmark.training.bench import count_step_flops, step_flops
 from benchmark.training.bench_breakdown import KINDS
+from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
 TINY = ["--models", "quick", "--size", "32", "--width", "0.1", "--steps", "1", "--warmup", "0"]
 TINY += ["--batch-size", "4", "--distinct-sat", "2", "--threads", "1"]
@@ -171,9 +172,7 @@ class TestBenchTrain:
     def test_bf16_without_native_units_is_noted_as_training_refuses_it(self, monkeypatch):
         """On an AVX2-only CPU an explicit bf16 is measured, with training's refusal and its way
         out as a note; with the allowance set, or fp32 only, no such note."""
-        from benchmark.models import precision_support
-
-        monkeypatch.setattr(precision_support, "cpu_flags", lambda: {"avx", "avx2", "fma"})
+        fake_cpu(monkeypatch, AVX2_ONLY)
         monkeypatch.delenv(precision_support.ALLOW_SLOW_BF16_ENV, raising=False)
         args = command.parse([*TINY, "--precision", "fp32,bf16"])
         _, precisions, notes = bench.resolve(args.device, args.precision)

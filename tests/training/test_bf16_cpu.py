@@ -18,7 +18,6 @@ import pytest
 import torch
 
 from benchmark.cli import main
-from benchmark.models import precision_support
 from benchmark.models.device import (
     PrecisionUnsupportedError,
     check_precision_supported,
@@ -31,21 +30,10 @@ from benchmark.models.precision_support import (
     cpu_bf16_level,
     onednn_bf16_level,
 )
+from tests.cpu_kinds import AVX2_ONLY, AVX512_NO_BF16, SAPPHIRE_RAPIDS, ZEN4, fake_cpu
 
 CPU = torch.device("cpu")
-AVX2_ONLY = {"fpu", "sse4_2", "avx", "avx2", "fma", "f16c"}
-AVX512_NO_BF16 = AVX2_ONLY | {"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512_vnni"}
-ZEN4 = AVX512_NO_BF16 | {"avx512_bf16"}
-SAPPHIRE_RAPIDS = AVX512_NO_BF16 | {"avx512_bf16", "amx_tile", "amx_bf16", "amx_int8"}
 NATIVE_HERE = onednn_bf16_level() == "native"
-
-
-def fake_cpu(monkeypatch, flags: set[str]) -> None:
-    """Pretend to be a CPU with ``flags`` and an uncapped oneDNN (the run's own cap, e.g. the
-    emulation of an AVX2 machine, would lower every faked level)."""
-    monkeypatch.setattr(precision_support, "cpu_flags", lambda: set(flags))
-    for name in precision_support.ONEDNN_ISA_ENV:
-        monkeypatch.delenv(name, raising=False)
 
 
 class TestWhatNativeMeans:
