@@ -71,7 +71,14 @@ SPLIT_NOTES = {
 
 
 class ConfigMismatchError(ValueError):
-    """The output directory holds a dataset (or a partial one) with another config."""
+    """The output directory holds a dataset (or a partial one) with another config.
+
+    ``differences``: one ``"field: existing .. != requested .."`` per differing config field
+    (empty when ``out`` is no dataset at all), for callers that word their own fix."""
+
+    def __init__(self, message: str, differences: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.differences = differences
 
 
 def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
@@ -111,7 +118,8 @@ def check_output_dir(out: Path, config: dict[str, Any]) -> str:
         diffs = _diff(old, config)
         raise ConfigMismatchError(
             f"--out {out} holds a dataset with a different config ({'; '.join(diffs[:8])}); "
-            f"choose another --out or the same profile/size/seed"
+            f"choose another --out or the same profile/size/seed",
+            tuple(diffs),
         )
     return "complete" if (out / MANIFEST).is_file() else "resume"
 

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 from benchmark.errors import UsageError
 from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
+from benchmark.runner.claims.data_audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
 from benchmark.runner.execute.worker import UnitResult, UnitTask
 from benchmark.runner.plan.invocations import (
@@ -86,7 +87,13 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
             progress=not quiet,
         )
     except ConfigMismatchError as err:
-        raise UsageError(f"{out}: {err}") from err
+        if not err.differences:  # not a dataset at all (a file, a foreign directory)
+            raise UsageError(f"{out}: {err}") from None
+        what = "; ".join(err.differences[:8])
+        raise UsageError(
+            f"{out} holds a dataset of another simulator or profile ({what}); pass another "
+            f"--data, or move it away (or delete it) and this command renders it there"
+        ) from None
     if stats["state"] != "complete":
         print(f"dataset {out}: {stats['state']} (rendering took {stats.get('render_s', 0):.0f} s)")
 
@@ -196,6 +203,9 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
     data_root = config.data or Path("data") / f"{profile.dataset}-s{config.dataset_seed}"
     out = config.out or Path("reports") / profile.name
     dataset_hash = _check_data(data_root, profile, config)
+    # The report stage renders the heading-cue audit's datasets next to this one: one left by
+    # an earlier simulator would stop it after the training, so it is refused now.
+    check_cue_datasets(data_root)
     try:
         units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash,
                            workdir)  # fmt: skip

@@ -307,6 +307,43 @@ class TestDamagedData:
         assert not (tmp_path / "runs" / "units").exists()
 
 
+class TestDataOfAnotherSimulator:
+    """A dataset (or a heading-cue audit dataset beside it) rendered by other simulator code is
+    refused in one line naming it and the fix, before any training, and left as it was."""
+
+    @staticmethod
+    def other_simulators(config: dict, root: Path) -> bytes:
+        """``root`` holds ``config`` as another simulator's code would have written it."""
+        config = {**config, "generator_source": "0123456789ab"}
+        root.mkdir(exist_ok=True)
+        (root / "config.json").write_text(json.dumps(config))
+        return (root / "config.json").read_bytes()
+
+    def test_the_dataset(self, dataset, tmp_path, capsys):
+        before = self.other_simulators(json.loads((dataset / "config.json").read_text()), dataset)
+        assert main(argv(dataset, tmp_path, "--tracker", "local")) == 2
+        err = one_line(capsys.readouterr().err)
+        assert f"{dataset} holds a dataset of another simulator or profile" in err
+        assert "generator_source: existing '0123456789ab'" in err and "--data" in err
+        assert (dataset / "config.json").read_bytes() == before
+        assert not (tmp_path / "runs" / "units").exists() and not (tmp_path / "reports").exists()
+
+    def test_a_heading_cue_audit_dataset(self, dataset, tmp_path, capsys):
+        from benchmark.data.writer import dataset_config
+        from benchmark.runner.claims.data_audit import cue_dataset_plan
+
+        stale, profile, seed = cue_dataset_plan(dataset, 2)[1]
+        before = self.other_simulators(dataset_config(profile, seed), stale)
+        assert main(argv(dataset, tmp_path, "--tracker", "local")) == 2
+        err = one_line(capsys.readouterr().err)
+        assert f"error: {stale} holds a heading-cue audit dataset of another simulator" in err
+        assert "(generator_source: existing '0123456789ab' != requested '" in err
+        assert err.endswith("'); move it away or delete it, and the next reproduce renders it "
+                            "again (about 2.5 min for quick on 2 cores)")  # fmt: skip
+        assert (stale / "config.json").read_bytes() == before
+        assert not (tmp_path / "runs" / "units").exists() and not (tmp_path / "reports").exists()
+
+
 class TestFailedUnitsInReports:
     @pytest.mark.slow  # the reports' heading-cue audit renders 4 more smoke datasets once
     def test_every_unit_failed_reports_written_rows_read_failed(

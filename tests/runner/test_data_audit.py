@@ -3,10 +3,19 @@
 from __future__ import annotations
 
 import json
+import shutil
+from pathlib import Path
 
 import pytest
 
-from benchmark.runner.claims.data_audit import heading_cue_report, heading_cue_summary
+from benchmark.errors import UsageError
+from benchmark.runner.claims.data_audit import (
+    check_cue_datasets,
+    cue_dataset_plan,
+    cue_dataset_roots,
+    heading_cue_report,
+    heading_cue_summary,
+)
 
 
 @pytest.fixture(scope="module")
@@ -51,6 +60,63 @@ class TestHeadingCueReport:
         before = manifest.stat().st_mtime_ns
         _, rows = heading_cue_report(smoke_dataset, n_extra=1, quiet=True)
         assert manifest.stat().st_mtime_ns == before and rows == audit[1]
+
+
+@pytest.fixture
+def data(tmp_path, smoke_dataset) -> Path:
+    """A private copy of the smoke dataset, ``tmp_path/ds``: its audit datasets go beside it."""
+    return Path(shutil.copytree(smoke_dataset, tmp_path / "ds"))
+
+
+def stale_copy(data: Path, k: int) -> Path:
+    """The ``k``-th audit dataset's place holds its config as another simulator wrote it."""
+    from benchmark.data.writer import dataset_config
+
+    root, profile, seed = cue_dataset_plan(data, k)[k - 1]
+    config = {**dataset_config(profile, seed), "generator_source": "0123456789ab"}
+    root.mkdir(parents=True)
+    (root / "config.json").write_text(json.dumps(config))
+    return root
+
+
+class TestCueDatasetsBeforeAnyWork:
+    """A reproduction refuses, before training, an audit dataset it could not render over."""
+
+    def test_plan_names_the_next_seeds_beside_the_dataset(self, smoke_dataset):
+        plan = cue_dataset_plan(smoke_dataset, 2)
+        assert [(root.name, seed) for root, _, seed in plan] == [
+            (f"{smoke_dataset.name}-cue-s1", 1),
+            (f"{smoke_dataset.name}-cue-s2", 2),
+        ]
+        assert all(root.parent == smoke_dataset.parent for root, _, _ in plan)
+        assert {profile.name for _, profile, _ in plan} == {"smoke-standard"}
+
+    def test_absent_or_this_codes_datasets_pass_and_nothing_is_written(self, tmp_path, data):
+        check_cue_datasets(data, 2)
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["ds"]
+
+    def test_an_earlier_simulators_dataset_is_one_usage_error_naming_it(self, tmp_path, data):
+        stale = stale_copy(data, 2)
+        before = (stale / "config.json").read_bytes()
+        with pytest.raises(UsageError) as raised:
+            check_cue_datasets(data, 2)
+        message = str(raised.value)
+        assert message.startswith(f"{stale} holds a heading-cue audit dataset of another")
+        assert "(generator_source: existing '0123456789ab' != requested '" in message
+        assert "move it away or delete it" in message and "\n" not in message
+        assert (stale / "config.json").read_bytes() == before  # untouched
+        assert not (tmp_path / "ds-cue-s1").exists()  # nothing rendered on the way
+
+    def test_the_report_stage_says_the_same(self, data):
+        """Should one appear after the check, rendering the audit gives the same UsageError,
+        not the writer's ConfigMismatchError with a traceback."""
+        stale_copy(data, 1)
+        with pytest.raises(UsageError, match="move it away or delete it"):
+            cue_dataset_roots(data, 1, quiet=True)
+
+    def test_no_pooled_datasets_nothing_to_check(self, data):
+        stale_copy(data, 1)
+        check_cue_datasets(data, 0)  # the audit pools no dataset then
 
 
 class TestHeadingCueSummary:

@@ -254,6 +254,26 @@ class TestDropTheEarlierTables:
         assert_agrees(out)
 
 
+class TestReportStageFailure:
+    def test_a_failing_audit_leaves_the_report_as_it_was(
+        self, committed, tmp_path, smoke_dataset, monkeypatch, capsys
+    ):
+        """The heading-cue audit (which may render datasets) runs before the first report file
+        is written: when it fails, every file of the earlier report keeps its bytes."""
+        from benchmark.errors import UsageError
+
+        out, _commit = committed
+        before = {p.name: p.read_bytes() for p in out.iterdir()}
+
+        def failing_audit(data_root):
+            raise UsageError("audit dataset refused (test)")
+
+        monkeypatch.setattr(outputs_module, "heading_cue_report", failing_audit)
+        assert reproduce(tmp_path, smoke_dataset) == 2
+        assert "audit dataset refused (test)" in capsys.readouterr().err
+        assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
 class TestLiveTables:
     def test_kept_live_and_rendered_again_from_their_rows(
         self, tmp_path, smoke_dataset, monkeypatch, capsys

@@ -19,7 +19,13 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from benchmark.errors import UsageError
+
+if TYPE_CHECKING:
+    from benchmark.data import Profile
+    from benchmark.data.writer import ConfigMismatchError
 
 # (train, val, tests): the paper's splits, then the towns family, where present in the dataset.
 AUDITS = (
@@ -30,11 +36,11 @@ THRESHOLD = 0.85
 CUE_EXTRA_SEEDS = 4  # standard-only datasets pooled with the reproduction's for the verdict
 
 
-def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> list[Path]:
-    """``[data_root, extra_1, ...]``: the dataset and ``n_extra`` standard-only datasets of its
-    profile at the next seeds, rendered next to it (reused when complete, resumed when not)."""
+def cue_dataset_plan(data_root: Path, n_extra: int) -> list[tuple[Path, Profile, int]]:
+    """``[(root, profile, seed), ...]`` of the ``n_extra`` standard-only datasets pooled with
+    ``data_root`` (``<data_root>-cue-s<seed + k>``, next to it). Raises ValueError naming
+    ``config.json`` when the dataset's own profile and seed cannot be read."""
     from benchmark.data import Profile
-    from benchmark.data.writer import simulate_dataset
 
     config_path = Path(data_root) / "config.json"
     try:
@@ -44,17 +50,62 @@ def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> 
         raise ValueError(
             f"{config_path}: cannot read the dataset's profile and seed ({err})"
         ) from err
+    parent, name = Path(data_root).parent, Path(data_root).name
+    return [(parent / f"{name}-cue-s{seed + k}", profile, seed + k) for k in range(1, n_extra + 1)]
+
+
+def _audits_pooled(available: set[str], n_extra: int) -> bool:
+    """Whether the standard family is audited on the pooled datasets (it is in the dataset)."""
+    train, val, tests = AUDITS[0]
+    return n_extra > 0 and {train, val} <= available and any(t in available for t in tests)
+
+
+def _stale_cue_dataset(root: Path, err: ConfigMismatchError) -> UsageError:
+    if not err.differences:  # not a dataset at all: a file or a foreign directory
+        return UsageError(f"{root} (a heading-cue audit dataset's place): {err}")
+    what = "; ".join(err.differences[:8])
+    return UsageError(
+        f"{root} holds a heading-cue audit dataset of another simulator or profile ({what}); "
+        f"move it away or delete it, and the next reproduce renders it again (about 2.5 min for "
+        f"quick on 2 cores)"
+    )
+
+
+def check_cue_datasets(data_root: Path, n_extra: int = CUE_EXTRA_SEEDS) -> None:
+    """Before any work: each audit dataset is absent, partial or complete for this code's
+    config, never another's (which the report stage could not render over). UsageError naming
+    the directory and the fix otherwise; touches nothing."""
+    from benchmark.data.dataset import list_splits
+    from benchmark.data.writer import ConfigMismatchError, check_output_dir, dataset_config
+
+    if not _audits_pooled(set(list_splits(data_root)), n_extra):
+        return
+    for root, profile, seed in cue_dataset_plan(data_root, n_extra):
+        try:
+            check_output_dir(root, dataset_config(profile, seed))
+        except ConfigMismatchError as err:
+            raise _stale_cue_dataset(root, err) from None
+
+
+def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> list[Path]:
+    """``[data_root, extra_1, ...]``: the dataset and ``n_extra`` standard-only datasets of its
+    profile at the next seeds, rendered next to it (reused when complete, resumed when not)."""
+    from benchmark.data.writer import ConfigMismatchError, simulate_dataset
+
     roots = [Path(data_root)]
-    for k in range(1, n_extra + 1):
-        root = Path(data_root).parent / f"{Path(data_root).name}-cue-s{seed + k}"
+    plan = cue_dataset_plan(data_root, n_extra)
+    for k, (root, profile, seed) in enumerate(plan, start=1):
         if not quiet:
             print(
                 f"heading-cue audit: dataset {k}/{n_extra} at {root} (standard splits, seed "
-                f"{seed + k})",
+                f"{seed})",
                 file=sys.stderr,
                 flush=True,
             )
-        simulate_dataset(root, profile, seed + k, workers=2, progress=not quiet)
+        try:
+            simulate_dataset(root, profile, seed, workers=2, progress=not quiet)
+        except ConfigMismatchError as err:
+            raise _stale_cue_dataset(root, err) from None
         roots.append(root)
     return roots
 
@@ -80,7 +131,7 @@ def heading_cue_report(
         tests = tuple(t for t in tests if t in available)
         if not ({train, val} <= available and tests):
             continue
-        if index > 0 or n_extra == 0:
+        if index > 0 or not _audits_pooled(available, n_extra):
             result = heading_cue_audit(data_root, train=train, val=val, test=list(tests))
             rows += [_row(train, s, data_root.name, v) for s, v in result["splits"].items()]
             continue

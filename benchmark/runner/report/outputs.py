@@ -231,6 +231,9 @@ def write_reports(
             references.frames,
         )
     )
+    # The audit may render its datasets: done before the first file is written, so that its
+    # failure leaves the report directory as it was.
+    audit_md, audit_rows = heading_cue_report(data_root)
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format=RESULTS_FLOAT_FORMAT)
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
@@ -300,7 +303,6 @@ def write_reports(
         if section:
             md = out / f"{spec.name}.md"
             md.write_text(md.read_text() + section)
-    audit_md, audit_rows = heading_cue_report(data_root)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
     kept_results = {u.key: UnitResult(u.key, True) for u in kept_units if u.key not in results}
