@@ -4,6 +4,7 @@ the heads sees them."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -228,6 +229,18 @@ class TestRenderedRows:
         assert "part of no claim about the heads" in note
         assert "reads the true position E, N, U, pitch, roll" in note
         assert "reads no true pose value" in note
+
+    def test_columns_do_not_depend_on_where_the_summary_came_from(self, table1_references):
+        """A summary computed in this run and the same read back from the cache (JSON, sorted
+        keys) give the same columns in the same order: results.csv is the same bytes."""
+        spec, results = table1_references
+        reordered = {key: dict(reversed(list(summary.items())))
+                     for key, summary in results.summaries.items()}  # fmt: skip
+        again = dataclasses.replace(results, summaries=reordered)
+        first = pd.DataFrame(rr.reference_rows([spec], results))
+        second = pd.DataFrame(rr.reference_rows([spec], again))
+        assert list(first.columns) == list(second.columns)
+        pd.testing.assert_frame_equal(first, second)
 
     def test_note_names_a_fallback_other_than_the_tables_constant(self):
         spec = load_spec(default_spec_dir() / "table1.yaml")  # trains on standard/train

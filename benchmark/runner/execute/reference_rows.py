@@ -522,7 +522,9 @@ def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[di
                     summary = results.summaries.get((name, split, satellite))
                     if summary is None:
                         continue
-                    metrics = {k: v for k, v in summary.items() if k not in TIMING_KEYS}
+                    # Sorted: a summary computed now and one read back from the cache (JSON,
+                    # sorted keys) give results.csv the same columns in the same order.
+                    metrics = {k: summary[k] for k in sorted(summary) if k not in TIMING_KEYS}
                     rows.append(
                         {"table": spec.name, "label": label, "paper_model": "", "x": None,
                          "split": split, "satellite": satellite, "satellite_input": "image",
