@@ -80,6 +80,25 @@ class ConfigMismatchError(ValueError):
         super().__init__(message)
         self.differences = differences
 
+    @classmethod
+    def of_dataset(cls, out: Path, differences: tuple[str, ...]) -> ConfigMismatchError:
+        """``out`` holds a dataset whose config differs from the requested one in
+        ``differences``."""
+        return cls(
+            f"--out {out} holds a dataset with a different config ({_summary(differences)}); "
+            f"choose another --out or the same profile/size/seed",
+            differences,
+        )
+
+    @property
+    def summary(self) -> str:
+        """The first eight differences, ``"; "``-joined (the message's parenthesis)."""
+        return _summary(self.differences)
+
+
+def _summary(differences: tuple[str, ...]) -> str:
+    return "; ".join(differences[:8])
+
 
 def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
     from benchmark.sim import GENERATOR_VERSION, source_digest
@@ -115,12 +134,7 @@ def check_output_dir(out: Path, config: dict[str, Any]) -> str:
         return "new"
     old = read_json(cfg_path, "dataset config")
     if old != config:
-        diffs = _diff(old, config)
-        raise ConfigMismatchError(
-            f"--out {out} holds a dataset with a different config ({'; '.join(diffs[:8])}); "
-            f"choose another --out or the same profile/size/seed",
-            tuple(diffs),
-        )
+        raise ConfigMismatchError.of_dataset(out, tuple(_diff(old, config)))
     return "complete" if (out / MANIFEST).is_file() else "resume"
 
 

@@ -89,9 +89,8 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
     except ConfigMismatchError as err:
         if not err.differences:  # not a dataset at all (a file, a foreign directory)
             raise UsageError(f"{out}: {err}") from None
-        what = "; ".join(err.differences[:8])
         raise UsageError(
-            f"{out} holds a dataset of another simulator or profile ({what}); pass another "
+            f"{out} holds a dataset of another simulator or profile ({err.summary}); pass another "
             f"--data, or move it away (or delete it) and this command renders it there"
         ) from None
     if stats["state"] != "complete":

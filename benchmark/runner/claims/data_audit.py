@@ -63,11 +63,10 @@ def _audits_pooled(available: set[str], n_extra: int) -> bool:
 def _stale_cue_dataset(root: Path, err: ConfigMismatchError) -> UsageError:
     if not err.differences:  # not a dataset at all: a file or a foreign directory
         return UsageError(f"{root} (a heading-cue audit dataset's place): {err}")
-    what = "; ".join(err.differences[:8])
     return UsageError(
-        f"{root} holds a heading-cue audit dataset of another simulator or profile ({what}); "
-        f"move it away or delete it, and the next reproduce renders it again (about 2.5 min for "
-        f"quick on 2 cores)"
+        f"{root} holds a heading-cue audit dataset of another simulator or profile "
+        f"({err.summary}); move it away or delete it, and the next reproduce renders it again "
+        f"(about 2.5 min for quick on 2 cores)"
     )
 
 
