@@ -69,6 +69,11 @@ class Profile:
     n_town_pairs: tuple[int, int, int, int] = (0, 0, 0, 0)
     town_size_m: tuple[float, float] = (2048.0, 1280.0)  # holds the 2 km x 1 km footprint
     town_metres_per_px: float = 2.0
+    # Confirmation draw (issue 38): ``confirm/{standard,towns,generalized}``, a second set of test
+    # flights as large as standard/test, towns/test and generalized/test, drawn from seed streams
+    # of their own (draw k), with n_towns[test] new towns of the training styles. Nothing may be
+    # chosen on them; a draw once used for a choice is replaced by the next one (k + 1). 0: none.
+    confirm_draw: int = 0
 
     def __post_init__(self) -> None:
         if self.image_size < 8:
@@ -102,6 +107,10 @@ class Profile:
                     f"Profile.{name} must be 4 non-negative integers (train, val, test, london), "
                     f"got {v}"
                 )
+        if int(self.confirm_draw) != self.confirm_draw or self.confirm_draw < 0:
+            raise ValueError(
+                f"Profile.confirm_draw must be an integer >= 0, got {self.confirm_draw!r}"
+            )
         for role, towns, pairs in zip(TOWN_ROLES, self.n_towns, self.n_town_pairs, strict=True):
             if pairs > 0 and towns == 0:
                 raise ValueError(
@@ -142,6 +151,7 @@ class Profile:
             frame_split=False,
             n_towns=(0, 0, 0, 0),
             n_town_pairs=(0, 0, 0, 0),
+            confirm_draw=0,
         )
 
     def to_dict(self) -> dict:
@@ -174,6 +184,7 @@ PROFILES: dict[str, Profile] = {
         n_towns=(3, 1, 1, 1),
         n_town_pairs=(16, 4, 4, 4),
         town_size_m=(1024.0, 768.0),
+        confirm_draw=1,
     ),
     "quick": Profile(
         name="quick",
@@ -194,6 +205,7 @@ PROFILES: dict[str, Profile] = {
         samples_per_flight=16,
         eval_samples_per_flight=4,
         shard_size=256,
+        confirm_draw=1,
     ),
     "paper": Profile(
         name="paper",
@@ -210,6 +222,7 @@ PROFILES: dict[str, Profile] = {
         samples_per_flight=24,
         eval_samples_per_flight=6,
         shard_size=256,
+        confirm_draw=1,
     ),
 }
 

@@ -171,7 +171,11 @@ def build_cities(
     change = city_seed(seed, FLIGHT_STYLE, "earlier")
     cities[(FLIGHT_STYLE, "earlier")] = changed_city(now, change, cache_dir=cache_dir)
     towns = town_list(
-        tuple(profile.n_towns), seed, train_styles=TRAIN_STYLES, london_style=GENERALIZED_STYLE
+        tuple(profile.n_towns),
+        seed,
+        train_styles=TRAIN_STYLES,
+        london_style=GENERALIZED_STYLE,
+        confirm_draw=profile.confirm_draw,
     )
     size = tuple(profile.town_size_m)
     with Progress(len(towns), "towns", unit="town", enabled=progress and bool(towns)) as bar:

@@ -50,6 +50,9 @@ light=0)``
 ``make_plan(profile, cities, seed) -> Plan``, ``city_seed(seed, style)``, ``sample_seed(seed, i)``
     The dataset plan (flights, splits, labels; ``benchmark.sim.splits``, imported on first use, it
     pulls in pandas and scipy) and the seeds of worlds and renders (``benchmark.sim.seeds``).
+``CONFIRM_SPLITS``, ``CONFIRMS``
+    The confirmation draw's splits, and the test split each one repeats (``standard/test`` ->
+    ``confirm/standard``, ...; issue 38).
 ``town_list(n_towns, seed) -> [Town]``, ``build_town(town, size_m=, metres_per_px=)``
     The many-towns family (``benchmark.sim.towns``; imported on first use).
 
@@ -80,6 +83,8 @@ from benchmark.sim.world import (
 )
 
 __all__ = [
+    "CONFIRMS",
+    "CONFIRM_SPLITS",
     "GENERATOR_VERSION",
     "STYLES",
     "TOWN_ROLES",
@@ -106,7 +111,7 @@ __all__ = [
 ]
 
 # Imported on first access (PEP 562): render workers import this package and need none of them.
-_FROM_SPLITS = ("make_plan",)
+_FROM_SPLITS = ("CONFIRMS", "CONFIRM_SPLITS", "make_plan")
 _FROM_TOWNS = ("TOWN_ROLES", "Town", "build_town", "town_list")
 
 

@@ -26,6 +26,12 @@ Split definitions (paper Sec. 3.1, 3.3.2, 3.5; decisions where the paper is sile
 - ``towns/{train,val,test,london}`` (beyond the paper*): many small towns (``benchmark.sim.towns``),
   each with one centre; train, val and test towns are distinct towns of the training styles,
   london towns of the held-out style. Nothing of a test town is seen in training.
+- ``confirm/{standard,towns,generalized}`` (issue 38, beyond the paper*): the confirmation draw
+  ``d = profile.confirm_draw``, a second set of test flights nobody chooses anything on: new
+  oxford + cambridge flights leak-checked like standard/test, new towns of the training styles
+  (``town-confirm<d>-*``), new london flights; as large as standard/test, towns/test and
+  generalized/test. Seed groups ``100 d + (0, 1, 2)``, so every draw has streams of its own. The
+  groups come after every other group, so the other splits are the same with or without them.
 
 Every flight has its own capture time (illumination state and fog) and every satellite image its
 own, independent one (``benchmark.sim.illumination``).
@@ -59,6 +65,11 @@ LEAK_ANGLE_DEG = 10.0
 FRAME_SPLIT_STREAM = 0x46
 SAT_ATTITUDE = (0.0, -math.pi / 2.0, 0.0)  # yaw, pitch, roll of the satellite camera (Eq. 5)
 
+# The confirmation splits, in the order of the test splits they repeat (CONFIRMS).
+CONFIRM_SPLITS = ("confirm/standard", "confirm/towns", "confirm/generalized")
+CONFIRMS = dict(
+    zip(("standard/test", "towns/test", "generalized/test"), CONFIRM_SPLITS, strict=True)
+)
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major R_uav^sat
 POSE_COLUMNS = ["E", "N", "U", "yaw", "pitch", "roll"]
 
@@ -129,6 +140,18 @@ def _groups(
     for r, (role, n) in enumerate(zip(TOWN_ROLES, p.n_town_pairs, strict=True)):
         names = tuple(t.name for t in towns if t.role == role)
         out.append(Group(f"towns/{role}", 50 + r, names, n, spec(held_out=role != "train")))
+    draw = int(getattr(p, "confirm_draw", 0))
+    if draw:
+        confirm_towns = tuple(t.name for t in towns if t.role == f"confirm{draw}")
+        n_towns_test = p.n_town_pairs[TOWN_ROLES.index("test")]
+        out += [
+            Group(CONFIRM_SPLITS[0], 100 * draw, styles_train, n_test, spec(held_out=True),
+                  leak_check=True),
+            Group(CONFIRM_SPLITS[1], 100 * draw + 1, confirm_towns, n_towns_test,
+                  spec(held_out=True)),
+            Group(CONFIRM_SPLITS[2], 100 * draw + 2, (london,), p.n_generalized_test,
+                  spec(held_out=True)),
+        ]  # fmt: skip
     return [g for g in out if g.n > 0]
 
 
@@ -244,7 +267,11 @@ def make_plan(
     for every town of ``town_list(p.n_towns, seed)``. Deterministic in (p, cities, seed).
     """
     towns = town_list(
-        tuple(p.n_towns), seed, train_styles=train_styles, london_style=generalized_style
+        tuple(p.n_towns),
+        seed,
+        train_styles=train_styles,
+        london_style=generalized_style,
+        confirm_draw=int(getattr(p, "confirm_draw", 0)),
     )
     style_of = {t.name: t.style for t in towns}
     now = {name: c for (name, variant), c in cities.items() if variant == "now"}
@@ -335,6 +362,9 @@ def make_plan(
         for h in p.sat_heights_m:
             for part in ("train", "test"):
                 add_pairs(f"height{h:g}/{part}", subsets[part], "now", h, footprint(h))
+    for name in CONFIRM_SPLITS:  # last: every other split keeps its satellite indices
+        if name in by_group:
+            add_pairs(name, by_group[name], "now", h0, fp0)
 
     uav, sat = assign_illumination(uav, pd.DataFrame(sat_rows), cities, seed)
     pairs = pd.concat(pair_parts, ignore_index=True)

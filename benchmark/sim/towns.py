@@ -8,7 +8,9 @@ image says where the UAV is and which way it looks.
 
 Roles: ``train``, ``val`` and ``test`` towns alternate the training styles (oxford, cambridge);
 ``london`` towns are of the held-out style. Town names are ``town-<role><k:02d>-<style>``; each
-name is a city key of the plan (``pairs.city``), its style in ``pairs.style``.
+name is a city key of the plan (``pairs.city``), its style in ``pairs.style``. A confirmation draw
+``d`` (``confirm/towns``, issue 38) adds as many towns as the ``test`` role has, of the training
+styles, role ``confirm<d>``: ``town-confirm<d>-<k:02d>-<style>``, world seeds of their own.
 """
 
 from __future__ import annotations
@@ -40,8 +42,10 @@ def town_list(
     *,
     train_styles: tuple[str, ...] = ("oxford", "cambridge"),
     london_style: str = "london",
+    confirm_draw: int = 0,
 ) -> list[Town]:
-    """The towns of a dataset with ``seed``: ``n_towns[r]`` towns of role ``TOWN_ROLES[r]``.
+    """The towns of a dataset with ``seed``: ``n_towns[r]`` towns of role ``TOWN_ROLES[r]``, then
+    (``confirm_draw`` > 0) ``n_towns[test]`` towns of role ``confirm<confirm_draw>``.
 
     World seeds come from ``city_seed(seed, style, "town-<role><k>")``: independent of every other
     town and of the paper cities, identical on every machine.
@@ -58,6 +62,12 @@ def town_list(
             towns.append(
                 Town(f"town-{role}{k:02d}-{style}", style, role, city_seed(seed, style, variant))
             )
+    if confirm_draw:
+        role = f"confirm{int(confirm_draw)}"
+        for k in range(int(n_towns[TOWN_ROLES.index("test")])):
+            style = train_styles[k % len(train_styles)]
+            seed_k = city_seed(seed, style, f"town-{role}-{k}")
+            towns.append(Town(f"town-{role}-{k:02d}-{style}", style, role, seed_k))
     return towns
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 from benchmark.models.model_config import ModelConfig
 from benchmark.runner.plan.repro_profiles import ReproProfile
 from benchmark.runner.plan.specs import Job, TableSpec
+from benchmark.sim import CONFIRMS
 from benchmark.training.config import DataConfig, PretrainedConfig, TrainConfig
 from benchmark.training.encoded import weight_options
 from benchmark.training.identity import run_key
@@ -40,6 +41,10 @@ class Unit:
     jobs: list[Job] = field(default_factory=list)
     needs: tuple[str, ...] = ()
     shared_encoder: bool = False  # trained for other units' frozen encoders
+    # The confirmation draw's splits that repeat a test split of its jobs (``confirm/standard``
+    # for ``standard/test``, ``benchmark.sim.CONFIRMS``): evaluated with the same trained model,
+    # read by the claims only (no table shows them), so no job lists them.
+    confirm_splits: tuple[str, ...] = ()
 
     @property
     def val_split(self) -> str | None:
@@ -64,6 +69,8 @@ class Unit:
         for job in self.jobs:
             for split in self.job_splits(job):
                 seen[split] = None
+        for split in self.confirm_splits:
+            seen[split] = None
         return list(seen)
 
     @property
@@ -214,6 +221,11 @@ def plan_units(
                     needs = (shared.key,)
                 key = unit_key(cfg, dataset_hash)
                 units.setdefault(key, Unit(key, cfg, needs=needs)).jobs.append(job)
+    for unit in units.values():
+        tested = {split for job in unit.jobs for split in job.eval_splits}
+        unit.confirm_splits = tuple(
+            confirm for test, confirm in CONFIRMS.items() if test in tested and confirm in splits
+        )
     # The shared encoders first: their units' checkpoints are what the others load.
     ordered = sorted(units.values(), key=lambda u: not u.shared_encoder)
     return [u for u in ordered if u.jobs or any(u.key in v.needs for v in ordered)]
