@@ -123,11 +123,14 @@ class TestEvaluateAndCache:
         record = json.loads(js.read_text())
         assert record["given"] == list(get_reference_class("geometry_oracle").given)
         assert record["stride"] == 1 and record["frames"] == len(pd.read_csv(csv))
-        # The swap effect as a model's: swap_effect of the two cached CSVs.
+        # The swap effect as a model's, in a table: swap_effect of the two cached CSVs (the
+        # oracle gives up on no frame here, so no frame takes the constant's pose).
         true_csv = rr.reference_paths(work, "geometry_oracle", STD, "true")[0]
+        assert not pd.read_csv(true_csv)["reference_failed"].any()
         expected = swap_effect(pd.read_csv(true_csv), pd.read_csv(csv))
+        got = first.table_summary("geometry_oracle", STD, "swap", "standard/train")
         for key, value in expected.items():
-            assert first.summaries["geometry_oracle", STD, "swap"][key] == pytest.approx(value)
+            assert got[key] == pytest.approx(value)
         # The model's predictions format: the bootstrap's reader takes it as a model's CSV.
         frames = read_frames([true_csv, true_csv])
         assert set(FRAME_METRICS) <= set(frames.columns) and "flight" in frames
@@ -218,13 +221,21 @@ class TestRenderedRows:
         text = markdown_table(spec, summary, pd.DataFrame(), [], True, frozenset(), labels)
         main, probe = text.split("Satellite-swap probe")
         for label, name in zip(labels, spec.references, strict=True):
-            line = next(x for x in main.splitlines() if x.startswith(f"| {label} |"))
-            oracle = results.summaries[name, STD, "true"]
-            assert f"{oracle['dpsi_deg']:.2f}" in line and "not run" not in line
+            line = next(x for x in main.splitlines() if x.startswith(f"| {label}"))
+            true = results.table_summary(name, STD, "true", "standard/train")
+            assert "not run" not in line
             assert line.count(f" {NO_VAL} |") >= 2  # no validation split: not "not run"
-            line = next(x for x in probe.splitlines() if f"| {label} |" in x)
-            swap = results.summaries[name, STD, "swap"]
-            assert f"{swap['swap_dpsi_diff_deg']:+.2f}" in line
+            probe_line = next(x for x in probe.splitlines() if f"| {label}" in x)
+            swap = results.table_summary(name, STD, "swap", "standard/train")
+            if true["failure_rate"] == 1.0:  # no estimate of its own: no number either
+                assert f"{true['dpsi_deg']:.2f}" not in line
+                cells = [c.strip() for c in line.strip("|").split("|")]
+                shown = len(spec.metrics) + len(spec.swap_metrics)
+                assert cells.count("fails on 100 % of frames") == shown
+                assert probe_line.count("fails on 100 % of frames") == 7  # every cell, verdict
+                continue
+            assert f"{true['dpsi_deg']:.2f}" in line
+            assert f"{swap['swap_dpsi_diff_deg']:+.2f}" in probe_line
         note = rr.reference_note(spec, results)
         assert "part of no claim about the heads" in note
         assert "reads the true position E, N, U, pitch, roll" in note
@@ -242,13 +253,16 @@ class TestRenderedRows:
         assert list(first.columns) == list(second.columns)
         pd.testing.assert_frame_equal(first, second)
 
-    def test_note_names_a_fallback_other_than_the_tables_constant(self):
+    def test_the_note_says_how_failures_read(self):
         spec = load_spec(default_spec_dir() / "table1.yaml")  # trains on standard/train
         record = {"frames": 10, "stride": 1, "train_split": "towns/train",
-                  "summary": {"failure_rate": 0.5, "cpu_ms_per_frame": 40.0}}  # fmt: skip
+                  "summary": {"failure_rate": 0.005, "cpu_ms_per_frame": 40.0}}  # fmt: skip
         results = rr.ReferenceResults(records={("feature_pnp", STD, "true"): record})
         note = rr.reference_note(spec, results)
-        assert "10 frames (failed frames: the mean pose of `towns/train`), failed 50%" in note
+        # one fallback, the table's constant row: an evaluation's own split is never named
+        assert "towns/train" not in note and "the pose of this table's constant row" in note
+        assert "10 frames, failed <1 %" in note  # a rate above zero never reads 0 %
+        assert "reads `fails on 100 % of frames` in its cells" in note
         assert "`standard/test` not run" in note  # the two others: no record
 
     def test_cells_get_the_flight_bootstrap_of_the_reference_frames(self):
@@ -260,6 +274,7 @@ class TestRenderedRows:
         label = get_reference_class("geometry_oracle").label
         results = rr.ReferenceResults(frames={("geometry_oracle", STD, "true"): frame})
         part = pd.DataFrame([{"label": label, "split": STD, "satellite": "true",
+                              "train_split": "standard/train",
                               "reference": "geometry_oracle"}])  # fmt: skip
         got = _reference_interval(part, ["dpsi_deg", "acc10"], results)
         mean = frame["dpsi_deg"].mean()
@@ -275,9 +290,83 @@ class TestRenderedRows:
         cold = rr.ReferenceResults(workdir=results.workdir)  # a later report, nothing evaluated
         label = rr.reference_labels(spec)[1]
         pd.testing.assert_frame_equal(
-            cold.frame_of(label, STD, "swap"), results.frames["gravity_template", STD, "swap"]
+            cold.frame_of(label, STD, "swap", "standard/train"),
+            results.frames["gravity_template", STD, "swap"],
         )
-        assert cold.frame_of("Pd/Re-Net", STD, "true") is None
+        assert cold.frame_of("Pd/Re-Net", STD, "true", "standard/train") is None
+
+
+SPLIT_IN_TWO = """# Beyond the paper: one split in two tables.
+name: {name}
+title: {name}
+kind: table
+train_split: {train}
+eval_splits: [towns/test]
+metrics: [dpsi_deg, dphi_deg]
+swap_metrics: [dpsi_deg, dphi_deg]
+rows:
+  - {{label: Pd/Re-Net, paper_model: Pd/Re-Net, attitude: pd_re_net}}
+references: [feature_pnp]
+"""
+
+
+class TestOneFallback:
+    """A failed reference frame gets the pose of its table's constant row, whatever the split:
+    the constant predictor of that table's training split (issue 38: on towns/test the encoders
+    table's PnP row read the towns/train mean beside a constant row of standard/train)."""
+
+    def test_one_split_in_two_tables_gets_each_tables_constant(
+        self, tmp_path, smoke_dataset, counted
+    ):
+        specs = []
+        for name, train in (("enc", "standard/train"), ("towns", "towns/train")):
+            path = tmp_path / f"{name}.yaml"
+            path.write_text(SPLIT_IN_TWO.format(name=name, train=train))
+            specs.append(load_spec(path))
+        results = rr.evaluate_references(specs, smoke_dataset, tmp_path / "w", "smoke", True)
+        assert sorted(counted) == [("feature_pnp", "swap"), ("feature_pnp", "true")]  # once
+        rows = pd.DataFrame(rr.reference_rows(specs, results))
+        assert (rows["failure_rate"] == 1.0).all()  # PnP gives up on every smoke frame
+        means = {}
+        for spec in specs:
+            train = spec.train_split
+            constant, frame = rr.constant_baseline(smoke_dataset, train, "towns/test")
+            for satellite in ("true", "swap"):  # the constant reads no image
+                row = rows[(rows.table == spec.name) & (rows.satellite == satellite)].iloc[0]
+                assert row["train_split"] == train
+                for m in ("dtheta_deg", "dpsi_deg", "dphi_deg", "dE_m", "dU_m"):
+                    assert row[m] == pytest.approx(constant[m], rel=1e-12), (spec.name, m)
+            got = results.table_frame("feature_pnp", "towns/test", "true", train)
+            np.testing.assert_allclose(got["dpsi_deg"], frame["dpsi_deg"], rtol=1e-12)
+            means[train] = constant["dpsi_deg"]
+        assert means["standard/train"] != pytest.approx(means["towns/train"])
+
+    def test_some_failed_frames_take_the_constant_and_say_how_many(self, table1_references):
+        spec, results = table1_references
+        name, train = "gravity_template", "standard/train"
+        mixed = rr.ReferenceResults(frames=dict(results.frames), data_root=results.data_root)
+        failed = np.arange(len(results.frames[name, STD, "true"])) % 4 == 1  # a quarter
+        for satellite in ("true", "swap"):
+            own = results.frames[name, STD, satellite]
+            mixed.frames[name, STD, satellite] = own.assign(reference_failed=failed)
+        frame = mixed.table_frame(name, STD, "true", train)
+        constant = rr.constant_baseline(results.data_root, train, STD)[1].set_index("index")
+        own = results.frames[name, STD, "true"]
+        for column in ("dpsi_deg", "dE_m", "Rhat01", "yaw_hat_deg"):
+            expected = np.where(failed, constant.loc[own["index"], column], own[column])
+            np.testing.assert_allclose(frame[column], expected, rtol=1e-12)
+        summary = mixed.table_summary(name, STD, "true", train)
+        assert summary["failure_rate"] == pytest.approx(failed.mean())
+        assert summary["dpsi_deg"] == pytest.approx(frame["dpsi_deg"].mean())
+        rows = pd.DataFrame([r for r in rr.reference_rows([spec], mixed) if r["reference"] == name])
+        table = summarize(rows, [m for m in REPORT_METRICS if m in rows])
+        text = markdown_table(spec, table, pd.DataFrame(), [], True, frozenset(),
+                              rr.reference_labels(spec))  # fmt: skip
+        label = get_reference_class(name).label
+        line = next(x for x in text.splitlines() if x.startswith(f"| {label} ("))
+        pct = f"{100 * failed.mean():.0f} %"
+        assert line.startswith(f"| {label} (fails on {pct} of frames) |")
+        assert f"{summary['dpsi_deg']:.2f}" in line and "fails on 100" not in line
 
 
 class TestNoClaimSeesThem:

@@ -21,6 +21,7 @@ from benchmark.runner.claims.spread import (
     read_frames,
     seed_flight_bootstrap,
 )
+from benchmark.runner.execute.reference_rows import ReferenceResults
 from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import default_spec_dir, load_specs
@@ -181,12 +182,18 @@ class TestWithHorizontalErrors:
         ref = pd.DataFrame({"dE_m": [3.0, 6.0, 0.0], "dN_m": [4.0, 8.0, 1.0]})
         extra = pd.DataFrame(
             [
-                {"split": "standard/test", "satellite": "true", "reference": "oracle"},
+                {
+                    "split": "standard/test",
+                    "satellite": "true",
+                    "reference": "oracle",
+                    "train_split": "standard/train",
+                },
                 {"split": "standard/test", "satellite": "true", "unit": "never-trained"},
             ]
         )
         frame = pd.concat([frame, extra], ignore_index=True)
-        filled = with_horizontal_errors(frame, workdir, {("oracle", "standard/test", "true"): ref})
+        refs = ReferenceResults(frames={("oracle", "standard/test", "true"): ref})
+        filled = with_horizontal_errors(frame, workdir, refs)
         for r in filled.itertuples():
             if r.unit == "never-trained":  # no predictions: stays empty
                 assert math.isnan(r.median_horizontal_m)
@@ -208,7 +215,7 @@ class TestWithHorizontalErrors:
         # REPORT_METRICS (the horizontal error once was not, so its column never appeared).
         assert set(EXTRA_METRICS) <= set(REPORT_METRICS)
         specs, units, results, errors, workdir = synthetic
-        frame = with_horizontal_errors(results_frame(units, results), workdir, {})
+        frame = with_horizontal_errors(results_frame(units, results), workdir, None)
         table1 = frame[frame.table == "table1"]
         summary = summarize(table1, [m for m in REPORT_METRICS if m in frame.columns])
         text = extra_metrics_table(specs[0], summary, EXTRA_METRICS)

@@ -5,9 +5,16 @@ A table spec lists references by name (``TableSpec.references``; ``benchmark.ref
 table that lists it) is evaluated once, whatever the training seeds (a reference has none), with
 the true and with the swapped satellite image (``benchmark.data.swap``), like a model: the same
 per-frame table, metrics and flight bootstrap, and the swap effect of
-``benchmark.evaluation.paired.swap_effect``. Failed frames get the constant predictor's pose of
-the split's training split (``benchmark.references.default_train_split``) and are counted in
-``failure_rate``.
+``benchmark.evaluation.paired.swap_effect``.
+
+**One fallback.** A frame where a reference gives up (``reference_failed``) is evaluated without a
+fallback (the cache holds the reference's own answer) and, in every table, given the pose of that
+table's constant row: the constant predictor of the split's training split in that table
+(``TableSpec.train_split_for``), its per-frame errors on the frame (:func:`with_fallback`). So a
+reference that fails on every frame of a split reads exactly the constant row there, in every
+table, and the same split in two tables that train on different splits (``towns/test`` in the
+encoders table, on ``standard/train``, and in the towns table, on ``towns/train``) gets each
+table's own constant. Failed frames count in ``failure_rate``.
 
 Cache, per evaluation: ``<workdir>/references/<name>/<split_filename(split)>[__swap].csv`` (the
 per-frame predictions, the format of a model's ``units/<key>/eval/*.csv``, so
@@ -15,8 +22,9 @@ per-frame predictions, the format of a model's ``units/<key>/eval/*.csv``, so
 model's; plus ``reference_failed`` and ``reference_score``) and ``.json`` beside it (the record:
 what was evaluated and its summary), written last and atomically: its presence means the evaluation
 is complete. A record is reused only when it was made with the same reference options, dataset
-(manifest sha256), frame stride, fallback split and reference code (sha256 of
-``benchmark/references/*.py``); otherwise the evaluation runs again.
+(manifest sha256), frame stride and reference code (sha256 of ``benchmark/references/*.py``);
+otherwise the evaluation runs again. The fallback is no part of it: it is applied when a table
+reads the frames.
 
 Cost (measured on the quick dataset, 96 px, one core: about 50 ms a frame for the oracle, 75-100
 ms for the template, 30-35 ms for feature + PnP): the 3,480 frames of the quick tables' test
@@ -54,14 +62,18 @@ __all__ = [
     "MAX_PROCESSES",
     "PROFILE_STRIDE",
     "ReferenceResults",
+    "constant_baseline",
     "describe_references",
     "evaluate_references",
+    "fails_text",
+    "failure_percent",
     "reads_text",
     "reference_labels",
     "reference_note",
     "reference_paths",
     "reference_rows",
     "strided_rows",
+    "with_fallback",
 ]
 
 REFERENCE_DIR = "references"  # under the reproduction's work directory
@@ -123,14 +135,14 @@ def _code_digest() -> str:
 @dataclass(frozen=True)
 class ReferenceTask:
     """One evaluation: reference ``name`` on ``split`` with the ``satellite`` image (``true`` or
-    ``swap``), failed frames given ``train_split``'s constant pose, every ``stride``-th frame of
-    each flight; the per-frame CSV goes to ``csv`` (None: kept in memory only)."""
+    ``swap``), every ``stride``-th frame of each flight, failed frames keeping the reference's own
+    answer (each table gives them its constant row's pose: :func:`with_fallback`); the per-frame
+    CSV goes to ``csv`` (None: kept in memory only)."""
 
     name: str
     data_root: str
     split: str
     satellite: str
-    train_split: str
     stride: int
     csv: str | None
 
@@ -156,10 +168,7 @@ def run_chunk(chunk: Chunk) -> tuple[dict[str, float], pd.DataFrame]:
 
     t = chunk.task
     dataset = _dataset(t.data_root, t.split, t.satellite)
-    fallback = _fallback(t.data_root, t.train_split)
-    return evaluate_reference(
-        create_reference(t.name), dataset, fallback=fallback, rows=list(chunk.rows)
-    )
+    return evaluate_reference(create_reference(t.name), dataset, rows=list(chunk.rows))
 
 
 @functools.lru_cache(maxsize=4)
@@ -167,13 +176,6 @@ def _dataset(root: str, split: str, satellite: str):
     from benchmark.data import PairDataset
 
     return PairDataset(root, split, satellite=satellite, verify="size")
-
-
-@functools.lru_cache(maxsize=4)
-def _fallback(root: str, train_split: str) -> tuple[np.ndarray, np.ndarray]:
-    from benchmark.references import fallback_pose
-
-    return fallback_pose(_dataset(root, train_split, "true"))
 
 
 def _task_rows(task: ReferenceTask) -> list[int]:
@@ -205,31 +207,128 @@ def _worker_init() -> None:
     cv2.setNumThreads(1)
 
 
+def constant_baseline(
+    data_root: str | Path, train_split: str, eval_split: str
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Errors of always predicting the mean pose of ``train_split`` on ``eval_split`` (no image is
+    read): the summary and the per-frame table, with each frame's ``flight`` (for the flight
+    bootstrap). The tables' constant row, and the pose every failed reference frame is given."""
+    from benchmark.data.dataset import PairDataset
+    from benchmark.evaluation.evaluate import pair_columns
+    from benchmark.evaluation.reference import constant_predictor
+
+    train = PairDataset(data_root, train_split)
+    evaluated = PairDataset(data_root, eval_split)
+    summary, frame = constant_predictor(train, evaluated)
+    flights = pair_columns(evaluated).get("flight")  # item order, as the frame's rows
+    if flights is not None:
+        frame = frame.assign(flight=list(flights))
+    return summary, frame
+
+
+def with_fallback(frame: pd.DataFrame, constant: pd.DataFrame | None) -> pd.DataFrame | None:
+    """A reference's per-frame table with every failed frame (``reference_failed``) given the
+    constant predictor's prediction and errors on that frame (``constant``: its per-frame table
+    on the same split, matched on ``index``); ``frame`` itself when no frame failed, None when
+    some did and there is no ``constant``."""
+    failed = frame["reference_failed"].astype(bool) if "reference_failed" in frame else None
+    if failed is None or not failed.any():
+        return frame
+    if constant is None:
+        return None
+    missing = set(frame.loc[failed, "index"]) - set(constant["index"])
+    if missing:
+        raise ValueError(f"the constant predictor's table lacks frames {sorted(missing)[:5]}")
+    columns = [c for c in constant.columns if c in frame.columns and c not in ("index", "flight")]
+    given = constant.set_index("index").reindex(frame["index"].to_numpy())  # frame's row order
+    out, mask = frame.copy(), failed.to_numpy()
+    for column in columns:
+        out[column] = np.where(mask, given[column].to_numpy(), frame[column].to_numpy())
+    return out
+
+
 @dataclass
 class ReferenceResults:
     """Every evaluation of this report: ``summaries`` and per-frame ``frames`` keyed
-    ``(name, split, satellite)``, ``records`` (the cached JSON records, same keys), ``errors``
-    (evaluations that raised: the rows read ``not run``, the table note says why) and, for rows
-    kept from an earlier report, the cache under ``workdir`` read on demand."""
+    ``(name, split, satellite)``, as evaluated (a failed frame keeps the reference's own answer),
+    ``records`` (the cached JSON records, same keys), ``errors`` (evaluations that raised: the
+    rows read ``not run``, the table note says why) and, for rows kept from an earlier report,
+    the cache under ``workdir`` read on demand.
+
+    A table reads them through :meth:`table_frame` / :meth:`table_summary`, which give the failed
+    frames the table's constant pose (:func:`with_fallback`): ``constants`` holds the constant
+    predictor's per-frame tables keyed ``(train split, split)``, computed from ``data_root`` when
+    missing."""
 
     summaries: dict[tuple[str, str, str], dict[str, float]] = field(default_factory=dict)
     frames: dict[tuple[str, str, str], pd.DataFrame] = field(default_factory=dict)
     records: dict[tuple[str, str, str], dict] = field(default_factory=dict)
     errors: dict[tuple[str, str, str], str] = field(default_factory=dict)  # first line
     workdir: Path | None = None
+    data_root: Path | None = None
+    constants: dict[tuple[str, str], pd.DataFrame] = field(default_factory=dict)
+    _tables: dict[tuple[str, str, str, str], pd.DataFrame | None] = field(
+        default_factory=dict, repr=False
+    )
 
-    def frame_of(self, label: str, split: str, satellite: str) -> pd.DataFrame | None:
-        """The per-frame table of the reference labelled ``label`` (None: not a reference, or
+    def evaluation(self, name: str, split: str, satellite: str) -> pd.DataFrame | None:
+        """The per-frame table of one evaluation as evaluated (None: not evaluated and not in
+        the cache)."""
+        key = (name, split, satellite)
+        if key not in self.frames and self.record(*key) is not None:
+            self.frames[key] = pd.read_csv(reference_paths(self.workdir, *key)[0])
+        return self.frames.get(key)
+
+    def constant(self, train_split: str, split: str) -> pd.DataFrame | None:
+        """The constant predictor's per-frame table of ``train_split`` on ``split`` (None without
+        it and without ``data_root``)."""
+        key = (train_split, split)
+        if key not in self.constants and self.data_root is not None:
+            self.constants[key] = constant_baseline(self.data_root, train_split, split)[1]
+        return self.constants.get(key)
+
+    def table_frame(
+        self, name: str, split: str, satellite: str, train_split: str
+    ) -> pd.DataFrame | None:
+        """The per-frame table of reference ``name`` on ``split`` in a table that trains on
+        ``train_split``: failed frames given that table's constant pose (None: not evaluated)."""
+        key = (name, split, satellite, train_split)
+        if key not in self._tables:
+            frame = self.evaluation(name, split, satellite)
+            needs = frame is not None and bool(frame.get("reference_failed", pd.Series()).any())
+            constant = self.constant(train_split, split) if needs else None
+            self._tables[key] = None if frame is None else with_fallback(frame, constant)
+        return self._tables[key]
+
+    def table_summary(
+        self, name: str, split: str, satellite: str, train_split: str
+    ) -> dict[str, float] | None:
+        """:func:`~benchmark.references.reference_summary` of :meth:`table_frame` and, for the
+        swapped image, the swap effect against the true image's frames
+        (``benchmark.evaluation.paired.swap_effect``, as a model's); None when not evaluated."""
+        from benchmark.evaluation.paired import swap_effect
+        from benchmark.references import reference_summary
+
+        frame = self.table_frame(name, split, satellite, train_split)
+        if frame is None:
+            return None
+        summary = reference_summary(frame)
+        if satellite == "swap":
+            true = self.table_frame(name, split, "true", train_split)
+            if true is None:
+                return None
+            summary.update(swap_effect(true, frame))
+        return summary
+
+    def frame_of(
+        self, label: str, split: str, satellite: str, train_split: str
+    ) -> pd.DataFrame | None:
+        """:meth:`table_frame` of the reference labelled ``label`` (None: not a reference, or
         not evaluated and not in the cache)."""
         from benchmark.references import get_reference_class, list_references
 
         names = [n for n in list_references() if get_reference_class(n).label == label]
-        if not names:
-            return None
-        key = (names[0], split, satellite)
-        if key not in self.frames and self.record(*key) is not None:
-            self.frames[key] = pd.read_csv(reference_paths(self.workdir, *key)[0])
-        return self.frames.get(key)
+        return self.table_frame(names[0], split, satellite, train_split) if names else None
 
     def record(self, name: str, split: str, satellite: str) -> dict | None:
         """The JSON record of one evaluation: this report's, else the one cached in ``workdir``
@@ -268,7 +367,6 @@ def _record(task: ReferenceTask, summary: dict, frames: int, manifest: str, code
         "options": {k: repr(v) for k, v in ref.options().items()},
         "split": task.split,
         "satellite": task.satellite,
-        "train_split": task.train_split,
         "stride": task.stride,
         "frames": frames,
         "dataset_manifest": manifest,
@@ -278,8 +376,8 @@ def _record(task: ReferenceTask, summary: dict, frames: int, manifest: str, code
 
 
 # What a cached record must match to be reused (the rest describes it).
-_IDENTITY = ("reference", "options", "split", "satellite", "train_split", "stride",
-             "dataset_manifest", "code_sha256")  # fmt: skip
+_IDENTITY = ("reference", "options", "split", "satellite", "stride", "dataset_manifest",
+             "code_sha256")  # fmt: skip
 
 
 def _cached(task: ReferenceTask, expected: dict) -> tuple[dict, dict, pd.DataFrame] | None:
@@ -330,31 +428,29 @@ def evaluate_references(
     chunks of ``chunk_frames`` frames. Without ``workdir`` nothing is cached. A progress bar
     (stderr) unless ``quiet``. An evaluation that raises is reported (``errors``, stderr) and its
     rows are left out; the others go on."""
-    from benchmark.data import list_splits
-    from benchmark.references import default_train_split
     from benchmark.tracking import manifest_sha256
 
     wanted = _wanted(specs)
-    out = ReferenceResults(workdir=Path(workdir) if workdir is not None else None)
+    out = ReferenceResults(
+        workdir=Path(workdir) if workdir is not None else None, data_root=Path(data_root)
+    )
     if not wanted:
         return out
     root = Path(data_root)
     stride = PROFILE_STRIDE.get(profile, 1)
-    available = list_splits(root)
     manifest, code = manifest_sha256(root), _code_digest()
     tasks: dict[tuple[str, str, str], ReferenceTask] = {}
     for name, split in wanted:
         for satellite in SATELLITE_MODES:
             csv = reference_paths(workdir, name, split, satellite)[0] if workdir else None
-            task = ReferenceTask(name, str(root), split, satellite,
-                                 default_train_split(split, available), stride,
+            task = ReferenceTask(name, str(root), split, satellite, stride,
                                  str(csv) if csv else None)  # fmt: skip
             tasks[task.key] = task
     todo: list[ReferenceTask] = []
     for key, task in tasks.items():
         hit = _cached(task, _record(task, {}, 0, manifest, code))
         true_redone = key[2] == "swap" and tasks[(*key[:2], "true")] in todo
-        if hit is None or true_redone:  # a swap effect is computed against today's true frames
+        if hit is None or true_redone:  # a swap effect pairs it with today's true frames
             todo.append(task)
         else:
             out.records[key], out.summaries[key], out.frames[key] = hit
@@ -372,7 +468,6 @@ def evaluate_references(
                   f"{Path(workdir) / REFERENCE_DIR}", file=sys.stderr)  # fmt: skip
     finally:
         _dataset.cache_clear()  # the images of this process's evaluations are not kept
-        _fallback.cache_clear()
     return out
 
 
@@ -387,7 +482,6 @@ def _run(
     """Evaluate ``chunks`` (here or in a spawn pool) and record each finished task in ``out``:
     its CSV, then its JSON record (``stamp``: dataset manifest and code digest)."""
     from benchmark.evaluation.metrics import write_predictions_csv
-    from benchmark.evaluation.paired import swap_effect
 
     n_frames = sum(len(c.rows) for c in chunks)
     if processes is None:
@@ -403,15 +497,6 @@ def _run(
         summary, frame = done.pop(task.key)
         if task.csv is not None:
             write_predictions_csv(frame, task.csv)
-        if task.satellite == "swap":
-            # The paired difference to the true image's frames, both as written (so identical
-            # predictions differ by exactly 0), as the models' swap effect.
-            true_frame = out.frames[(*task.key[:2], "true")]
-            if task.csv is not None:
-                true_csv = Path(task.csv).with_name(Path(task.csv).name.replace("__swap", ""))
-                true_frame, frame = pd.read_csv(true_csv), pd.read_csv(task.csv)
-            summary = {**summary, **swap_effect(true_frame, frame)}
-        elif task.csv is not None:
             frame = pd.read_csv(task.csv)  # as written: what a later report reads back
         record = _record(task, summary, len(frame), *stamp)
         if task.csv is not None:
@@ -506,9 +591,10 @@ def _run_pool(chunks: list[Chunk], processes: int, collect, bar: Progress) -> No
 
 def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[dict]:
     """``results.csv`` rows of the references of every table spec: one per (table, reference,
-    split, satellite mode), the summary's metrics (timings left out), ``seed`` 0, ``role``
-    ``test``, ``satellite_input`` ``image``, ``reference`` its registry name and ``train_split``
-    the table's for the split (the constant row's: the rows sit beside the table's models)."""
+    split, satellite mode), the metrics of :meth:`ReferenceResults.table_summary` (failed frames
+    given the table's constant pose), ``seed`` 0, ``role`` ``test``, ``satellite_input``
+    ``image``, ``reference`` its registry name and ``train_split`` the table's for the split (the
+    constant row's: the rows sit beside the table's models)."""
     from benchmark.references import get_reference_class
 
     rows = []
@@ -518,17 +604,18 @@ def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[di
         for name in spec.references:
             label = get_reference_class(name).label
             for split in spec.all_eval_splits():
+                train = spec.train_split_for(split)
                 for satellite in SATELLITE_MODES:
-                    summary = results.summaries.get((name, split, satellite))
+                    summary = results.table_summary(name, split, satellite, train)
                     if summary is None:
                         continue
-                    # Sorted: a summary computed now and one read back from the cache (JSON,
-                    # sorted keys) give results.csv the same columns in the same order.
+                    # Sorted: results.csv has the same columns in the same order whatever order
+                    # the summary's keys came in.
                     metrics = {k: summary[k] for k in sorted(summary) if k not in TIMING_KEYS}
                     rows.append(
                         {"table": spec.name, "label": label, "paper_model": "", "x": None,
                          "split": split, "satellite": satellite, "satellite_input": "image",
-                         "train_split": spec.train_split_for(split), "role": "test", "seed": 0,
+                         "train_split": train, "role": "test", "seed": 0,
                          "reference": name, **metrics}
                     )  # fmt: skip
     return rows
@@ -544,8 +631,13 @@ def reference_note(spec: TableSpec, results: ReferenceResults) -> str:
         "Non-learned rows (issue 21), evaluated like the models (the models' test frames unless "
         "a stride is stated below, the same metrics, flight bootstrap and swap probe; no seed, "
         "so one evaluation) and part of no claim about the heads. A frame where a reference "
-        "gives up (too few ground pixels, template cells or PnP inliers) gets the constant "
-        "predictor's pose and counts as failed. They are not evaluated on validation splits "
+        "gives up (too few ground pixels, template cells or PnP inliers) gets the pose of this "
+        "table's constant row (the mean pose of the split the table's models train on) and "
+        "counts as failed. A reference that fails on every frame of a split reads "
+        f"`{fails_text(1.0)}` in its cells there (its numbers would be the constant row's); "
+        "one that fails on some frames shows its numbers, those frames counted with the "
+        "constant row's errors, and says `fails on N % of frames` after its name (with the "
+        "swapped image's rate when that differs). They are not evaluated on validation splits "
         "(nothing is chosen on them): their *val* cells read `–`.",
         "",
     ]
@@ -566,17 +658,31 @@ def reference_note(spec: TableSpec, results: ReferenceResults) -> str:
             )
             rate = s.get("failure_rate", math.nan)
             cpu = s.get("cpu_ms_per_frame", math.nan)
-            fallback = record.get("train_split", "")
-            if fallback and fallback != spec.train_split_for(split) and rate > 0:
-                # Not this table's constant row: the split's own training family's mean pose.
-                frames += f" (failed frames: the mean pose of `{fallback}`)"
             parts.append(
-                f"`{split}` {frames}, failed {100 * rate:.0f}%"
+                f"`{split}` {frames}, failed {failure_percent(rate)}"
                 + (f", {cpu:.0f} ms of CPU a frame" if math.isfinite(cpu) else "")
                 + (f"; swapped image not run ({error})" if error else "")
             )
         lines.append(f"- `{name}` ({reads_text(name)}): " + "; ".join(parts) + ".")
     return "\n".join(lines) + "\n"
+
+
+def failure_percent(rate: float) -> str:
+    """A failure rate in percent, ``"37 %"``: never ``"0 %"`` for a rate above zero (``"<1 %"``)
+    nor ``"100 %"`` below one (``">99 %"``); ``"?"`` for NaN."""
+    if not math.isfinite(rate):
+        return "?"
+    percent = 100.0 * rate
+    if 0 < percent < 1:
+        return "<1 %"
+    if 99 < percent < 100:
+        return ">99 %"
+    return f"{percent:.0f} %"
+
+
+def fails_text(rate: float) -> str:
+    """``"fails on 37 % of frames"``: how a table says a reference's failure rate."""
+    return f"fails on {failure_percent(rate)} of frames"
 
 
 def reads_text(name: str) -> str:

@@ -16,7 +16,6 @@ import os
 import platform
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -39,6 +38,7 @@ from benchmark.runner.claims.spread import (
 )
 from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
+    constant_baseline,
     describe_references,
     evaluate_references,
     reference_labels,
@@ -90,6 +90,7 @@ REPORT_METRICS = [
     *EXTRA_METRICS,
     "swap_dpsi_diff_deg", "swap_dpsi_boot_lo_deg", "swap_dpsi_boot_hi_deg",
     "swap_dphi_diff_deg", "swap_dphi_boot_lo_deg", "swap_dphi_boot_hi_deg", "swap_groups",
+    "failure_rate",  # a reference's: its cells say when it failed (tables.row_name, cell_text)
 ]  # fmt: skip
 
 
@@ -120,24 +121,6 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
                          "unit": unit.key, "train_seconds": result.seconds, **metrics}
                     )  # fmt: skip
     return pd.DataFrame(rows)
-
-
-def constant_baseline(
-    data_root: Path, train_split: str, eval_split: str
-) -> tuple[dict[str, float], pd.DataFrame]:
-    """Errors of always predicting the training set's mean pose (no image is read): the summary
-    and the per-frame table, with each frame's ``flight`` (for the flight bootstrap)."""
-    from benchmark.data.dataset import PairDataset
-    from benchmark.evaluation.evaluate import pair_columns
-    from benchmark.evaluation.reference import constant_predictor
-
-    train = PairDataset(data_root, train_split)
-    evaluated = PairDataset(data_root, eval_split)
-    summary, frame = constant_predictor(train, evaluated)
-    flights = pair_columns(evaluated).get("flight")  # item order, as the frame's rows
-    if flights is not None:
-        frame = frame.assign(flight=list(flights))
-    return summary, frame
 
 
 def constant_rows(
@@ -216,8 +199,10 @@ def write_reports(
     val = frame[frame["role"] == "val"] if len(frame) else frame
     val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
     baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
-    # The non-learned references (issue 21): once per split, cached in the work directory.
+    # The non-learned references (issue 21): once per split, cached in the work directory; a
+    # failed frame gets the pose of its table's constant row.
     references = evaluate_references(specs, data_root, workdir, profile.name, quiet)
+    references.constants.update(constant_frames)
     ref_rows = pd.DataFrame(reference_rows(specs, references))
     plan = merge or plan_merge(out, specs, profile, data_root, workdir, mode=stale)
     kept_specs, kept_units = plan.live, plan.live_units
@@ -228,7 +213,7 @@ def write_reports(
                 pd.concat([x for x in parts if len(x)] or [frame], ignore_index=True)
             ),
             workdir,
-            references.frames,
+            references,
         )
     )
     # The audit may render its datasets: done before the first file is written, so that its
@@ -335,7 +320,9 @@ def _reference_interval(
     first = part.iloc[0]
     if not isinstance(first["reference"], str) or not first["reference"]:
         return None
-    frame = references.frame_of(str(first["label"]), str(first["split"]), str(first["satellite"]))
+    frame = references.frame_of(
+        str(first["label"]), str(first["split"]), str(first["satellite"]), str(first["train_split"])
+    )
     if frame is None or "flight" not in frame:
         return None
     return frame_interval(frame, wanted)
@@ -404,11 +391,12 @@ def _claims_section(
 
 
 def with_horizontal_errors(
-    frame: pd.DataFrame, workdir: Path | None, reference_frames: dict[tuple[str, str, str], Any]
+    frame: pd.DataFrame, workdir: Path | None, references: ReferenceResults | None
 ) -> pd.DataFrame:
     """``frame`` with ``horizontal_m`` and ``median_horizontal_m`` filled where a row lacks
     them, from its per-frame errors: a model's predictions in ``workdir`` (rows with ``unit``), a
-    reference's frames (rows with ``reference``, keyed by (name, split, satellite)).
+    reference's frames in its table (rows with ``reference``,
+    :meth:`~benchmark.runner.execute.reference_rows.ReferenceResults.table_frame`).
 
     Units trained before these metrics existed (read back from the tracking store or an earlier
     ``results.csv``) then show them too; rows of tables kept from an earlier run, whose
@@ -423,8 +411,10 @@ def with_horizontal_errors(
         row = frame.loc[i]
         errors = None
         reference = row.get("reference")
-        if isinstance(reference, str) and reference:
-            errors = reference_frames.get((reference, row["split"], row["satellite"]))
+        if isinstance(reference, str) and reference and references is not None:
+            errors = references.table_frame(
+                reference, row["split"], row["satellite"], row["train_split"]
+            )
         elif workdir is not None and (paths := prediction_paths(frame.loc[[i]], workdir)):
             errors = pd.read_csv(paths[0], usecols=["dE_m", "dN_m"])
         if errors is not None:

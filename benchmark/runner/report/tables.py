@@ -27,6 +27,7 @@ import pandas as pd
 
 from benchmark.evaluation.metrics import seed_interval
 from benchmark.runner.claims.satellite import MIN_RISE_DEG
+from benchmark.runner.execute.reference_rows import fails_text, failure_percent
 from benchmark.runner.plan.specs import TableSpec
 
 METRIC_LABELS: dict[str, str] = {
@@ -219,12 +220,43 @@ def uses_satellite(swap_row: pd.Series | None) -> str | None:
     )
 
 
+def failure_rate(row: pd.Series | None) -> float:
+    """The fraction of frames on which a reference row's estimate failed (NaN for any other row:
+    a model or the constant predictor always answers)."""
+    if row is None:
+        return math.nan
+    rate = row.get("failure_rate", math.nan)
+    return float(rate) if isinstance(rate, float | int) else math.nan
+
+
+def fails_everywhere(row: pd.Series | None) -> bool:
+    """Whether ``row`` is a reference that failed on every frame: its numbers are the constant
+    row's, no estimate of its own, so its cells say so instead (:func:`cell_text`)."""
+    return failure_rate(row) >= 1.0
+
+
 def cell_text(row: pd.Series | None, m: str, missing: str = "not run") -> str:
     """``mean ± half-width`` of metric ``m`` in a summary row; ``missing`` without the row
-    (``not run``, or ``failed`` for a row whose training failed)."""
+    (``not run``, or ``failed`` for a row whose training failed); ``fails on 100 % of frames``
+    for a reference that failed on every frame."""
     if row is None or m not in row:
         return missing
+    if fails_everywhere(row):
+        return fails_text(1.0)
     return format_value(row[m], row[f"{m}_lo"], row[f"{m}_hi"])
+
+
+def row_name(label: str, row: pd.Series | None, swap: pd.Series | None = None) -> str:
+    """A table row's model cell: ``label``, and for a reference that failed on some frames (not
+    all: those rows say it in every cell) how many, with the swapped image's rate when it
+    differs: ``label (fails on 12 % of frames; 30 % with the swapped image)``."""
+    rate, swapped = failure_rate(row), failure_rate(swap)
+    if not (0 < rate < 1 or 0 < swapped < 1):
+        return label
+    text = fails_text(rate if math.isfinite(rate) else swapped)
+    if math.isfinite(rate) and math.isfinite(swapped) and swapped != rate:
+        text += f"; {failure_percent(swapped)} with the swapped image"
+    return f"{label} ({text})"
 
 
 def table_rows(spec: TableSpec, split: str, extra_labels: list[str]) -> list[tuple[str, str, str]]:
@@ -278,7 +310,7 @@ def markdown_table(
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
             gone = "failed" if label in failed else "not run"
-            cells = ([f"`{split}`"] if multi else []) + [label]
+            cells = ([f"`{split}`"] if multi else []) + [row_name(label, row, swap)]
             cells += [f"`{train}`"] if trained_on else []
             for m in spec.metrics:
                 if with_paper:
@@ -325,12 +357,14 @@ def swap_probe_table(
         for label, _, train in table_rows(spec, split, list(references)):
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
-            cells = [f"`{split}`", label]
+            cells = [f"`{split}`", row_name(label, row, swap)]
             gone = "failed" if label in failed else "not run"
+            # A reference with no estimate of its own under either image has no swap effect.
+            blind = fails_text(1.0) if fails_everywhere(row) or fails_everywhere(swap) else None
             for e, _ in SWAP_EFFECTS:
                 cells += [cell_text(row, f"{e}_deg", gone), cell_text(swap, f"{e}_deg", gone)]
-                cells.append(_effect(swap, e) if swap is not None else gone)
-            cells.append(uses_satellite(swap) or gone)
+                cells.append(blind or (_effect(swap, e) if swap is not None else gone))
+            cells.append(blind or uses_satellite(swap) or gone)
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -364,8 +398,11 @@ def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[st
         "|" + "---|" * len(header),
     ]
     for _, r in summary.iterrows():
-        cells = [f"`{r['split']}`", str(r["label"])]
-        cells += [format_value(r[m], r[f"{m}_lo"], r[f"{m}_hi"], 3) for m in present]
+        cells = [f"`{r['split']}`", row_name(str(r["label"]), r)]
+        if fails_everywhere(r):
+            cells += [fails_text(1.0)] * len(present)
+        else:
+            cells += [format_value(r[m], r[f"{m}_lo"], r[f"{m}_hi"], 3) for m in present]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
