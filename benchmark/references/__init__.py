@@ -1,8 +1,10 @@
 """Non-learned references, evaluated like models (issue 21, item 5).
 
-Each reference estimates the pose of a pair from its two images and a stated set of true values
-(``Reference.given``; the report labels name them), and is evaluated with the models' metrics,
-per-frame table and satellite-swap probe (:func:`evaluate_reference`):
+Each reference estimates the pose of a pair from its two images and the true values it declares
+(``Reference.given_values``: the one declaration, from which its report label and ``given``
+wording are derived), and is evaluated with the models' metrics, per-frame table and
+satellite-swap probe (:func:`evaluate_reference`). The frames it is served hold only those true
+values (:class:`Frame`, :class:`TrueValues`): a withheld value is absent, not merely unread.
 
 - ``geometry_oracle`` (:class:`GeometryOracle`): given the true position, pitch and roll, a yaw
   sweep of the UAV pixels cast onto the ground plane against the satellite image. What the pixels
@@ -16,7 +18,15 @@ per-frame table and satellite-swap probe (:func:`evaluate_reference`):
 ``uavbench reference NAME --data DIR --split S [--satellite swap]`` runs one from the command line.
 """
 
-from benchmark.references.base import Estimate, Frame, Reference
+from benchmark.references.base import (
+    TRUE_POSE_COLUMNS,
+    Estimate,
+    Frame,
+    GivenValue,
+    Reference,
+    TrueValues,
+    WithheldError,
+)
 from benchmark.references.evaluate import (
     POSE_THRESHOLDS,
     default_train_split,
@@ -33,14 +43,18 @@ from benchmark.references.template import GravityTemplate
 
 __all__ = [
     "POSE_THRESHOLDS",
+    "TRUE_POSE_COLUMNS",
     "Estimate",
     "FeaturePnP",
     "Frame",
     "GeometryOracle",
+    "GivenValue",
     "GravityTemplate",
     "GroundCast",
     "Reference",
     "SatelliteGrid",
+    "TrueValues",
+    "WithheldError",
     "cast_uav_pixels",
     "create_reference",
     "default_train_split",

@@ -2,8 +2,8 @@
 
 :func:`evaluate_reference` runs a :class:`~benchmark.references.base.Reference` over every pair of
 a ``PairDataset`` (the true satellite image, or another place's with ``satellite="swap"``: the
-reference then still gets the pair's own satellite geometry and true values, only the pixels are
-another place's, exactly as a model keeps its labels in the swap probe) and returns
+reference then still gets the pair's own satellite geometry and given true values, only the pixels
+are another place's, exactly as a model keeps its labels in the swap probe) and returns
 ``(summary, frame)`` with the columns and metrics of ``benchmark.evaluation.evaluate.evaluate``
 (``predictions_frame`` / ``summarize``), plus:
 
@@ -19,6 +19,11 @@ constant predictor's pose (the chordal mean rotation and mean translation of the
 ``benchmark.evaluation.reference``), exactly what the constant row predicts, and counted in
 ``failure_rate``.
 
+**What a reference sees.** Each frame is built for the reference (:func:`iter_frames` with its
+``given_columns``): the images, the pair's satellite geo-reference, the UAV camera and the true
+values of those columns alone (``benchmark.references.base``); the rest of the pair row (the
+other true pose values, the labels, the flight and illumination) never reaches it.
+
 Labels: a reference's UAV attitude ``R_b^n`` becomes ``R_uav^sat = R_b^n (R_sat^n)^T`` (Eq. 2)
 with the satellite camera ``SAT_R_N``; its position becomes ``T = position - sat capture point``.
 """
@@ -27,7 +32,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +45,7 @@ from benchmark.evaluation.metrics import predictions_frame, summarize, write_pre
 from benchmark.evaluation.reference import dataset_labels, mean_rotation
 from benchmark.geometry import SAT_R_N
 from benchmark.progress import Progress
-from benchmark.references.base import Frame, Reference
+from benchmark.references.base import Frame, Reference, TrueValues
 from benchmark.references.ground import SatelliteGrid
 from benchmark.sim import Camera
 
@@ -83,11 +88,16 @@ def _camera(dataset: PairDataset) -> Camera:
     return Camera.square(size, fov)
 
 
-def iter_frames(dataset: PairDataset, rows: list[int] | None = None) -> Iterator[tuple[int, Frame]]:
-    """``(item index, Frame)`` for the items ``rows`` (default all) of ``dataset``, in order.
+def iter_frames(
+    dataset: PairDataset, rows: list[int] | None = None, *, given_columns: Collection[str]
+) -> Iterator[tuple[int, Frame]]:
+    """``(item index, Frame)`` for the items ``rows`` (default all) of ``dataset``, in order, each
+    holding the true values of ``given_columns`` (a reference's ``given_columns``, of
+    ``TRUE_POSE_COLUMNS``: anything else raises ValueError) and no other.
 
     The grid is the pair's own satellite geometry (centre ``sat_E, sat_N``, ground
-    ``sat_U - sat_height_m``, footprint of the true image); the pixels are the image served.
+    ``sat_U - sat_height_m``, footprint of the true image); the pixels are the image served; the
+    camera is the manifest's (image size, field of view).
     """
     if not isinstance(dataset, PairDataset):
         raise TypeError(
@@ -100,7 +110,11 @@ def iter_frames(dataset: PairDataset, rows: list[int] | None = None) -> Iterator
     fe = sat["footprint_E_m"].to_numpy(np.float64)
     fn = sat["footprint_N_m"].to_numpy(np.float64)
     poses = dataset.poses
-    cols = {c: poses[c].to_numpy() for c in poses.columns}
+    cols = {
+        c: poses[c].to_numpy() for c in ("sat_index", "sat_E", "sat_N", "sat_U", "sat_height_m")
+    }
+    TrueValues(dict.fromkeys(given_columns, 0.0))  # ValueError for a column that is not a pose's
+    truth = {c: poses[c].to_numpy(np.float64) for c in given_columns}
     size = int(dataset.sat_images.shape[1])
     for i in range(len(poses)) if rows is None else rows:
         s_true = int(cols["sat_index"][i])
@@ -117,10 +131,7 @@ def iter_frames(dataset: PairDataset, rows: list[int] | None = None) -> Iterator
                 sat=dataset.sat_images[int(dataset.served_sat_index[i])],
                 grid=grid,
                 camera=camera,
-                position=np.array([cols["E"][i], cols["N"][i], cols["U"][i]], np.float64),
-                yaw=float(cols["yaw"][i]),
-                pitch=float(cols["pitch"][i]),
-                roll=float(cols["roll"][i]),
+                truth=TrueValues({c: float(v[i]) for c, v in truth.items()}),
             ),
         )
 
@@ -153,7 +164,8 @@ def evaluate_reference(
     sat_u = dataset.poses["sat_U"].to_numpy(np.float64)
     start, cpu_start = time.perf_counter(), time.process_time()
     with Progress(n, desc, unit="pair", enabled=progress) as bar:
-        for k, (i, frame) in enumerate(iter_frames(dataset, rows_list)):
+        frames = iter_frames(dataset, rows_list, given_columns=reference.given_columns)
+        for k, (i, frame) in enumerate(frames):
             est = reference.estimate(frame)
             sat_pos = np.array([*frame.grid.centre_en, sat_u[i]])  # the capture point
             R_hat[k] = est.R_bn @ R_sat_n.T  # R_uav^sat = R_uav^n (R_sat^n)^T, Eq. 2

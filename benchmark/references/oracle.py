@@ -22,7 +22,15 @@ import math
 import cv2
 import numpy as np
 
-from benchmark.references.base import Estimate, Frame, Reference, check_yaw_sweep
+from benchmark.references.base import (
+    PITCH,
+    POSITION,
+    ROLL,
+    Estimate,
+    Frame,
+    Reference,
+    check_yaw_sweep,
+)
 from benchmark.references.ground import cast_uav_pixels, rotate_offsets
 from benchmark.references.images import check_rgb, gradient_magnitude, grey
 from benchmark.sim import euler_to_rotmat_np
@@ -60,8 +68,8 @@ class GeometryOracle(Reference):
     """
 
     name = "geometry_oracle"
-    label = "Geometry oracle (not learned; given true position, pitch, roll)"
-    given = ("position E, N, U", "pitch", "roll")
+    title = "Geometry oracle"
+    given_values = (POSITION, PITCH, ROLL)
 
     def __init__(
         self,
@@ -92,10 +100,11 @@ class GeometryOracle(Reference):
         inside the satellite image)."""
         uav = check_rgb(frame.uav, "uav")
         sat = check_rgb(frame.sat, "sat")
+        truth = frame.truth
         cast = cast_uav_pixels(
             frame.camera,
-            frame.pitch,
-            frame.roll,
+            truth["pitch"],
+            truth["roll"],
             frame.height_above_ground_m,
             max_range_m=self.max_range_m,
         )
@@ -105,7 +114,7 @@ class GeometryOracle(Reference):
         g_uav = grey(uav, self.uav_blur_px)
         g_sat = grey(sat)
         de, dn = rotate_offsets(cast.offsets, yaws)
-        x, y = frame.grid.enu_to_pixel(frame.position[0] + de, frame.position[1] + dn)
+        x, y = frame.grid.enu_to_pixel(truth["E"] + de, truth["N"] + dn)
         size = frame.grid.size
         inside = (x >= 0) & (x <= size - 1) & (y >= 0) & (y <= size - 1)
         mx, my = x.astype(np.float32), y.astype(np.float32)
@@ -139,6 +148,5 @@ class GeometryOracle(Reference):
 
     def estimate(self, frame: Frame) -> Estimate:
         yaw, score = self.estimate_yaw(frame)
-        R = euler_to_rotmat_np(yaw, float(frame.pitch), float(frame.roll))
-        position = np.asarray(frame.position, np.float64).copy()
-        return Estimate(R, position, failed=not math.isfinite(score), score=score)
+        R = euler_to_rotmat_np(yaw, frame.truth["pitch"], frame.truth["roll"])
+        return Estimate(R, frame.truth.position(), failed=not math.isfinite(score), score=score)

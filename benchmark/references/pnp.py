@@ -70,8 +70,8 @@ class FeaturePnP(Reference):
     """
 
     name = "feature_pnp"
-    label = "Feature matching + PnP (not learned; given no true pose values)"
-    given: tuple[str, ...] = ()
+    title = "Feature matching + PnP"
+    given_values = ()
 
     def __init__(
         self,

@@ -29,7 +29,15 @@ import math
 
 import numpy as np
 
-from benchmark.references.base import Estimate, Frame, Reference, check_yaw_sweep
+from benchmark.references.base import (
+    ALTITUDE,
+    PITCH,
+    ROLL,
+    Estimate,
+    Frame,
+    Reference,
+    check_yaw_sweep,
+)
 from benchmark.references.ground import cast_uav_pixels, rotate_offsets
 from benchmark.references.images import check_rgb, gradient_magnitude, grey
 from benchmark.sim import euler_to_rotmat_np
@@ -120,8 +128,8 @@ class GravityTemplate(Reference):
     """
 
     name = "gravity_template"
-    label = "Gravity-aided template matching (not learned; given true pitch, roll, altitude)"
-    given = ("pitch", "roll", "altitude above the ground")
+    title = "Gravity-aided template matching"
+    given_values = (PITCH, ROLL, ALTITUDE)
 
     def __init__(
         self,
@@ -152,8 +160,8 @@ class GravityTemplate(Reference):
         sat = check_rgb(frame.sat, "sat")
         cast = cast_uav_pixels(
             frame.camera,
-            frame.pitch,
-            frame.roll,
+            frame.truth["pitch"],
+            frame.truth["roll"],
             frame.height_above_ground_m,
             max_range_m=self.max_range_m,
         )
@@ -195,11 +203,19 @@ class GravityTemplate(Reference):
         assert total is not None
         return total
 
+    @staticmethod
+    def _failed(frame: Frame) -> Estimate:
+        """No match: yaw 0 with the given pitch and roll, at the given altitude over the capture
+        point (the evaluation gives the frame the fallback pose; it has no horizontal position of
+        its own, and the true E, N are not given)."""
+        R = euler_to_rotmat_np(0.0, frame.truth["pitch"], frame.truth["roll"])
+        east, north = frame.grid.centre_en
+        return Estimate(R, np.array([east, north, frame.truth["U"]]), failed=True)
+
     def estimate(self, frame: Frame) -> Estimate:
         prep = self._prepare(frame)
         if prep is None:
-            R = euler_to_rotmat_np(0.0, float(frame.pitch), float(frame.roll))
-            return Estimate(R, np.asarray(frame.position, np.float64).copy(), failed=True)
+            return self._failed(frame)
         step = math.radians(self.step_deg)
         yaws = np.arange(-math.pi, math.pi - 1e-9, step)
         maps = self.score_maps(frame, prep, yaws)
@@ -215,8 +231,7 @@ class GravityTemplate(Reference):
         best = maps[kb]
         score = float(best[yb, xb])
         if not math.isfinite(score):
-            R = euler_to_rotmat_np(0.0, float(frame.pitch), float(frame.roll))
-            return Estimate(R, np.asarray(frame.position, np.float64).copy(), failed=True)
+            return self._failed(frame)
         fx = fy = 0.0
         if 0 < xb < best.shape[1] - 1:
             fx = _parabola_offset(best[yb, xb - 1], score, best[yb, xb + 1])
@@ -224,7 +239,7 @@ class GravityTemplate(Reference):
             fy = _parabola_offset(best[yb - 1, xb], score, best[yb + 1, xb])
         enu = frame.grid.pixel_to_enu(np.array(xb + fx), np.array(yb + fy))
         # The altitude is given: U = the ground plane + the height above it = the true U.
-        position = np.array([enu[0], enu[1], float(frame.position[2])])
+        position = np.array([enu[0], enu[1], frame.truth["U"]])
         yaw = math.remainder(float(yaws[kb]), 2 * math.pi)
-        R = euler_to_rotmat_np(yaw, float(frame.pitch), float(frame.roll))
+        R = euler_to_rotmat_np(yaw, frame.truth["pitch"], frame.truth["roll"])
         return Estimate(R, position, failed=False, score=score)

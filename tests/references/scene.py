@@ -4,6 +4,9 @@ places in it, UAV frames around the first place at the quick profile's 96 px.
 The satellite images cover 600 m x 450 m (a 4:3 footprint squashed to a square image: anisotropic
 ground sampling, as the dataset's 2:1) so that both fit in a 1.5 km x 1 km town that builds in a
 few seconds; the geometry is the dataset's (``render_satellite``, ``satellite_pose``).
+
+Each rendered pair is a :class:`View`, which keeps its whole true pose for the tests to compare
+with; a reference is served ``view.frame_for(reference)``, which holds only what it is given.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from benchmark.references import Frame, SatelliteGrid
+from benchmark.references import Frame, Reference, SatelliteGrid, TrueValues
 from benchmark.sim import (
     Camera,
     build_city,
@@ -30,12 +33,34 @@ SAT_HEIGHT_M = 1000.0
 CENTRES = (np.array([-330.0, 0.0]), np.array([330.0, 0.0]))
 
 
+@dataclass(frozen=True)
+class View:
+    """One rendered pair and its whole true pose (``position`` ``(3,)`` absolute ENU metres;
+    ``yaw``, ``pitch``, ``roll`` radians)."""
+
+    uav: np.ndarray
+    sat: np.ndarray
+    grid: SatelliteGrid
+    camera: Camera
+    position: np.ndarray
+    yaw: float
+    pitch: float
+    roll: float
+
+    def frame_for(self, reference: Reference) -> Frame:
+        """The frame ``reference`` is served: the images and only its given true values."""
+        e, n, u = (float(x) for x in self.position)
+        pose = {"E": e, "N": n, "U": u, "yaw": self.yaw, "pitch": self.pitch, "roll": self.roll}
+        truth = TrueValues.select(pose, reference.given_columns)
+        return Frame(self.uav, self.sat, self.grid, self.camera, truth)
+
+
 @dataclass
 class Scene:
-    frames: list[Frame]  # oblique UAV views around CENTRES[0], its own satellite image
-    swapped: list[Frame]  # the same frames served the satellite image of CENTRES[1]
-    steep: list[Frame]  # steeper oblique views (pitch -65 to -55 deg, 120-150 m)
-    nadir: list[Frame]  # near-nadir views (pitch -80 deg, 500 m) lit as the satellite image was
+    frames: list[View]  # oblique UAV views around CENTRES[0], its own satellite image
+    swapped: list[View]  # the same frames served the satellite image of CENTRES[1]
+    steep: list[View]  # steeper oblique views (pitch -65 to -55 deg, 120-150 m)
+    nadir: list[View]  # near-nadir views (pitch -80 deg, 500 m) lit as the satellite image was
     city: object
     grids: tuple[SatelliteGrid, SatelliteGrid]
     sats: tuple[np.ndarray, np.ndarray]
@@ -79,7 +104,7 @@ def build_scene(cache_dir, n_frames: int = 8, n_other: int = 5, seed: int = 5) -
                 uav = render_uav(city, position, yaw, pitch, roll, camera, light=light)
             except ValueError:  # inside a building: draw again
                 continue
-            out.append(Frame(uav, sats[0], grids[0], camera, position, yaw, pitch, roll))
+            out.append(View(uav, sats[0], grids[0], camera, position, yaw, pitch, roll))
     frames, steep, nadir = (k[0] for k in kinds)
     swapped = [dataclasses.replace(f, sat=sats[1]) for f in frames]
     return Scene(frames, swapped, steep, nadir, city, (grids[0], grids[1]), (sats[0], sats[1]))

@@ -22,7 +22,7 @@ from benchmark.references import (
 
 class AlwaysFails(Reference):
     name = "always_fails"
-    label = "always fails (not learned)"
+    title = "Always fails"
 
     def estimate(self, frame):
         return Estimate(np.eye(3), np.zeros(3), failed=True)

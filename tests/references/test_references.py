@@ -34,10 +34,10 @@ from benchmark.sim import (
 )
 
 
-def _errors(reference, frames):
+def _errors(reference, views):
     out = []
-    for f in frames:
-        est = reference.estimate(f)
+    for f in views:
+        est = reference.estimate(f.frame_for(reference))
         dpos = float(np.hypot(*(est.position[:2] - f.position[:2])))
         out.append((yaw_error_deg(est.R_bn, f.yaw), dpos, est))
     return out
@@ -71,7 +71,7 @@ class TestGeometryOracle:
                                     footprint_m=(400.0, 300.0), size=SIZE, light=0)  # fmt: skip
             grid = SatelliteGrid((float(centre[0]), float(centre[1])), float(pos[2]) - SAT_HEIGHT_M,
                                  (400.0, 300.0), SIZE)  # fmt: skip
-            frame = replace(f, sat=crop, grid=grid)
+            frame = replace(f, sat=crop, grid=grid).frame_for(oracle)
             yaws = f.yaw + np.radians(np.arange(-180.0, 180.0, 5.0))
             scores = oracle.yaw_scores(frame, yaws)
             best = math.degrees(math.remainder(yaws[int(np.argmax(scores))] - f.yaw, 2 * math.pi))
