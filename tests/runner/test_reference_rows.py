@@ -266,7 +266,7 @@ class TestRenderedRows:
         assert "`standard/test` not run" in note  # the two others: no record
 
     def test_cells_get_the_flight_bootstrap_of_the_reference_frames(self):
-        from benchmark.runner.report.outputs import _reference_interval
+        from benchmark.runner.report.intervals import reference_interval
 
         rng = np.random.default_rng(0)
         frame = pd.DataFrame({"index": range(60), "flight": np.repeat(np.arange(12), 5),
@@ -276,14 +276,33 @@ class TestRenderedRows:
         part = pd.DataFrame([{"label": label, "split": STD, "satellite": "true",
                               "train_split": "standard/train",
                               "reference": "geometry_oracle"}])  # fmt: skip
-        got = _reference_interval(part, ["dpsi_deg", "acc10"], results)
+        got = reference_interval(part, ["dpsi_deg", "acc10"], results)
         mean = frame["dpsi_deg"].mean()
         assert got["interval"] == "flight×seed bootstrap" and got["n_flights"] == 12
         assert got["dpsi_deg_lo"] < mean < got["dpsi_deg_hi"]
         acc = (frame["dphi_deg"] <= 10.0).mean()  # acc@10°: bootstrapped as the errors are
         assert 0.0 <= got["acc10_lo"] < acc < got["acc10_hi"] <= 1.0
         model_row = part.assign(reference=float("nan"), label="Pd/Re-Net")
-        assert _reference_interval(model_row, ["dpsi_deg"], results) is None
+        assert reference_interval(model_row, ["dpsi_deg"], results) is None
+
+    def test_the_swap_interval_is_the_models(self, table1_references):
+        """A reference's swap effect in a table: the claims' bootstrap of its per-frame rise, as
+        a model's with one seed (``N_BOOT`` replicates), not the cached flight bootstrap."""
+        from benchmark.runner.claims.evidence import N_BOOT
+        from benchmark.runner.claims.spread import seed_flight_bootstrap
+        from benchmark.runner.report.intervals import row_interval
+
+        _spec, results = table1_references
+        name, train = "gravity_template", "standard/train"
+        part = pd.DataFrame([{"label": get_reference_class(name).label, "split": STD,
+                              "satellite": "swap", "train_split": train,
+                              "reference": name}])  # fmt: skip
+        got = row_interval(part, ["dpsi_deg"], None, {}, results)
+        true = results.table_frame(name, STD, "true", train).sort_values("index")
+        swap = results.table_frame(name, STD, "swap", train).sort_values("index")
+        rise = swap["dphi_deg"].to_numpy() - true["dphi_deg"].to_numpy()
+        _, lo, hi = seed_flight_bootstrap(rise, true["flight"].to_numpy(), n_boot=N_BOOT)
+        assert (got["swap_dphi_boot_lo_deg"], got["swap_dphi_boot_hi_deg"]) == (lo, hi)
 
     def test_kept_tables_read_the_cache(self, table1_references):
         spec, results = table1_references

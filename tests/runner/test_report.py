@@ -444,3 +444,56 @@ class TestSweepLabels:
         assert series_label("Pd/Re-Net", "standard/test", False) == "Pd/Re-Net on standard/test"
         header = next(x for x in sweep_table(specs[1], summary).splitlines() if "| split |" in x)
         assert "| satellite image height above ground (m) |" in header
+
+
+class TestSwapEffectInterval:
+    """The swap probe's Δ interval in a table is the claims' (issue 38): each seed's swapped and
+    true errors paired per frame, flights and seeds resampled together; never the mean of the
+    seeds' own flight-bootstrap bounds."""
+
+    def test_the_table_prints_the_claims_interval(self, synthetic):
+        from benchmark.evaluation.paired import swap_effect
+        from benchmark.runner.claims.evidence import N_BOOT, Evidence
+        from benchmark.runner.claims.frame_errors import FrameStore
+        from benchmark.runner.claims.satellite import swap_rise
+        from benchmark.runner.report.intervals import row_interval
+        from benchmark.runner.report.tables import swap_probe_table
+
+        specs, units, results, _errors, workdir = synthetic
+        frame = results_frame(units, results)
+        frame = frame[(frame.table == "table1") & (frame.role == "test")].copy()
+        eval_dir = workdir / "units"
+        for i in frame.index[frame.satellite == "swap"]:  # each seed's own effect, as trained
+            unit, split = frame.at[i, "unit"], frame.at[i, "split"].replace("/", "__")
+            true = pd.read_csv(eval_dir / unit / "eval" / f"{split}.csv")
+            swap = pd.read_csv(eval_dir / unit / "eval" / f"{split}__swap.csv")
+            for key, value in swap_effect(true, swap).items():
+                frame.loc[i, key] = value
+        metrics = [m for m in REPORT_METRICS if m in frame.columns]
+        bare = summarize(frame, metrics)
+        row = pick(bare, "Pd/Re-Net", "standard/test", "swap")
+        assert math.isnan(row["swap_dpsi_boot_lo_deg"])  # no averaged bounds: no interval
+        assert "no interval (no per-frame errors)" in swap_probe_table(specs[0], bare)
+
+        def resolve(part):
+            return row_interval(part, metrics, workdir, {}, ReferenceResults())
+
+        summary = summarize(frame, metrics, resolve)
+        text = swap_probe_table(specs[0], summary)
+        store = FrameStore(workdir, workdir / "no-data", units)
+        for label in ("Pd/Re-Net", "Re-Net-Q"):
+            line = next(
+                x for x in text.splitlines() if x.startswith(f"| `standard/test` | {label} |")
+            )
+            for metric, short in (("dpsi_deg", "dpsi"), ("dphi_deg", "dphi")):
+                claim = swap_rise(Evidence(store), ("table1", label, None), "standard/test", metric)
+                row = pick(summary, label, "standard/test", "swap")
+                got = (row[f"swap_{short}_boot_lo_deg"], row[f"swap_{short}_boot_hi_deg"])
+                assert got == pytest.approx((claim.lo, claim.hi), rel=1e-12)
+                assert row[f"swap_{short}_diff_deg"] == pytest.approx(claim.diff, rel=1e-9)
+                assert f"{claim.diff:+.2f} [{claim.lo:+.2f}, {claim.hi:+.2f}]" in line
+                seeds = frame[(frame.label == label) & (frame.split == "standard/test")
+                              & (frame.satellite == "swap")]  # fmt: skip
+                averaged = seeds[f"swap_{short}_boot_lo_deg"].mean()
+                assert averaged != pytest.approx(claim.lo, rel=1e-6)  # the old cell differs
+        assert f"{N_BOOT} replicates that resample whole flights and the seeds together" in text

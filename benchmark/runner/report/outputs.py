@@ -30,12 +30,7 @@ from benchmark.runner.claims.evidence import Claim
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.claims.ranking import ranking_markdown
-from benchmark.runner.claims.spread import (
-    CELL_METRICS,
-    cell_interval,
-    frame_interval,
-    prediction_paths,
-)
+from benchmark.runner.claims.spread import prediction_paths
 from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
     constant_baseline,
@@ -59,6 +54,7 @@ from benchmark.runner.plan.repro_profiles import ReproProfile
 from benchmark.runner.plan.specs import TableSpec, default_spec_dir
 from benchmark.runner.plan.units import Unit
 from benchmark.runner.report.costs import cost_table
+from benchmark.runner.report.intervals import row_interval
 from benchmark.runner.report.logbook import Logbook
 from benchmark.runner.report.provenance import (
     collect_provenance,
@@ -229,9 +225,7 @@ def write_reports(
     cost_cache = Path(workdir) / "costs" if workdir is not None else None
 
     def resolve(part: pd.DataFrame) -> dict | None:
-        return _reference_interval(part, metrics, references) or cell_interval(
-            part, metrics, workdir, constant_frames
-        )
+        return row_interval(part, metrics, workdir, constant_frames, references)
 
     def summary_of(name: str) -> pd.DataFrame:
         part = everything[everything["table"] == name] if len(everything) else everything
@@ -307,25 +301,6 @@ def write_reports(
     readme.write_text(text + provenance_summary(record))
     written.append(readme)
     return written
-
-
-def _reference_interval(
-    part: pd.DataFrame, metrics: list[str], references: ReferenceResults
-) -> dict | None:
-    """The flight bootstrap bounds of a reference row (``part``: its one results row) from its
-    per-frame table, as a model's (None for any other row, or without the table)."""
-    wanted = [m for m in metrics if m in CELL_METRICS]
-    if part.empty or not wanted or "reference" not in part:
-        return None
-    first = part.iloc[0]
-    if not isinstance(first["reference"], str) or not first["reference"]:
-        return None
-    frame = references.frame_of(
-        str(first["label"]), str(first["split"]), str(first["satellite"]), str(first["train_split"])
-    )
-    if frame is None or "flight" not in frame:
-        return None
-    return frame_interval(frame, wanted)
 
 
 def failed_jobs(
@@ -588,7 +563,8 @@ def _readme(
               "split, satellite mode and seed; column `satellite`: `true` = each pair's own "
               "satellite image, `swap` = another place's, the satellite-swap probe; the `swap` "
               "rows hold the paired swap effect `swap_dpsi_diff_deg`, `swap_dphi_diff_deg` with "
-              "their 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, `swap_*_boot_hi_deg`; "
+              "that row's own 95% flight-bootstrap bounds `swap_*_boot_lo_deg`, "
+              "`swap_*_boot_hi_deg` (the tables give the claims' flight x seed interval); "
               "column `satellite_input`: `blank` marks the UAV-only control; column `role`: "
               "`test`, or `val` for the validation split of the training data; column "
               "`reference`: the non-learned reference's name on its rows, empty on the models' "

@@ -4,11 +4,12 @@ Input is the long results table the runner writes (one row per table, spec row, 
 satellite mode and seed; metric columns named as in ``reports/paper_tables.csv``: ``dE_m``,
 ``dtheta_deg``...). ``satellite`` is ``true`` (each pair's own satellite image) or ``swap`` (the
 satellite-swap probe: another place's image); the ``swap`` rows of trained models also hold the
-paired swap effect ``swap_<dpsi|dphi>_diff_deg`` with its 95% flight-bootstrap interval
-``swap_<e>_boot_lo_deg`` / ``_hi_deg``. ``satellite_input`` is ``image``, ``blank`` (the UAV-only
-control) or ``none`` (the constant predictor); ``train_split`` the split a row was trained on;
-``role`` is ``test`` or ``val`` (the unit's validation split, on which choices are made; the tables
-show it beside the test numbers).
+paired swap effect ``swap_<dpsi|dphi>_diff_deg`` with each seed's 95% flight-bootstrap interval
+``swap_<e>_boot_lo_deg`` / ``_hi_deg`` (the tables show the claims' joint flight x seed interval
+instead: ``benchmark.runner.report.intervals``). ``satellite_input`` is ``image``, ``blank`` (the
+UAV-only control) or ``none`` (the constant predictor); ``train_split`` the split a row was
+trained on; ``role`` is ``test`` or ``val`` (the unit's validation split, on which choices are
+made; the tables show it beside the test numbers).
 
 A cell is the mean over seeds. Its 95% interval is the flight x seed bootstrap of
 ``benchmark.runner.claims.spread`` when the caller passes per-frame errors (``summarize(...,
@@ -26,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.evaluation.metrics import seed_interval
+from benchmark.runner.claims.evidence import N_BOOT as CLAIMS_N_BOOT
 from benchmark.runner.claims.satellite import MIN_RISE_DEG
 from benchmark.runner.execute.reference_rows import fails_text, failure_percent
 from benchmark.runner.plan.specs import TableSpec
@@ -57,7 +59,11 @@ GROUP_KEYS = [
 VAL_METRICS = ("dpsi_deg", "dphi_deg", "dE_m", "dN_m")
 NO_VAL = "–"  # a model whose training split has no validation split (the height splits)
 SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))
+# The swap effect's interval: the claims' joint flight x seed bootstrap, given by ``resolve``
+# (``benchmark.runner.report.intervals``); the mean of the seeds' own bounds is none.
+SWAP_BOUNDS = tuple(f"swap_{e}_boot_{end}_deg" for e, _ in SWAP_EFFECTS for end in ("lo", "hi"))
 ONE_FLIGHT = "one flight: no interval"
+NO_INTERVAL = "no interval (no per-frame errors)"
 
 
 def interval95(values: np.ndarray) -> tuple[float, float, float]:
@@ -81,7 +87,9 @@ def summarize(
     ``<m>_lo``, ``<m>_hi`` (95% Student-t interval over seeds), ``n_seeds`` and ``interval``
     (``seed t`` or ``none``). ``resolve(part)``, given a row's results (one per seed), may return
     better bounds (``<m>_lo``/``<m>_hi``, ``interval``, ``n_flights``) that replace these, e.g.
-    :func:`benchmark.runner.claims.spread.cell_interval`."""
+    :func:`benchmark.runner.report.intervals.row_interval`. The swap effect's bounds
+    (:data:`SWAP_BOUNDS`) of several seeds are left empty unless ``resolve`` gives them: a mean
+    of the seeds' own interval bounds is no interval."""
     rows = []
     keys = [k for k in GROUP_KEYS if k in results.columns]
     for group, part in results.groupby(keys, dropna=False, sort=False):
@@ -91,6 +99,8 @@ def summarize(
             if m in part:
                 row[m], row[f"{m}_lo"], row[f"{m}_hi"] = interval95(part[m].to_numpy())
         row["interval"] = "seed t" if row["n_seeds"] > 1 else "none"
+        if row["n_seeds"] > 1:
+            row.update({k: math.nan for k in SWAP_BOUNDS if k in row})
         better = resolve(part) if resolve is not None else None
         row.update(better or {})
         rows.append(row)
@@ -205,19 +215,26 @@ def uses_satellite(swap_row: pd.Series | None) -> str | None:
     at least ``MIN_RISE_DEG`` (a statistically clear rise of 0.01 deg is no use of the image).
     ``yes`` when the yaw and the geodesic errors both rise, ``yaw only`` / ``geodesic only`` when
     one does, ``no`` otherwise; ``one flight`` when the test set holds a single flight (no interval
-    over flights); None without the numbers."""
+    over flights); :data:`NO_INTERVAL` with the mean rises but no interval; None without the
+    numbers."""
     if swap_row is None:
         return None
     if swap_row.get("swap_groups", 2) < 2:
         return ONE_FLIGHT
     keys = [(f"swap_{e}_boot_lo_deg", f"swap_{e}_diff_deg") for e, _ in SWAP_EFFECTS]
     values = [(swap_row.get(lo, math.nan), swap_row.get(d, math.nan)) for lo, d in keys]
-    if not all(isinstance(x, float | int) and math.isfinite(x) for v in values for x in v):
+    if not all(_finite(d) for _, d in values):
         return None
+    if not all(_finite(lo) for lo, _ in values):
+        return NO_INTERVAL
     yaw, geo = (lo > 0 and d >= MIN_RISE_DEG for lo, d in values)
     return {(True, True): "yes", (True, False): "yaw only", (False, True): "geodesic only"}.get(
         (yaw, geo), "no"
     )
+
+
+def _finite(x: object) -> bool:
+    return isinstance(x, float | int) and math.isfinite(x)
 
 
 def failure_rate(row: pd.Series | None) -> float:
@@ -345,9 +362,12 @@ def swap_probe_table(
         "Satellite-swap probe: each pair's satellite image replaced by another place's (another "
         "centre of the same city; for `generalized/test` another city; for `towns/*` another "
         "town; rules in `benchmark/data/swap.py`), labels unchanged. Δ = swapped minus true "
-        "error on the same frames, mean and 95% interval from 2000 bootstrap resamples of whole "
-        "flights. A model uses the satellite image when both intervals lie above zero and both "
-        f"mean rises are at least {MIN_RISE_DEG:g}°.",
+        "error on the same frames, mean over the training seeds and 95% interval of the claims' "
+        f"bootstrap: {CLAIMS_N_BOOT} replicates that resample whole flights and the seeds "
+        "together, each seed's swapped and true errors paired on the same frames (so a claim "
+        "about a model and this table give the same interval). A model uses the satellite "
+        "image when both intervals lie above zero and both mean rises are at least "
+        f"{MIN_RISE_DEG:g}°.",
         "",
         "| split | model | δψ true | δψ swapped | Δδψ [95% CI] | δφ true | δφ swapped "
         "| Δδφ [95% CI] | uses the satellite image |",
@@ -370,10 +390,15 @@ def swap_probe_table(
 
 
 def _effect(swap: pd.Series | None, e: str) -> str:
-    keys = [f"swap_{e}_diff_deg", f"swap_{e}_boot_lo_deg", f"swap_{e}_boot_hi_deg"]
-    if swap is None or not all(k in swap and math.isfinite(swap[k]) for k in keys):
+    """``+Δ [lo, hi]`` of one swap effect; ``+Δ`` and :data:`NO_INTERVAL` without bounds."""
+    mean, lo, hi = (
+        swap.get(f"swap_{e}_{k}_deg", math.nan) if swap is not None else math.nan
+        for k in ("diff", "boot_lo", "boot_hi")
+    )
+    if not _finite(mean):
         return "not run"
-    mean, lo, hi = (float(swap[k]) for k in keys)
+    if not (_finite(lo) and _finite(hi)):
+        return f"{mean:+.2f}, {NO_INTERVAL}"
     return f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
