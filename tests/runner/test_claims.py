@@ -16,8 +16,10 @@ from benchmark.evaluation.paired import pooled_bootstrap
 from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
+    EQUIVALENT,
     EXCLUDED,
     N_BOOT,
+    NO_DIFFERENCE,
     NOT_RUN,
     SUPPORTED,
     UNRESOLVED,
@@ -112,10 +114,21 @@ class TestPairwise:
     def test_clear_loss(self, tmp_path):
         assert claim_ab(Repro(tmp_path), 20.0, 5.0).verdict == CONTRADICTED
 
-    def test_noise_is_not_resolved(self, tmp_path):
+    def test_tie_is_no_practical_difference(self, tmp_path):
+        """Equal errors on 60 frames: the 90% interval lies inside the 2° margin (issue 38)."""
         c = claim_ab(Repro(tmp_path), 10.0, 10.0)
+        assert c.verdict == NO_DIFFERENCE
+        (comp,) = c.comparisons
+        assert comp.verdict == EQUIVALENT and comp.lo < 0 < comp.hi
+        assert re.search(r"\(90% \[[-+]\d\.\d\d, [-+]\d\.\d\d\] inside ±2°\) ≈", c.difference)
+
+    def test_noisy_tie_is_not_resolved(self, tmp_path):
+        """Equal but noisy errors: the interval is wider than the margin, so neither a win nor
+        a tie is shown."""
+        c = claim_ab(Repro(tmp_path), 60.0, 60.0)
         assert c.verdict == UNRESOLVED
-        assert c.comparisons[0].lo < 0 < c.comparisons[0].hi
+        (comp,) = c.comparisons
+        assert comp.verdict == UNRESOLVED and comp.lo < -2 and comp.hi > 2
 
     def test_head_at_constant_level_is_excluded(self, tmp_path):
         c = claim_ab(Repro(tmp_path), 5.0, "constant")
@@ -209,9 +222,11 @@ class TestPaperClaims:
         repro.add("table1", "Pd-Net-E", {STD: "constant"})
         repro.add("table1", "UAV-only control", {STD: "constant"}, blank=True)
         c = constant_claim(Evidence(repro.store()))
-        assert c.verdict == UNRESOLVED
+        # A head at the constant's level (its difference tight around 0) is equivalent to it:
+        # the sanity bar fails as "no practical difference" (issue 38's rule).
+        assert c.verdict == NO_DIFFERENCE
         assert [x.where for x in c.comparisons] == ["Pd/Re-Net", "Pd-Net-E"]
-        assert [x.verdict for x in c.comparisons] == [SUPPORTED, UNRESOLVED]
+        assert [x.verdict for x in c.comparisons] == [SUPPORTED, EQUIVALENT]
 
     def test_translation_regression_more_accurate(self, tmp_path):
         repro = Repro(tmp_path)
@@ -336,10 +351,11 @@ class TestEvaluateAndRender:
         text = render_claims(claims)
         lines = text.splitlines()
         assert lines[0] == (
-            "| # | claim | source | paired difference [95% interval] | rule | verdict | evidence |"
+            "| # | claim | source | paired difference [95% interval] | rule | verdict "
+            "| confirmation draw (`confirm/*`): verdict, paired difference | evidence |"
         )
         rows = [line for line in lines if re.match(r"\| \d+ \|", line)]
-        assert len(rows) == 15 and all(row.count(" | ") == 6 for row in rows)
+        assert len(rows) == 15 and all(row.count(" | ") == 7 for row in rows)
         assert "Bonferroni" in text
 
     def test_missing_file_named_in_the_claim(self, tmp_path):

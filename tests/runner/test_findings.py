@@ -81,7 +81,7 @@ class TestFindings:
         lines = text.splitlines()
         assert lines[0] == (
             "Of 4 claims checked: 1 supported, 1 contradicted, 1 not resolved at this scale, "
-            "1 not run."
+            "1 not run (on the main test splits)."
         )
         assert (
             "- **supported**: claim 1 (A beats B: 2 of 2 comparisons supported, Δ from -5.00 "

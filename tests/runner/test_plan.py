@@ -85,6 +85,24 @@ class TestPlanUnits:
         assert "generalized/test" in unit.eval_splits and "pitch0to-10/test" in unit.eval_splits
         assert "flight/pitch0" in unit.eval_splits  # Re-Net of Table 5
 
+    def test_units_are_evaluated_on_the_confirmation_of_their_test_splits(self):
+        """Issue 38: each unit also evaluates confirm/* for the test splits its jobs test, with
+        the same model (same key); no job lists them, so no table shows them."""
+        confirm = ["confirm/standard", "confirm/towns", "confirm/generalized"]
+        without = {u.key: u for u in plan()}
+        units = plan_units(load_specs(), PROFILES["quick"], [0], Path("/d"), SPLITS + confirm, "h")
+        mapping = dict(
+            zip(("standard/test", "towns/test", "generalized/test"), confirm, strict=True)
+        )
+        assert {u.key for u in units} == set(without)
+        for unit in units:
+            tested = {s for job in unit.jobs for s in job.eval_splits}
+            expected = [c for t, c in mapping.items() if t in tested]
+            assert list(unit.confirm_splits) == expected
+            assert unit.eval_splits == without[unit.key].eval_splits + expected
+            assert not any(s in job.eval_splits for job in unit.jobs for s in confirm)
+        assert any(u.confirm_splits for u in units)
+
     def test_every_unit_is_evaluated_on_its_validation_split(self):
         # Choices are made on validation numbers, so each run carries them beside its test ones.
         expected = {

@@ -12,7 +12,7 @@ import pytest
 from test_frames import SPLITS, Repro
 
 from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
-from benchmark.runner.claims.evidence import NOT_RUN, SUPPORTED, UNRESOLVED, Evidence
+from benchmark.runner.claims.evidence import NO_DIFFERENCE, NOT_RUN, SUPPORTED, UNRESOLVED, Evidence
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.ranking import (
     ranking_claim,
@@ -55,10 +55,20 @@ class TestRankingClaim:
         assert "beyond the seed and flight spread (3 of 3 heads beat the constant" in text
         assert text.endswith("claim 16).")
 
-    def test_tie_is_within_the_spread(self, tmp_path):
+    def test_tie_is_equivalent(self, tmp_path):
+        """A tie inside the 2° margin: no representation wins (issue 38)."""
         c = ranking_claim(extended(Repro(tmp_path), {"A": 10.0, "B": 10.0}), "extended", STD)
-        assert c.verdict == UNRESOLVED and c.comparisons[0].lo < 0 < c.comparisons[0].hi
-        assert "within the seed and flight spread, so no representation wins" in (
+        assert c.verdict == NO_DIFFERENCE and c.comparisons[0].lo < 0 < c.comparisons[0].hi
+        assert re.search(
+            r"equivalent: the 90% interval \[[-+]\d\.\d\d, [-+]\d\.\d\d\]° lies inside the ±2° "
+            r"margin, so no representation wins \(no practical difference\)",
+            ranking_sentence(3, c),
+        )
+
+    def test_noisy_tie_is_within_the_spread(self, tmp_path):
+        c = ranking_claim(extended(Repro(tmp_path), {"A": 60.0, "B": 60.0}), "extended", STD)
+        assert c.verdict == UNRESOLVED and c.comparisons[0].lo < -2 and c.comparisons[0].hi > 2
+        assert "within the seed and flight spread but not inside the equivalence margin" in (
             ranking_sentence(3, c)
         )
 
@@ -114,7 +124,7 @@ class TestInReport:
         claims = evaluate_claims({}, repro.store())
         ranked = [c for c in claims if c.kind == "ranking"]
         assert len(claims) == 17 and [c.split for c in ranked] == [STD, GEN]
-        assert [c.verdict for c in ranked] == [SUPPORTED, UNRESOLVED]
+        assert [c.verdict for c in ranked] == [SUPPORTED, NO_DIFFERENCE]  # A and B tie on GEN
         assert all("Control" not in c.facts["means"] for c in ranked)
         findings, table = findings_markdown(claims), render_claims(claims)
         sentences = [ranking_sentence(i, c) for i, c in enumerate(claims, 1) if c in ranked]

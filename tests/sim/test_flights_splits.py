@@ -14,7 +14,15 @@ from scipy.spatial.transform import Rotation
 from benchmark.data.profiles import PROFILES
 from benchmark.geometry import euler_to_rotmat, relative_rotation
 from benchmark.sim.seeds import city_seed, sample_seed
-from benchmark.sim.splits import LEAK_ANGLE_DEG, LEAK_DIST_M, R_COLUMNS, make_plan, relative_labels
+from benchmark.sim.splits import (
+    CONFIRM_SPLITS,
+    CONFIRMS,
+    LEAK_ANGLE_DEG,
+    LEAK_DIST_M,
+    R_COLUMNS,
+    make_plan,
+    relative_labels,
+)
 from benchmark.sim.towns import TOWN_ROLES, town_list
 
 
@@ -47,7 +55,8 @@ def small_profile(**kw):
 CITIES = {("oxford", "now"): FlatCity(10.0), ("cambridge", "now"): FlatCity(3.0, 2),
           ("london", "now"): FlatCity(30.0), ("industrial", "now"): FlatCity(50.0, 2),
           ("industrial", "earlier"): FlatCity(50.0, 2)}  # fmt: skip
-for _k, _town in enumerate(town_list(small_profile().n_towns, 7) + town_list((4, 1, 2, 2), 8)):
+_TOWNS = town_list(small_profile().n_towns, 7, confirm_draw=1) + town_list((4, 1, 2, 2), 8)
+for _k, _town in enumerate(_TOWNS):
     CITIES[(_town.name, "now")] = FlatCity(float(_k), 1)
 
 
@@ -221,6 +230,62 @@ class TestMakePlan:
     def test_uav_index_is_row_number(self, plan):
         np.testing.assert_array_equal(plan.uav.uav_index, np.arange(len(plan.uav)))
         np.testing.assert_array_equal(plan.sat.sat_index, np.arange(len(plan.sat)))
+
+
+class TestConfirmationDraw:
+    """Issue 38: confirm/* repeat standard/test, towns/test and generalized/test on new flights
+    (and new towns) from seed groups of their own, leaving every other split as it was."""
+
+    def test_sizes_equal_the_test_splits_they_repeat(self, plan):
+        counts = plan.pairs.split.value_counts()
+        for test, confirm in CONFIRMS.items():
+            assert counts[confirm] == counts[test]
+        assert plan.splits[-3:] == list(CONFIRM_SPLITS)
+
+    def test_new_flights_same_cities_new_towns(self, plan):
+        pairs = plan.pairs
+        for test, confirm in CONFIRMS.items():
+            assert not flights_of(plan, test) & flights_of(plan, confirm)
+        cities = {s: set(pairs.loc[pairs.split == s, "city"]) for s in pairs.split.unique()}
+        assert cities["confirm/standard"] <= {"oxford", "cambridge"}
+        assert cities["confirm/generalized"] == {"london"}
+        assert all(c.startswith("town-confirm1-") for c in cities["confirm/towns"])
+        assert not cities["confirm/towns"] & set().union(
+            *(cities[f"towns/{r}"] for r in TOWN_ROLES)
+        )
+        confirm_styles = set(pairs.loc[pairs.split == "confirm/towns", "style"])
+        assert confirm_styles <= {"oxford", "cambridge"}
+
+    def test_confirm_standard_is_leak_checked_like_test(self, plan):
+        from benchmark.sim.splits import POSE_COLUMNS as POSE
+        from benchmark.sim.splits import _LeakIndex
+
+        leak = _LeakIndex()
+        train = plan.uav[plan.uav.group == "standard/train"]
+        for style, rows in train.groupby("city"):
+            leak.add(
+                style, {k: rows[k].to_numpy() for k in ("E", "N", "U", "yaw", "pitch", "roll")}
+            )
+        confirm = plan.uav[plan.uav.group == "confirm/standard"]
+        for style, rows in confirm.groupby("city"):
+            assert not leak.leaks(style, {k: rows[k].to_numpy() for k in POSE})
+
+    def test_other_splits_unchanged_without_the_draw(self, plan):
+        without = make_plan(small_profile(confirm_draw=0), CITIES, seed=7)
+        assert not set(CONFIRM_SPLITS) & set(without.splits)
+        n_uav, n_sat, n_pairs = len(without.uav), len(without.sat), len(without.pairs)
+        pd.testing.assert_frame_equal(without.uav, plan.uav.iloc[:n_uav])
+        pd.testing.assert_frame_equal(without.sat, plan.sat.iloc[:n_sat])
+        pd.testing.assert_frame_equal(without.pairs, plan.pairs.iloc[:n_pairs])
+
+    def test_each_draw_has_its_own_flights(self, plan):
+        second = make_plan(small_profile(confirm_draw=2), {**CITIES, **{
+            (t.name, "now"): FlatCity(float(k), 1)
+            for k, t in enumerate(town_list(small_profile().n_towns, 7, confirm_draw=2))
+        }}, seed=7)  # fmt: skip
+        a = plan.uav[plan.uav.group == "confirm/standard"][["E", "N", "yaw"]].to_numpy()
+        b = second.uav[second.uav.group == "confirm/standard"][["E", "N", "yaw"]].to_numpy()
+        assert a.shape == b.shape and not np.allclose(a, b)
 
 
 class TestRelativeLabels:

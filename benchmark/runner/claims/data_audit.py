@@ -172,6 +172,36 @@ def heading_cue_report(
     return "\n".join(lines) + "\n", rows
 
 
+def heading_cue_verdict(ratio: float, lo: float, hi: float) -> str:
+    """The words of the audit's verdict, from the ratio's interval ``[lo, hi]`` against 1 (no cue
+    at all) and ``THRESHOLD`` (the issue's bar): "no ... cue" only when the interval includes 1
+    (or lies above it), a weak cue below the threshold when it excludes 1 but lies above the
+    threshold. No interval, no verdict: the rest is not resolved."""
+    gain = f"the probe's yaw error {100 * (1 - ratio):.0f}% below the constant's"
+    if lo > 1.0:
+        return (
+            "no global heading cue (the interval lies above 1: the probe reads the yaw worse "
+            "than the constant predictor)"
+        )
+    if lo <= 1.0 <= hi and lo >= THRESHOLD:
+        return "no global heading cue detected (the interval includes 1)"
+    if hi < 1.0 and lo >= THRESHOLD:
+        return (
+            f"a weak global heading cue ({gain}: the interval excludes 1), weaker than the "
+            f"{THRESHOLD} threshold (the interval lies above it)"
+        )
+    if hi < THRESHOLD:
+        return f"a global heading cue stronger than the {THRESHOLD} threshold ({gain})"
+    if hi < 1.0:
+        return (
+            f"a global heading cue ({gain}: the interval excludes 1) whose strength against the "
+            f"{THRESHOLD} threshold is not resolved at this scale (the interval contains it)"
+        )
+    return (
+        f"not resolved at this scale (the interval contains both 1 and the {THRESHOLD} threshold)"
+    )
+
+
 def heading_cue_summary(rows: list[dict[str, Any]]) -> str:
     """One sentence for the README: the (pooled, where audited) standard/test ratio against the
     threshold, and the other splits' ratios of the reproduction's own dataset."""
@@ -179,13 +209,7 @@ def heading_cue_summary(rows: list[dict[str, Any]]) -> str:
     if not std:
         return "Heading-cue audit: no standard/test split in this dataset."
     r = next((o for o in std if o["dataset"] == "pooled"), std[0])
-    # No interval, no verdict: the threshold must lie outside the flight-bootstrap interval.
-    if r["ratio_lo"] >= THRESHOLD:
-        verdict = "no global heading cue"
-    elif r["ratio_hi"] < THRESHOLD:
-        verdict = "a heading cue remains"
-    else:
-        verdict = "not resolved at this scale (the interval contains the threshold)"
+    verdict = heading_cue_verdict(r["ratio"], r["ratio_lo"], r["ratio_hi"])
     own = rows[0]["dataset"]
     others = ", ".join(
         f"{o['split']} {o['ratio']:.2f}"

@@ -12,9 +12,15 @@ seeds serves both, as one draw of flights does. Drawing shared seeds independent
 what the shared encoder of a seed does to both models twice, as if it were a difference between
 them.
 
-Verdict of one comparison: **supported** when the interval excludes zero in the claimed direction,
-**contradicted** when it excludes zero in the other direction, **not resolved at this scale**
-otherwise.
+Verdict of one comparison: **equivalent** when it has an equivalence margin ``m``
+(``EQUIVALENCE_MARGINS``, by error; issue 38) and the 90% interval of Δ lies inside ``(−m, +m)``
+(two one-sided tests at 5%: no difference as large as the margin, whatever the sign); otherwise
+**supported** when the 95% interval excludes zero in the claimed direction, **contradicted** when
+it excludes zero in the other direction, **not resolved at this scale** otherwise. Equivalence is
+checked first: a difference that is clear but smaller than the margin is no practical win. The
+margins were fixed by issue 38 before any data it judges were drawn and are never changed after
+a result is seen; comparisons against a stated threshold other than zero (the swap probe's 1°
+rise, the control's 0.9x the constant) and the participation check have none.
 
 Participation. A head takes part in a comparison on a split only when it beats the constant
 (training-mean) predictor there on the compared error: the interval of ``err(head) − err(constant)``
@@ -30,7 +36,11 @@ Claims with several comparisons (every angle, every height, ...) combine them by
 supported when every participating comparison is supported (an intersection-union test: valid at
 95% without correction); contradicted when at least one is contradicted at the Bonferroni level
 ``1 − 0.05/k`` over the k participating comparisons (one clear counterexample, corrected for having
-looked k times); not resolved otherwise, and when no comparison takes part.
+looked k times); **contradicted (no practical difference)** when none is contradicted but one is
+equivalent (a superiority claim with a tie inside the margin); not resolved otherwise, and when no
+comparison takes part. A claim that states *no* difference (``equivalent_supports``: "a
+distribution layer does not improve translation") counts an equivalent comparison as support.
+The equivalence test of each comparison is the 90% interval the issue fixed, not corrected for k.
 """
 
 from __future__ import annotations
@@ -46,8 +56,12 @@ from benchmark.runner.claims.frame_errors import FrameErrors, FrameStore
 
 SUPPORTED, CONTRADICTED = "supported", "contradicted"
 UNRESOLVED, NOT_RUN, EXCLUDED = "not resolved at this scale", "not run", "excluded"
+EQUIVALENT = "equivalent"  # one comparison: the 90% interval inside (−margin, +margin)
+NO_DIFFERENCE = "contradicted (no practical difference)"  # a claim: its comparisons say a tie
 N_BOOT = 4000
 CONFIDENCE = 0.95
+EQUIVALENCE_CONFIDENCE = 0.90  # two one-sided tests at 5% each
+SPEARMAN = "spearman_rho"  # the uncertainty claim's statistic (no error column of its own)
 # Fewer flights than this on a split: no verdict. A percentile bootstrap over G clusters has far
 # below nominal coverage for small G (one flight: every replicate is the same, a zero-width
 # interval), so such a comparison is "not resolved at this scale" whatever its interval.
@@ -55,10 +69,27 @@ MIN_FLIGHTS = 5
 COMBINE_RULE = (
     "supported when every participating comparison's 95% interval is on the claimed side of the "
     "threshold; contradicted when one comparison's Bonferroni-corrected interval (level "
-    "1 − 0.05/k, k participating comparisons) is on the other side; otherwise not resolved"
+    "1 − 0.05/k, k participating comparisons) is on the other side; contradicted (no practical "
+    "difference) when none is but one is equivalent (≈: its 90% interval inside ±the margin); "
+    "otherwise not resolved"
 )
-SYMBOL = {SUPPORTED: "✓", CONTRADICTED: "✗", UNRESOLVED: "~"}
+SYMBOL = {SUPPORTED: "✓", CONTRADICTED: "✗", EQUIVALENT: "≈", UNRESOLVED: "~"}
 TRANSLATION = "dT_m"  # pseudo-metric: per-frame mean of |dE|, |dN|, |dU| (m)
+# Equivalence margins of issue 38, fixed before the data they judge and never tuned after a
+# result: a difference smaller than these is no practical difference. Keys: error columns of
+# the predictions (degrees, metres), TRANSLATION and SPEARMAN.
+EQUIVALENCE_MARGINS: dict[str, float] = {
+    "dphi_deg": 2.0,
+    "dpsi_deg": 2.0,
+    "dtheta_deg": 1.0,
+    "dgamma_deg": 1.0,
+    "dE_m": 5.0,
+    "dN_m": 5.0,
+    "dU_m": 5.0,
+    "horizontal_m": 5.0,
+    TRANSLATION: 5.0,  # the per-frame mean of |δE|, |δN|, |δU|
+    SPEARMAN: 0.05,
+}
 NAMES = {"dtheta_deg": "δθ", "dgamma_deg": "δγ", "dpsi_deg": "δψ", "dphi_deg": "δφ",
          "dE_m": "δE", "dN_m": "δN", "dU_m": "δU", TRANSLATION: "mean(δE, δN, δU)"}  # fmt: skip
 Model = tuple[str, str, str | None]  # (table, label, x)
@@ -81,15 +112,21 @@ class Comparison:
     note: str = ""
     unit: str = "°"
     n_flights: int | None = None  # flights of the split (None: not from a flight bootstrap)
+    margin: float | None = None  # equivalence margin (EQUIVALENCE_MARGINS); None: no such test
 
     @property
     def too_few_flights(self) -> bool:
         return self.n_flights is not None and self.n_flights < MIN_FLIGHTS
 
     def text(self) -> str:
+        """``where: Δ [lo, hi]unit symbol``; an equivalent comparison adds its 90% interval and
+        margin, the numbers its verdict rests on."""
         sym = SYMBOL.get(self.verdict, "")
         few = f" ({self.n_flights} flight(s))" if self.too_few_flights else ""
         interval = f"[{self.lo:+.2f}, {self.hi:+.2f}]"
+        if self.verdict == EQUIVALENT and self.replicates is not None and self.margin is not None:
+            lo, hi = percentile_interval(self.replicates, EQUIVALENCE_CONFIDENCE)
+            few += f" (90% [{lo:+.2f}, {hi:+.2f}] inside ±{self.margin:g}{self.unit.strip()})"
         return f"{self.where}: {self.diff:+.2f} {interval}{self.unit}{few} {sym}"
 
 
@@ -111,6 +148,9 @@ class Claim:
     kind: str = "paper"  # "sanity", "paper", "satellite", "control" or "ranking" (``split``)
     split: str = ""
     facts: dict[str, object] = field(default_factory=dict)  # structured numbers for the prose
+    # The verdict of the same claim on the confirmation draw (``confirm/*``, issue 38): set by
+    # ``benchmark.runner.claims.evaluate.evaluate_claims``; None before that or without a draw.
+    confirmation: Claim | None = None
 
 
 DISTRIBUTION, REGRESSION = "distribution", "regression"
@@ -129,6 +169,17 @@ def head_family(attitude: str) -> str:
 
 def unit_of(metric: str) -> str:
     return " m" if metric.endswith("_m") else "°"
+
+
+def margin_of(metric: str) -> float:
+    """The equivalence margin of ``metric`` (``EQUIVALENCE_MARGINS``); KeyError naming the known
+    metrics for one without a margin, so a new comparison cannot silently skip the test."""
+    try:
+        return EQUIVALENCE_MARGINS[metric]
+    except KeyError:
+        raise KeyError(
+            f"no equivalence margin for {metric!r}; margins exist for {sorted(EQUIVALENCE_MARGINS)}"
+        ) from None
 
 
 class Evidence:
@@ -168,9 +219,11 @@ class Evidence:
         claimed: int = -1,
         threshold: float = 0.0,
         unit: str = "°",
+        margin: float | None = None,
     ) -> Comparison:
         """Δ = a − b per frame (seed means), flights and seeds resampled (the seeds together when
-        ``a`` and ``b`` share each seed's run, :func:`shares_seed_runs`)."""
+        ``a`` and ``b`` share each seed's run, :func:`shares_seed_runs`); ``margin``: its
+        equivalence margin (None: no equivalence test)."""
         if not np.array_equal(a.index, b.index):
             raise ValueError(f"{where}: the two models were evaluated on different frames")
         diff, reps = pooled_replicates(
@@ -179,8 +232,9 @@ class Evidence:
         lo, hi = percentile_interval(reps, CONFIDENCE)
         flights = len(np.unique(a.flight))
         return Comparison(
-            where, diff, lo, hi, claimed, threshold, reps, unit=unit, n_flights=flights
-        )
+            where, diff, lo, hi, claimed, threshold, reps, unit=unit, n_flights=flights,
+            margin=margin,
+        )  # fmt: skip
 
     def beats_constant(self, model: Model, split: str, metric: str) -> Comparison:
         """err(head) − err(constant) on ``split``; ``verdict`` SUPPORTED when the head is better."""
@@ -222,7 +276,7 @@ class Evidence:
             excluded += [r for r in reasons if r not in excluded]
             return Comparison(where, verdict=EXCLUDED)
         va, vb = self.values(a, split, metric), self.values(b, split, metric)
-        return self.paired(where, va, vb, unit=unit_of(metric))
+        return self.paired(where, va, vb, unit=unit_of(metric), margin=margin_of(metric))
 
 
 _AXES = ("dE_m", "dN_m", "dU_m")
@@ -238,12 +292,25 @@ def _meta(f: FrameErrors) -> tuple:
     return f.index, f.flight, f.seeds, f.trained_from
 
 
+def is_equivalent(c: Comparison) -> bool:
+    """Whether ``c``'s 90% interval (``EQUIVALENCE_CONFIDENCE``) lies inside ``(−margin,
+    +margin)``: both one-sided tests at 5% reject a difference of the margin or more. False
+    without a margin, replicates, or with too few flights."""
+    if c.margin is None or c.replicates is None or c.too_few_flights:
+        return False
+    lo, hi = percentile_interval(c.replicates, EQUIVALENCE_CONFIDENCE)
+    return -c.margin < lo and hi < c.margin
+
+
 def decide(c: Comparison, confidence: float = CONFIDENCE) -> str:
-    """Verdict of one comparison from its interval at ``confidence``."""
+    """Verdict of one comparison: :data:`EQUIVALENT` when :func:`is_equivalent`, else from its
+    interval at ``confidence``."""
     if c.replicates is None:
         return c.verdict
     if c.too_few_flights:
         return UNRESOLVED
+    if is_equivalent(c):
+        return EQUIVALENT
     lo, hi = percentile_interval(c.replicates, confidence)
     below, above = hi < c.threshold, lo > c.threshold
     if (below and c.claimed < 0) or (above and c.claimed > 0):
@@ -253,8 +320,10 @@ def decide(c: Comparison, confidence: float = CONFIDENCE) -> str:
     return UNRESOLVED
 
 
-def combine(comparisons: list[Comparison]) -> str:
-    """Set each participating comparison's verdict and combine them by ``COMBINE_RULE``."""
+def combine(comparisons: list[Comparison], equivalent_supports: bool = False) -> str:
+    """Set each participating comparison's verdict and combine them by ``COMBINE_RULE``;
+    ``equivalent_supports``: the claim states no difference, so an equivalent comparison
+    supports it."""
     active = [c for c in comparisons if c.verdict != EXCLUDED and c.replicates is not None]
     if not comparisons:
         return NOT_RUN
@@ -262,15 +331,19 @@ def combine(comparisons: list[Comparison]) -> str:
         return UNRESOLVED
     corrected = 1 - (1 - CONFIDENCE) / len(active)
     for c in active:
-        # Supported at 95% (each of an all-must-hold conjunction); contradicted only at the
-        # corrected level (any one of k looks).
-        if decide(c) == SUPPORTED:
-            c.verdict = SUPPORTED
+        # Equivalent at 90% (the issue's two one-sided tests); supported at 95% (each of an
+        # all-must-hold conjunction); contradicted only at the corrected level (any one of k).
+        verdict = decide(c)
+        if verdict in (EQUIVALENT, SUPPORTED):
+            c.verdict = verdict
         else:
             c.verdict = CONTRADICTED if decide(c, corrected) == CONTRADICTED else UNRESOLVED
-    if any(c.verdict == CONTRADICTED for c in active):
+    verdicts = {c.verdict for c in active}
+    if CONTRADICTED in verdicts:
         return CONTRADICTED
-    return SUPPORTED if all(c.verdict == SUPPORTED for c in active) else UNRESOLVED
+    if EQUIVALENT in verdicts and not equivalent_supports:
+        return NO_DIFFERENCE
+    return SUPPORTED if verdicts <= {SUPPORTED, EQUIVALENT} else UNRESOLVED
 
 
 def build_claim(
@@ -280,10 +353,12 @@ def build_claim(
     comparisons: list[Comparison | None],
     excluded: list[str],
     notes: list[str] | None = None,
+    equivalent_supports: bool = False,
 ) -> Claim:
-    """Combine comparisons (None = not planned) into a :class:`Claim` with its evidence text."""
+    """Combine comparisons (None = not planned) into a :class:`Claim` with its evidence text
+    (``equivalent_supports``: see :func:`combine`)."""
     done = [c for c in comparisons if c is not None]
-    verdict = combine(done)
+    verdict = combine(done, equivalent_supports)
     active = [c for c in done if c.verdict != EXCLUDED]
     evidence = list(notes or [])
     if active:

@@ -17,7 +17,9 @@ from collections.abc import Mapping
 
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
+    EQUIVALENT,
     EXCLUDED,
+    NO_DIFFERENCE,
     NOT_RUN,
     SUPPORTED,
     UNRESOLVED,
@@ -27,7 +29,7 @@ from benchmark.runner.claims.evidence import (
 from benchmark.runner.claims.ranking import ranking_sentence
 from benchmark.runner.plan.partial import EARLIER, short_commit
 
-ORDER = (SUPPORTED, CONTRADICTED, UNRESOLVED, NOT_RUN, EARLIER)
+ORDER = (SUPPORTED, CONTRADICTED, NO_DIFFERENCE, UNRESOLVED, NOT_RUN, EARLIER)
 SENTENCE_KINDS = ("satellite", "ranking")  # claims summarised by a sentence of their own
 
 
@@ -59,6 +61,9 @@ def _claim_summary(number: int, c: Claim) -> str:
     elif c.verdict == CONTRADICTED:
         bad = [x for x in active if x.verdict == CONTRADICTED]
         why = "contradicted by " + "; ".join(x.text() for x in bad)
+    elif c.verdict == NO_DIFFERENCE:
+        ties = [x for x in active if x.verdict == EQUIVALENT]
+        why = "no practical difference: " + "; ".join(x.text() for x in ties)
     elif c.verdict == UNRESOLVED and not active:
         why = f"no comparison takes part ({_why_none(c)})"
     elif c.verdict == UNRESOLVED:
@@ -163,6 +168,43 @@ def earlier_lines(claims: list[Claim], earlier: Mapping[str, str]) -> list[str]:
     return lines
 
 
+def confirmation_lines(claims: list[Claim]) -> list[str]:
+    """What the confirmation draw says of the verdicts (``[]`` when no claim was decided on it):
+    which claims are settled (the same verdict on the main and the confirmation splits), which
+    disagree (each with both verdicts), and which have no confirmation split."""
+    numbered = [(i, c) for i, c in enumerate(claims, 1) if c.verdict != EARLIER]
+    if not any(c.confirmation is not None for _, c in numbered):
+        return []
+    settled, differ, main_only = [], [], []
+    for i, c in numbered:
+        k = c.confirmation
+        if k is None or k.verdict == NOT_RUN:
+            main_only.append(str(i))
+        elif k.verdict == c.verdict:
+            settled.append(f"{i} ({c.verdict})")
+        else:
+            differ.append(f"claim {i} (main **{c.verdict}**, confirmation **{k.verdict}**)")
+    checked = len(settled) + len(differ)
+    lines = [
+        f"- **Confirmation draw** (`confirm/*`, frames nobody chose anything on): {len(settled)} "
+        f"of {checked} claims decided on both are settled, the same verdict on both: "
+        + (", ".join(f"claim {x}" for x in settled) if settled else "none")
+        + "."
+    ]
+    if differ:
+        lines.append(
+            f"- **Not settled** ({len(differ)}: the two draws disagree, so the main verdict "
+            "does not stand alone): " + "; ".join(differ) + "."
+        )
+    if main_only:
+        lines.append(
+            "- Decided on the main splits only (their splits have no confirmation split): "
+            + ", ".join(f"claim {x}" for x in main_only)
+            + "."
+        )
+    return lines
+
+
 def findings_markdown(claims: list[Claim], earlier: Mapping[str, str] | None = None) -> str:
     """Markdown findings (a counts sentence, then bullets) from the checked claims, numbered as
     in the claims table (1-based, in order). ``earlier`` (table -> git commit) names the tables
@@ -170,8 +212,9 @@ def findings_markdown(claims: list[Claim], earlier: Mapping[str, str] | None = N
     numbered = list(enumerate(claims, 1))
     counts = {v: sum(c.verdict == v for c in claims) for v in ORDER}
     head = ", ".join(f"{n} {v}" for v, n in counts.items() if n)
-    lines = [f"Of {len(claims)} claims checked: {head}.", ""]
+    lines = [f"Of {len(claims)} claims checked: {head} (on the main test splits).", ""]
     lines += earlier_lines(claims, earlier or {})
+    lines += confirmation_lines(claims)
     for verdict in ORDER[:-1]:  # EARLIER: in the lines above
         group = [
             (i, c)

@@ -19,7 +19,7 @@ Files are read lazily and cached; a planned unit whose file is missing raises
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -212,15 +212,15 @@ class FrameStore:
             ValueError: the column is absent, or seeds disagree on the frames.
         """
         jobs = self._jobs(table, label, x)
-        if split not in jobs[0][1][1].eval_splits:
+        if not self.has(table, label, split, x):
             raise KeyError(
                 f"model ({table!r}, {label!r}, x={x!r}) is not evaluated on {split!r}; "
-                f"its splits: {list(jobs[0][1][1].eval_splits)}"
+                f"its splits: {self.splits(table, label, x)}"
             )
         rows, index, flight, first, trained_from = [], None, None, None, []
         for _seed, (key, _job) in jobs:
             trained_from.append(self._trained_from.get(key, key))
-            path = self.csv_path(key, split, satellite)
+            path = self.csv_path(key, self.evaluated(split), satellite)
             frame = self._read(path)
             if metric not in frame:
                 raise ValueError(f"{path}: no column {metric!r}")
@@ -237,6 +237,16 @@ class FrameStore:
             trained_from=tuple(trained_from),
         )
 
+    def evaluated(self, split: str) -> str:
+        """The split whose files hold ``split``'s frames: itself here (a
+        :class:`ConfirmationStore` reads the confirmation split instead)."""
+        return split
+
+    def confirmation(self, confirms: Mapping[str, str]) -> ConfirmationStore:
+        """The same models on the confirmation draw (``confirms``: test split -> confirmation
+        split, ``benchmark.sim.CONFIRMS``), as a store the claims read unchanged."""
+        return ConfirmationStore(self, confirms)
+
     def _split_poses(self, split: str) -> _Poses:
         """The split's rows of ``pairs.parquet`` (what ``PairDataset(root, split).poses`` holds),
         read without loading or verifying images: the constant predictor needs labels only."""
@@ -252,6 +262,7 @@ class FrameStore:
         return _Poses(rows)
 
     def _constant_frame(self, split: str, train_split: str) -> pd.DataFrame:
+        split = self.evaluated(split)  # the cache is shared with a ConfirmationStore
         if (train_split, split) not in self._constant:
             from benchmark.evaluation.reference import constant_predictor
 
@@ -280,3 +291,50 @@ class FrameStore:
             flight=frame["flight"].to_numpy(),
             seeds=(0,),
         )
+
+
+class ConfirmationStore(FrameStore):
+    """A :class:`FrameStore` read on the confirmation draw (issue 38): every question about a
+    test split (``standard/test``) is answered from the frames of its confirmation split
+    (``confirm/standard``) by the same trained units, so every claim is decided again, unchanged,
+    on frames nobody chose anything on. A split without a confirmation split (the heights, the
+    pitch bins, the flight-test analogue, ``towns/london``) is not evaluated here: its claims read
+    "not run". The constant predictor still trains on the model's training split.
+
+    Args:
+        base: the store of the main splits (its units, work directory and dataset).
+        confirms: test split -> confirmation split; a split whose units lack the confirmation
+            files is treated as not evaluated (a unit planned before the draw existed).
+    """
+
+    def __init__(self, base: FrameStore, confirms: Mapping[str, str]):
+        self.__dict__.update(base.__dict__)  # the same models, files and caches
+        self.confirms = dict(confirms)
+
+    def evaluated(self, split: str) -> str:
+        return self.confirms[split]
+
+    def splits(self, table: str, label: str, x: object = None) -> list[str]:
+        """The model's test splits that have a confirmation split it was evaluated on."""
+        by_seed = self._models.get((table, label, _norm_x(x)))
+        if not by_seed:
+            return []
+        return [
+            split
+            for split in next(iter(by_seed.values()))[1].eval_splits
+            if split in self.confirms and self._confirmed(by_seed, split)
+        ]
+
+    def _confirmed(self, by_seed: dict[int, tuple[str, object]], split: str) -> bool:
+        """Whether every seed's unit wrote the confirmation split's predictions."""
+        return all(
+            self.csv_path(key, self.confirms[split]).is_file() for key, _ in by_seed.values()
+        )
+
+    def labels(
+        self, table: str, split: str | None = None, control: bool | None = None
+    ) -> list[str]:
+        labels = super().labels(table, split, control)
+        if split is None:
+            return labels
+        return [label for label in labels if self.has(table, label, split)]

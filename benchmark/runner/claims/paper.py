@@ -12,12 +12,14 @@ from benchmark.runner.claims.evidence import (
     EXCLUDED,
     NAMES,
     REGRESSION,
+    SPEARMAN,
     TRANSLATION,
     Claim,
     Comparison,
     Evidence,
     build_claim,
     head_family,
+    margin_of,
     safe_claim,
 )
 
@@ -66,9 +68,10 @@ def constant_claim(ev: Evidence) -> Claim:
             c = ev.beats_constant(("table1", label, None), "standard/test", "dphi_deg")
             comps.append(
                 Comparison(
-                    label, c.diff, c.lo, c.hi, replicates=c.replicates, n_flights=c.n_flights
+                    label, c.diff, c.lo, c.hi, replicates=c.replicates, n_flights=c.n_flights,
+                    margin=margin_of("dphi_deg"),
                 )
-            )
+            )  # fmt: skip
         rule = "Δ = δφ(head) − δφ(constant); claimed Δ < 0 for every head (no participation rule)"
         return build_claim(claim, source, rule, comps, [])
 
@@ -141,9 +144,10 @@ def translation_claim(ev: Evidence) -> Claim:
             )
         rule = (
             "Δ = mean(δE,δN,δU)(regression, Pd/Re-Net) − same(Re-Net-T); claimed Δ < 0 "
-            "(regression more accurate); Re-Net-T clearly better contradicts"
+            "(regression more accurate) or equivalent (no practical difference: the distribution "
+            "layer does not improve translation); Re-Net-T clearly better contradicts"
         )
-        return build_claim(claim, source, rule, comps, excluded)
+        return build_claim(claim, source, rule, comps, excluded, equivalent_supports=True)
 
     return safe_claim(build, claim, source)
 
@@ -217,7 +221,10 @@ def uncertainty_claim(ev: Evidence) -> Claim:
             rho, reps = spearman_replicates(unc.values, err.values, err.flight, ev.n_boot // 2)
             lo, hi = percentile_interval(reps, CONFIDENCE)
             flights = len(set(err.flight.tolist()))
-            comps.append(Comparison(split, rho, lo, hi, +1, 0.0, reps, unit="", n_flights=flights))
+            comps.append(
+                Comparison(split, rho, lo, hi, +1, 0.0, reps, unit="", n_flights=flights,
+                           margin=margin_of(SPEARMAN))
+            )  # fmt: skip
         rule = (
             "ρ = Spearman(uncertainty, δφ), 95% bootstrap over flights and seeds; claimed ρ > 0; "
             "Pd/Re-Net must beat the constant predictor on δφ"

@@ -4,10 +4,13 @@ On each test split of a ranked table, the heads that beat the constant (training
 the geodesic error δφ take part (the participation rule of ``benchmark.runner.claims.evidence``);
 the winner and the runner-up are the two with the lowest mean δφ (mean over seeds and frames). The
 claim "the winner beats the runner-up" is decided on their paired per-frame difference
-``Δ = δφ(winner) − δφ(runner-up)`` with the 95% interval of the bootstrap over flights and, per
-model, seeds: supported (the win is beyond the seed and flight spread) when the interval lies below
-zero, not resolved otherwise, and never resolved on a split with fewer than ``MIN_FLIGHTS`` flights
-(no interval, no verdict). Without two participating heads there is no comparison: the summary
+``Δ = δφ(winner) − δφ(runner-up)`` with the interval of the bootstrap over flights and seeds:
+equivalent (no practical difference, so the claim is contradicted) when its 90% interval lies
+inside the δφ equivalence margin, supported (the win is beyond the seed and flight spread) when
+the 95% interval lies below zero, not resolved otherwise, and never resolved on a split with fewer
+than ``MIN_FLIGHTS`` flights (no interval, no verdict). On the confirmation draw the pair is the
+one the main split ranked (``pair``): the confirmation tests that hypothesis on new frames.
+Without two participating heads there is no comparison: the summary
 then says which one head beats the constant, or that none does.
 
 :func:`ranking_sentence` writes the summary from the claim's numbers only; the findings and the
@@ -16,7 +19,10 @@ table's own section print it verbatim.
 
 from __future__ import annotations
 
+from benchmark.evaluation.paired import percentile_interval
 from benchmark.runner.claims.evidence import (
+    EQUIVALENCE_CONFIDENCE,
+    EQUIVALENT,
     EXCLUDED,
     MIN_FLIGHTS,
     NOT_RUN,
@@ -33,8 +39,12 @@ RANKED_TABLES = ("extended",)  # beyond-the-paper tables whose winner the findin
 RANK_METRIC = "dphi_deg"
 
 
-def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
-    """The head with the lowest mean δφ on ``split`` beats the runner-up (see module docstring).
+def ranking_claim(
+    ev: Evidence, table: str, split: str, pair: tuple[str | None, str | None] | None = None
+) -> Claim:
+    """The head with the lowest mean δφ on ``split`` beats the runner-up (see module docstring);
+    ``pair``: (winner, runner-up) ranked elsewhere (the main split, for the confirmation draw),
+    compared here whatever this split's means say.
 
     ``facts`` hold ``table``, ``metric``, ``means`` (label -> mean δφ in deg, every trained head,
     in plan order), ``constant`` (the constant predictor's mean δφ), ``participants`` (labels that
@@ -68,6 +78,8 @@ def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
         flights = ev.beats_constant(models[labels[0]], split, RANK_METRIC).n_flights
         winner = participants[0] if participants else None
         runner_up = participants[1] if len(participants) > 1 else None
+        if pair is not None:  # a head not evaluated here takes no part
+            winner, runner_up = (label if label in models else None for label in pair)
         comps: list[Comparison | None] = []
         if runner_up is not None:
             comps.append(
@@ -107,15 +119,30 @@ def ranking_claim(ev: Evidence, table: str, split: str) -> Claim:
     return out
 
 
-def ranking_claims(ev: Evidence) -> list[Claim]:
-    """One :func:`ranking_claim` per (ranked table, test split planned for it)."""
+def ranking_claims(
+    ev: Evidence, pairs: dict[tuple[str, str], tuple[str | None, str | None]] | None = None
+) -> list[Claim]:
+    """One :func:`ranking_claim` per (ranked table, test split planned for it); ``pairs``:
+    (table, split) -> (winner, runner-up) ranked on the main splits, to be tested again here."""
     out = []
     for table in RANKED_TABLES:
         splits: dict[str, None] = {}
         for label in ev.frames.labels(table, control=False):
             splits.update(dict.fromkeys(ev.frames.splits(table, label)))
-        out += [ranking_claim(ev, table, split) for split in splits]
+        out += [
+            ranking_claim(ev, table, split, None if pairs is None else pairs.get((table, split)))
+            for split in splits
+        ]
     return out
+
+
+def ranked_pairs(claims: list[Claim]) -> dict[tuple[str, str], tuple[str | None, str | None]]:
+    """(table, split) -> (winner, runner-up) of each ranking claim that ranked two heads."""
+    return {
+        (str(c.facts["table"]), c.split): (c.facts["winner"], c.facts["runner_up"])  # type: ignore[misc]
+        for c in claims
+        if c.kind == "ranking" and c.facts.get("runner_up") is not None
+    }
 
 
 def ranking_sentence(number: int, c: Claim) -> str | None:
@@ -153,8 +180,17 @@ def ranking_sentence(number: int, c: Claim) -> str | None:
         verdict = f"no verdict ({comp.n_flights} flight(s), fewer than {MIN_FLIGHTS})"
     elif comp.verdict == SUPPORTED:
         verdict = "the win is beyond the seed and flight spread"
+    elif comp.verdict == EQUIVALENT:
+        lo, hi = percentile_interval(comp.replicates, EQUIVALENCE_CONFIDENCE)
+        verdict = (
+            f"equivalent: the 90% interval [{lo:+.2f}, {hi:+.2f}]° lies inside the "
+            f"±{comp.margin:g}° margin, so no representation wins (no practical difference)"
+        )
     elif comp.verdict == UNRESOLVED:
-        verdict = "within the seed and flight spread, so no representation wins at this scale"
+        verdict = (
+            "within the seed and flight spread but not inside the equivalence margin, so "
+            "neither a win nor a tie is shown at this scale"
+        )
     else:
         verdict = f"{comp.verdict}"
     n = len(f["participants"])  # type: ignore[arg-type]

@@ -63,13 +63,15 @@ from benchmark.runner.report.provenance import (
 )
 from benchmark.runner.report.sweeps import sweep_figure, sweep_table
 from benchmark.runner.report.tables import (
+    CONSTANT_LABEL,
     extra_metrics_table,
     load_paper,
     markdown_table,
     summarize,
 )
+from benchmark.runner.report.training import relabel_note, shown_labels, table_protocol
+from benchmark.sim import CONFIRMS
 
-CONSTANT_LABEL = "Constant (train mean)"
 # Our metrics the paper does not report, shown under each table; summarised with the rest, so a
 # metric added here also gets its interval.
 EXTRA_METRICS = [
@@ -242,13 +244,17 @@ def write_reports(
             summary = summaries[spec.name] = summary_of(spec.name)
             md_path = out / f"{spec.name}.md"
             paths = [md_path]
+            planned = [*units, *plan.live_units]  # today's tables' and those kept live
+            shown = shown_labels(spec.name, planned)  # rows shown by what they trained
             if spec.kind == "table":
                 gone = frozenset(label for label, _ in failed_jobs(spec.name, units, results))
                 gone -= set(part["label"]) if len(part) else set()  # some seeds of it did run
                 text = markdown_table(spec, summary, paper, [CONSTANT_LABEL], show_val, gone,
-                                      reference_labels(spec))  # fmt: skip
+                                      reference_labels(spec), shown)  # fmt: skip
+                relabelled = relabel_note(spec.name, planned)
+                text += f"\n{relabelled}\n" if relabelled else ""
                 text += reference_note(spec, references)
-                text += extra_metrics_table(spec, summary, EXTRA_METRICS)
+                text += extra_metrics_table(spec, summary, EXTRA_METRICS, shown)
             elif spec.kind == "sweep":
                 text = sweep_table(spec, summary, show_val)
                 if len(summary):
@@ -260,8 +266,8 @@ def write_reports(
                 text = cost_table(
                     spec, profile, input_size, logbook, cost_cache, remeasure_costs, bar
                 )
-            if spec.kind != "cost":  # the units of today's tables and of those kept live
-                text = _with_protocol(text, table_protocol(spec.name, [*units, *plan.live_units]))
+            if spec.kind != "cost":
+                text = _with_protocol(text, table_protocol(spec.name, planned, shown))
             md_path.write_text(text + failed_section(spec.name, units, results))
             written += paths
             if logbook is not None and spec in specs:
@@ -358,7 +364,7 @@ def _claims_section(
         store = MergedFrameStore(workdir, data_root, units, kept, plan.earlier_specs)
     else:
         store = FrameStore(workdir, data_root, units)
-    claims = evaluate_claims(summaries, store)
+    claims = evaluate_claims(summaries, store, CONFIRMS)
     if kept:
         mark_earlier_claims(claims, plan)
     earlier = {t.name: t.commit for t in kept}
@@ -427,32 +433,6 @@ def _input_size(data_root: Path) -> int:
     from benchmark.data.format import read_manifest
 
     return int(read_manifest(Path(data_root))["image_size"])
-
-
-def table_protocol(table: str, units: list[Unit]) -> str:
-    """One sentence on how a table's rows were trained (issue 21: every table says it): heads on
-    a frozen shared encoder, or end to end (by the heads' loss only, or with the encoder's own
-    loss), naming the rows when a table mixes them. ``""`` when no unit of it was planned."""
-    groups: dict[str, dict[str, None]] = {}
-    for unit in units:
-        labels = [j.label for j in unit.jobs if j.table == table]
-        if not labels:
-            continue
-        m = unit.cfg.model
-        if unit.cfg.pretrained.enabled:
-            how = (f"heads only, on the frozen shared {m.encoder} encoder (trained once per seed "
-                   "end to end with its own loss; the README's Profile line)")  # fmt: skip
-        elif m.encoder == "matching" and m.encoder_options.get("volume_nll_weight", 1.0) != 0:
-            how = "end to end with the matching encoder's own loss beside the heads' loss"
-        else:
-            how = f"end to end ({m.encoder}) by the heads' loss only, the paper's protocol"
-        groups.setdefault(how, {}).update(dict.fromkeys(labels))
-    if not groups:
-        return ""
-    if len(groups) == 1:
-        return f"Training protocol: {next(iter(groups))}."
-    parts = [f"{how}: {', '.join(labels)}" for how, labels in groups.items()]
-    return "Training protocol: " + "; ".join(parts) + "."
 
 
 def _with_protocol(text: str, sentence: str) -> str:
