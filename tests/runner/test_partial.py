@@ -171,6 +171,45 @@ class TestEarlierResults:
         assert strip_banner(text).startswith("## ")
 
 
+MACHINE = {"cpu_model": "AMD EPYC", "cpu_flags": "avx2 fma avx512f avx512_bf16",
+           "cpu_signature": "cpu family 26, model 2, stepping 1", "hostname": "vm"}  # fmt: skip
+
+
+class TestMachine:
+    """Issue 38: a kept table says which machine made it (the CPU kind changes trained numbers,
+    DEVELOPERS.md, Machine): its banner and provenance record name the CPU model, signature and
+    flags the earlier report recorded."""
+
+    def test_the_banner_names_the_earlier_machine(self, earlier, tmp_path, monkeypatch):
+        specs, _, _, out, workdir = earlier
+        prov = json.loads((out / "provenance.json").read_text())
+        (out / "provenance.json").write_text(json.dumps({**prov, "machine": MACHINE}))
+        other_dataset(monkeypatch)
+        plan = plan_merge(out, [specs[0]], PROFILE, tmp_path / "data", workdir)
+        mark_earlier_files(out, plan)
+        first = (out / "fig5.md").read_text().split("\n")[1]
+        described = ("AMD EPYC (cpu family 26, model 2, stepping 1; CPU flags avx2 fma avx512f "
+                     "avx512_bf16)")  # fmt: skip
+        assert f", written 2026-12-01 21:40 UTC on {described}." in first
+        assert plan.kept[0].record()["machine"] == described
+        # kept again by a later report on another machine: still the machine that made it
+        plan.rows().to_csv(out / "results.csv", index=False)
+        record = {"git_commit": "f" * 40, "machine": {"cpu_model": "Intel Xeon"},
+                  "earlier_tables": {"fig5": plan.kept[0].record()}}  # fmt: skip
+        (out / "provenance.json").write_text(json.dumps(record))
+        again = plan_merge(out, [specs[0]], PROFILE, tmp_path / "data", workdir)
+        mark_earlier_files(out, again)
+        text = (out / "fig5.md").read_text()
+        assert described in text and "Intel Xeon" not in text
+
+    def test_without_a_recorded_machine_it_says_so(self, earlier, tmp_path, monkeypatch):
+        specs, _, _, out, workdir = earlier
+        other_dataset(monkeypatch)
+        plan = plan_merge(out, [specs[0]], PROFILE, tmp_path / "data", workdir)
+        mark_earlier_files(out, plan)
+        assert "(that report names no machine)." in (out / "fig5.md").read_text()
+
+
 class TestClaims:
     def test_a_claim_needing_an_earlier_table_is_not_redecided(
         self, earlier, tmp_path, monkeypatch

@@ -64,7 +64,8 @@ def short_commit(commit: str) -> str:
 class EarlierTable:
     """A table of an earlier reproduction that this one neither re-runs nor can keep live.
 
-    ``commit``, ``dataset`` (manifest sha256) and ``written`` describe the run that computed it
+    ``commit``, ``dataset`` (manifest sha256), ``written`` and ``machine`` (its CPU: model,
+    signature and kernel flags, :func:`machine_text`) describe the run that computed it
     (``"unknown"`` / ``""`` when that report recorded none); ``why`` says why it is not live."""
 
     name: str
@@ -73,6 +74,7 @@ class EarlierTable:
     commit: str = "unknown"
     dataset: str = ""
     written: str = ""
+    machine: str = ""
 
     @property
     def at(self) -> str:
@@ -86,7 +88,7 @@ class EarlierTable:
     def record(self) -> dict[str, str]:
         """Its entry in ``provenance.json`` (``earlier_tables``)."""
         return {"git_commit": self.commit, "dataset_manifest": self.dataset,
-                "written": self.written, "why": self.why}  # fmt: skip
+                "written": self.written, "machine": self.machine, "why": self.why}  # fmt: skip
 
 
 @dataclass
@@ -393,10 +395,26 @@ def _earlier_table(name: str, title: str, why: str, rows: pd.DataFrame, prov: di
     if entry or stamped:
         commit = entry.get("git_commit") or (stamped[0] if stamped else "") or "unknown"
         dataset, written = entry.get("dataset_manifest", ""), entry.get("written", "")
-        return EarlierTable(name, title, entry.get("why", why), commit, dataset, written)
+        machine = entry.get("machine", "")
+        return EarlierTable(name, title, entry.get("why", why), commit, dataset, written, machine)
     dataset = prov.get("dataset", {}).get("manifest_sha256", "")
     commit = prov.get("git_commit") or "unknown"
-    return EarlierTable(name, title, why, commit, dataset, prov.get("written", ""))
+    machine = machine_text(prov.get("machine", {}))
+    return EarlierTable(name, title, why, commit, dataset, prov.get("written", ""), machine)
+
+
+def machine_text(record: dict) -> str:
+    """The machine a report recorded (``provenance.json``'s ``machine``, ``benchmark.runner.report.
+    provenance.machine``) in words: its CPU model, then its signature and the kernel-relevant CPU
+    flags, e.g. ``AMD EPYC (cpu family 26, model 2, ...; CPU flags avx2 fma avx512f ...)``;
+    ``""`` when it recorded no CPU model."""
+    model = record.get("cpu_model", "") if isinstance(record, dict) else ""
+    if not model:
+        return ""
+    known = [(k, record.get(k, "")) for k in ("cpu_signature", "cpu_flags")]
+    details = [v if k == "cpu_signature" else f"CPU flags {v}" for k, v in known
+               if v and v != "unknown"]  # fmt: skip
+    return model + (f" ({'; '.join(details)})" if details else "")
 
 
 def _other_dataset(before: str, now: str, what: str = "its units were trained") -> str:
@@ -433,14 +451,15 @@ def banner(table: EarlierTable, run: list[str]) -> str:
     """The block a kept earlier table's Markdown opens with."""
     dataset = f" on dataset `{table.dataset[:12]}...`" if table.dataset else ""
     written = f", written {table.written}" if table.written else ""
+    machine = f" on {table.machine}" if table.machine else " (that report names no machine)"
     ran = ", ".join(f"`{n}`" for n in run)
     return (
         f"{BANNER_BEGIN}\n"
         f"> **From an earlier run {table.at}, not re-decided.** This table was computed by the "
-        f"reproduction at git commit `{table.commit}`{dataset}{written}. The last invocation "
-        f"re-ran {ran} only and could not keep it live: {table.why}. Its numbers (and figure) "
-        "are kept as written then; its rows of `results.csv` carry that commit in `stale_from`, "
-        "and the README's claims that use it are not re-decided. Refresh it with "
+        f"reproduction at git commit `{table.commit}`{dataset}{written}{machine}. The last "
+        f"invocation re-ran {ran} only and could not keep it live: {table.why}. Its numbers "
+        "(and figure) are kept as written then; its rows of `results.csv` carry that commit in "
+        "`stale_from`, and the README's claims that use it are not re-decided. Refresh it with "
         f"`uavbench reproduce --only {table.name}`.\n"
         f"{BANNER_END}\n\n"
     )

@@ -14,8 +14,9 @@ written with 10 significant digits and fixed line endings, so equal predictions 
 
 A report that keeps tables from an earlier run (``uavbench reproduce --only``, ``--stale keep``,
 ``benchmark.runner.plan.partial``) records where they come from: ``earlier_tables`` (per table the
-git commit, dataset manifest, date and reason) and ``earlier_units`` (the earlier report's digests
-of their units), so the digests of every number in the report stay in one record.
+git commit, dataset manifest, date, machine and reason) and ``earlier_units`` (the earlier
+report's digests of their units), so the digests of every number in the report stay in one
+record.
 """
 
 from __future__ import annotations
@@ -234,14 +235,14 @@ def earlier_markdown(record: Mapping[str, Any]) -> list[str]:
         f"their {len(record.get('earlier_units') or {})} unit(s) are those that run recorded "
         "(`earlier_units` in `provenance.json`).",
         "",
-        "| table | git commit | dataset manifest sha256 | written | why not re-run |",
-        "|---|---|---|---|---|",
+        "| table | git commit | dataset manifest sha256 | written | machine | why not re-run |",
+        "|---|---|---|---|---|---|",
     ]
     for name, t in sorted(earlier.items()):
         lines.append(
             f"| `{name}` | `{t.get('git_commit', 'unknown')}` | "
             f"`{t.get('dataset_manifest') or 'unknown'}` | {t.get('written') or 'unknown'} | "
-            f"{t.get('why', '')} |"
+            f"{t.get('machine') or 'unknown'} | {t.get('why', '')} |"
         )
     return lines
 
