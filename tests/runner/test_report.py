@@ -6,6 +6,7 @@ writes), summarised by the report code and compared with naive computations.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -44,6 +45,7 @@ from benchmark.runner.report.tables import (
     interval_note,
     load_paper,
     markdown_table,
+    paper_value,
     pick,
     summarize,
 )
@@ -310,7 +312,7 @@ class TestValidationBesideTest:
         header = next(x for x in text.splitlines() if x.startswith("| model |"))
         cols = [c.strip() for c in header.strip("|").split("|")]
         i = cols.index("δφ geodesic (°) val")
-        assert cols[i - 1] == "δφ geodesic (°) ours"  # beside the test number
+        assert cols[i - 1] == "δφ geodesic (°) ours (mean)"  # beside the test number
         line = next(x for x in text.splitlines() if x.startswith("| Re-Net-Q |"))
         cell = [c.strip() for c in line.strip("|").split("|")][i]
         unit_keys = frame[(frame.table == "table1") & (frame.label == "Re-Net-Q")].unit.unique()
@@ -497,3 +499,90 @@ class TestSwapEffectInterval:
                 averaged = seeds[f"swap_{short}_boot_lo_deg"].mean()
                 assert averaged != pytest.approx(claim.lo, rel=1e-6)  # the old cell differs
         assert f"{N_BOOT} replicates that resample whole flights and the seeds together" in text
+
+
+def _table_rows(spec, values: dict[tuple[str, str], float]) -> pd.DataFrame:
+    """One seed's results rows of every row of ``spec`` and of the constant predictor, true and
+    swapped image, each metric of the spec at ``values[label, split]`` (default 50)."""
+    from benchmark.runner.report.tables import CONSTANT_LABEL
+
+    rows = []
+    entries = [(j.label, j.paper_model, j.train_split, j.eval_splits) for j in spec.jobs()]
+    entries.append((CONSTANT_LABEL, "", spec.train_split, spec.eval_splits))
+    for label, paper_model, train, splits in entries:
+        for split in splits:
+            value = values.get((label, split), 50.0)
+            for satellite in ("true", "swap"):
+                rows.append({"table": spec.name, "label": label, "paper_model": paper_model,
+                             "x": None, "split": split, "satellite": satellite,
+                             "satellite_input": "none" if label == CONSTANT_LABEL else "image",
+                             "train_split": train, "role": "test", "seed": 0,
+                             **dict.fromkeys(spec.metrics, value)})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+class TestWhatWasTrainedAndThePaper:
+    """Issue 38: a row is shown under what it trained (Table 5's "with AGTFM" row runs quick's
+    matching encoder plain), the paper's number beside it still names the paper's model, the
+    headers say mean, and the constant predictor's error stands beside the paper's numbers."""
+
+    @staticmethod
+    def _plan(profile: str):
+        from test_plan import SPLITS as ALL_SPLITS
+
+        specs = load_specs(None, ["table5"])
+        units = plan_units(specs, get_repro_profile(profile), [0], Path("/d"), ALL_SPLITS, "h")
+        return specs[0], units
+
+    def test_the_label_follows_the_trained_model(self):
+        from benchmark.runner.report.training import relabel_note, shown_labels
+
+        _, units = self._plan("quick")
+        shown = shown_labels("table5", units)
+        assert shown == {"Pd/Re-Net with AGTFM": "Pd/Re-Net · matching encoder, plain"}
+        assert "asks for the encoder variant `a-f` (AGTFM)" in relabel_note("table5", units)
+        _, smoke = self._plan("smoke")  # GoogLeNet: the row trains AGTFM, its label stays
+        assert shown_labels("table5", smoke) == {} and relabel_note("table5", smoke) == ""
+        unit = next(u for u in units if any(j.label == "Re-Net" for j in u.jobs))
+        unit.cfg = dataclasses.replace(
+            unit.cfg, model=dataclasses.replace(unit.cfg.model, variant="a")
+        )  # another trained model: another label
+        assert shown_labels("table5", units)["Re-Net"] == "Re-Net-R · matching encoder, attention"
+
+    def test_table5_shows_means_the_papers_row_and_the_constant(self):
+        from benchmark.runner.report.tables import CONSTANT_LABEL
+        from benchmark.runner.report.training import shown_labels
+
+        spec, units = self._plan("quick")
+        constant = {"flight/pitch0": 92.83, "flight/pitch-10": 98.83, "flight/pitch-50": 76.37}
+        values = {(CONSTANT_LABEL, split): v for split, v in constant.items()}
+        summary = summarize(_table_rows(spec, values), list(spec.metrics))
+        text = markdown_table(spec, summary, PAPER, [CONSTANT_LABEL], False, frozenset(), [],
+                              shown_labels("table5", units))  # fmt: skip
+        header = next(x for x in text.splitlines() if x.startswith("| split |"))
+        cols = [c.strip() for c in header.strip("|").split("|")]
+        assert cols[:3] == ["split", "model", "paper's row"]
+        i = cols.index("δψ yaw (°) paper (mean)")
+        assert cols[i + 1 : i + 3] == ["δψ yaw (°) constant (mean)", "δψ yaw (°) ours (mean)"]
+        table = text.split("Satellite-swap probe")[0]
+        models = [x.split(" | ")[1] for x in table.splitlines() if x.startswith("| `flight/")]
+        assert "Pd/Re-Net with AGTFM" not in models  # the model column says what trained
+        line = next(
+            x
+            for x in table.splitlines()
+            if x.startswith("| `flight/pitch0` | Pd/Re-Net · matching encoder, plain |")
+        )
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[2] == "Pd/Re-Net with AGTFM" and cells[i] == "87.49"  # the paper's row
+        assert cells[i + 1] == "92.83" and cells[i + 2] == "50.00"
+        # the sentence under it, from the same numbers
+        paper_psi = [
+            (paper_value(PAPER, 5, name, model, "dpsi_deg"), constant[split])
+            for split, name in zip(spec.eval_splits, spec.paper_splits, strict=True)
+            for model in ("Pd/Re-Net with AGTFM", "Re-Net")
+        ]
+        reached = sum(p >= c for p, c in paper_psi)
+        low, high = min(p for p, _ in paper_psi), max(p for p, _ in paper_psi)
+        assert (f"δψ yaw (°): constant 76.37–98.83, paper {low:.2f}–{high:.2f} ({reached} of 6 "
+                "paper numbers at or above the constant's on their split)") in text  # fmt: skip
+        assert "every median is named so" in text

@@ -100,14 +100,40 @@ class TestProtocolInTheReport:
         assert paper.startswith("width 1 GoogLeNet, 30 epochs, sgd") and "end to end" in paper
 
     def test_each_table_names_how_its_rows_trained(self):
-        from benchmark.runner.report.outputs import table_protocol
+        from benchmark.runner.report.training import table_protocol
 
         units = plan(only=("table1", "fig9"))
         assert table_protocol("table1", units) == (
-            "Training protocol: heads only, on the frozen shared matching encoder (trained once "
-            "per seed end to end with its own loss; the README's Profile line)."
+            "Training protocol: heads only, trained on `standard/train`, on the frozen shared "
+            "matching encoder (trained once per seed end to end with its own loss on "
+            "`standard/train`; the README's Profile line)."
         )
-        assert "by the heads' loss only, the paper's protocol" in table_protocol("fig9", units)
+        fig9 = table_protocol("fig9", units)
+        assert "end to end on `standard/train` (googlenet) by the heads' loss only" in fig9
         mixed = table_protocol("encoders", plan(only=("encoders",)))
-        assert "GoogLeNet a-f (AGTFM)" in mixed and "; heads only, on the frozen" in mixed
+        assert "GoogLeNet a-f (AGTFM)" in mixed and "; heads only, trained on" in mixed
         assert table_protocol("towns", units) == ""  # not planned
+
+    def test_the_training_splits_are_the_units(self):
+        """Issue 38: encoders.md said "Every row trains on standard/train" while quick's matching
+        encoder trains on standard/train + towns/train; the sentence now comes from the units'
+        own training splits, and follows them."""
+        from benchmark.runner.plan.specs import default_spec_dir, load_spec
+        from benchmark.runner.report.training import table_protocol
+
+        assert "standard/train" not in load_spec(default_spec_dir() / "encoders.yaml").note
+        units = plan(PROFILES["quick"], seeds=(0,), only=("encoders",))
+        text = table_protocol("encoders", units)
+        goog, matching = text.removeprefix("Training protocol: ").split("; heads only")
+        assert goog.startswith("end to end on `standard/train` (googlenet)")
+        assert "Pd/Re-Net · GoogLeNet /" in goog and "matching, vision-only" not in goog
+        assert matching.startswith(
+            ", trained on `standard/train`, on the frozen shared matching encoder (trained once "
+            "per seed end to end with its own loss on `standard/train+towns/train`;"
+        )
+        assert "Pd/Re-Net · matching, gravity-aided" in matching
+        # another encoder split, another sentence: the words follow the units
+        encoder = next(u for u in units if u.shared_encoder)
+        data = dataclasses.replace(encoder.cfg.data, train_split="towns/train")
+        encoder.cfg = dataclasses.replace(encoder.cfg, data=data)
+        assert "with its own loss on `towns/train`;" in table_protocol("encoders", units)

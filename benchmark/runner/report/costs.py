@@ -169,7 +169,7 @@ def cost_table(
         "(no auxiliary heads); latency = median of 10 CPU forward passes at batch 1 "
         f"({'/'.join(map(str, threads))} torch thread(s)) on this machine.", "",
         "| model | config | params | size MB paper | size MB ours | MFLOPs paper | MFLOPs ours | "
-        "of which dense layers | latency ms |",
+        "of which dense layers | median latency ms |",
         "|---|---|---|---|---|---|---|---|---|",
     ]  # fmt: skip
     for label, paper_model, name, r in rows:

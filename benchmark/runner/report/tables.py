@@ -20,7 +20,8 @@ the value.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,7 @@ from benchmark.runner.claims.satellite import MIN_RISE_DEG
 from benchmark.runner.execute.reference_rows import fails_text, failure_percent
 from benchmark.runner.plan.specs import TableSpec
 
+CONSTANT_LABEL = "Constant (train mean)"  # the constant predictor's rows
 METRIC_LABELS: dict[str, str] = {
     "dE_m": "δE (m)",
     "dN_m": "δN (m)",
@@ -283,6 +285,41 @@ def table_rows(spec: TableSpec, split: str, extra_labels: list[str]) -> list[tup
     return list(dict.fromkeys(rows))
 
 
+@dataclass(frozen=True)
+class TableLayout:
+    """The columns of one rendered table: the paper's numbers beside ours (``paper``, with the
+    constant predictor's beside them), the validation metrics ``vals``, the split column
+    (``multi``), the training split column (``trained_on``) and the paper's row name
+    (``paper_row``: some row is shown under another label than the paper model's) and each
+    training split's validation split (``val_splits``)."""
+
+    paper: bool
+    vals: tuple[str, ...]
+    multi: bool
+    trained_on: bool
+    paper_row: bool
+    val_splits: Mapping[str, str] = field(default_factory=dict)  # train split -> its val split
+
+    def header(self, spec: TableSpec) -> list[str]:
+        """The header cells: per metric the paper's mean, the constant predictor's and ours
+        (paper tables), else ours; the validation column; the swapped-image columns."""
+        cells = (["split"] if self.multi else []) + ["model"]
+        cells += ["paper's row"] if self.paper_row else []
+        cells += ["trained on"] if self.trained_on else []
+        for m in spec.metrics:
+            label = METRIC_LABELS.get(m, m)
+            if self.paper:
+                cells += [
+                    f"{label} paper (mean)",
+                    f"{label} constant (mean)",
+                    f"{label} ours (mean)",
+                ]
+            else:
+                cells.append(label)
+            cells += [f"{label} val"] if m in self.vals else []
+        return cells + [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
+
+
 def markdown_table(
     spec: TableSpec,
     summary: pd.DataFrame,
@@ -291,14 +328,19 @@ def markdown_table(
     show_val: bool | None = None,
     failed: frozenset[str] = frozenset(),
     references: list[str] = (),
+    shown: Mapping[str, str] | None = None,
 ) -> str:
-    """A Markdown table of one table spec: per metric, the paper's number (paper tables only),
-    ours and (see :func:`val_metrics`, ``show_val``) ours on the validation split; then each
-    ``swap_metrics`` entry measured with the swapped satellite image. Rows of the labels in
-    ``failed`` (every training of that row failed) read ``failed``, other missing rows
-    ``not run``. ``extra_labels`` (the constant predictor) and then ``references`` (the
-    non-learned references' labels) follow the trained rows; the references are in the
-    swap-probe table too and are not evaluated on validation splits (``–``)."""
+    """A Markdown table of one table spec: per metric, the paper's number (paper tables only,
+    the paper's means), the constant predictor's mean error beside it and our mean, and (see
+    :func:`val_metrics`, ``show_val``) ours on the validation split; then each ``swap_metrics``
+    entry measured with the swapped satellite image. Rows of the labels in ``failed`` (every
+    training of that row failed) read ``failed``, other missing rows ``not run``.
+    ``extra_labels`` (the constant predictor) and then ``references`` (the non-learned
+    references' labels) follow the trained rows; the references are in the swap-probe table too
+    and are not evaluated on validation splits (``–``). ``shown``: the label a row is shown under
+    when its spec label names another model (``benchmark.runner.report.training.shown_labels``;
+    the paper's row then gets a column of its own)."""
+    shown = dict(shown or {})
     lines = [
         f"## {spec.title}",
         "",
@@ -309,44 +351,111 @@ def markdown_table(
     val_splits = val_splits_of(summary)
     if vals:
         lines += [val_note(val_splits), ""]
-    splits = spec.all_eval_splits()
+    with_paper = spec.paper_table is not None
+    layout = TableLayout(
+        paper=with_paper, vals=tuple(vals), multi=len(spec.all_eval_splits()) > 1,
+        trained_on=len(spec.train_splits()) > 1,
+        paper_row=with_paper and any(j.label in shown for j in spec.jobs()),
+        val_splits=val_splits,
+    )  # fmt: skip
+    header = layout.header(spec)
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     names = spec.paper_splits or (spec.paper_split,) * len(spec.eval_splits)
     paper_split = dict(zip(spec.eval_splits, names, strict=True))
-    with_paper = spec.paper_table is not None
-    multi = len(splits) > 1
-    trained_on = len(spec.train_splits()) > 1
-    header = (["split"] if multi else []) + ["model"] + (["trained on"] if trained_on else [])
-    for m in spec.metrics:
-        label = METRIC_LABELS.get(m, m)
-        header += [f"{label} paper", f"{label} ours"] if with_paper else [label]
-        header += [f"{label} val"] if m in vals else []
-    header += [f"{METRIC_LABELS.get(m, m)} swapped sat." for m in spec.swap_metrics]
-    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for split in splits:
+    for split in spec.all_eval_splits():
         for label, paper_model, train in table_rows(spec, split, [*extra_labels, *references]):
-            row = pick(summary, label, split, "true", train)
-            swap = pick(summary, label, split, "swap", train)
-            gone = "failed" if label in failed else "not run"
-            cells = ([f"`{split}`"] if multi else []) + [row_name(label, row, swap)]
-            cells += [f"`{train}`"] if trained_on else []
-            for m in spec.metrics:
-                if with_paper:
-                    ps = paper_split.get(split)
-                    pv = paper_value(paper, spec.paper_table, ps, paper_model, m)
-                    cells.append("–" if not math.isfinite(pv) else f"{pv:.2f}")
-                cells.append(cell_text(row, m, gone))
-                if m in vals and label in references:
-                    cells.append(NO_VAL)
-                elif m in vals:
-                    val_row = pick_val(summary, label, train)
-                    cells.append(val_cell(val_row, m, train, val_splits, gone))
-            cells += [cell_text(swap, m, gone) for m in spec.swap_metrics]
+            where = (split, train, paper_split.get(split))
+            cells = _row_cells(spec, summary, paper, layout, label, paper_model, where, shown)
+            cells = _no_val(cells, header) if label in references else cells
+            cells = [("failed" if label in failed else c) if c == "not run" else c for c in cells]
             lines.append("| " + " | ".join(cells) + " |")
+    if with_paper:
+        lines += ["", constant_beside_paper(spec, summary, paper)]
     if spec.swap_metrics:
-        lines += ["", swap_probe_table(spec, summary, failed, list(references))]
+        lines += ["", swap_probe_table(spec, summary, failed, list(references), shown)]
     if spec.note:
         lines += ["", spec.note.strip()]
     return "\n".join(lines) + "\n"
+
+
+def _row_cells(
+    spec: TableSpec,
+    summary: pd.DataFrame,
+    paper: pd.DataFrame,
+    layout: TableLayout,
+    label: str,
+    paper_model: str,
+    where: tuple[str, str, str | None],
+    shown: Mapping[str, str],
+) -> list[str]:
+    """The cells of one row (``where``: its split, training split and the paper's name of the
+    split); missing numbers read ``not run``."""
+    split, train, paper_split = where
+    row = pick(summary, label, split, "true", train)
+    swap = pick(summary, label, split, "swap", train)
+    constant = pick(summary, CONSTANT_LABEL, split, "true", train)
+    cells = ([f"`{split}`"] if layout.multi else []) + [
+        row_name(shown.get(label, label), row, swap)
+    ]
+    cells += [paper_model or "–"] if layout.paper_row else []
+    cells += [f"`{train}`"] if layout.trained_on else []
+    for m in spec.metrics:
+        if layout.paper:
+            pv = paper_value(paper, spec.paper_table, paper_split, paper_model, m)
+            cells += ["–" if not math.isfinite(pv) else f"{pv:.2f}", cell_text(constant, m, "–")]
+        cells.append(cell_text(row, m))
+        if m in layout.vals:
+            val = pick_val(summary, label, train)
+            cells.append(val_cell(val, m, train, dict(layout.val_splits)))
+    return cells + [cell_text(swap, m) for m in spec.swap_metrics]
+
+
+def _no_val(cells: list[str], header: list[str]) -> list[str]:
+    """A reference row's cells with ``–`` in the validation columns (references are evaluated on
+    no validation split: nothing is chosen on them)."""
+    return [NO_VAL if h.endswith(" val") else c for c, h in zip(cells, header, strict=True)]
+
+
+def constant_beside_paper(spec: TableSpec, summary: pd.DataFrame, paper: pd.DataFrame) -> str:
+    """The sentence under a table with the paper's numbers: per metric the paper gives here, the
+    range of the constant predictor's mean error over the table's splits, the range of the
+    paper's numbers and how many of those are at or above the constant's on their split (an error
+    the mean pose alone reaches on these data); ``""`` when the paper gives none."""
+    names = spec.paper_splits or (spec.paper_split,) * len(spec.eval_splits)
+    parts = []
+    for m in spec.metrics:
+        pairs = []  # (paper's number, the constant's mean on that split)
+        for split, paper_split in zip(spec.eval_splits, names, strict=True):
+            constant = pick(summary, CONSTANT_LABEL, split, "true", spec.train_split_for(split))
+            for job in spec.jobs():
+                pv = paper_value(paper, spec.paper_table, paper_split, job.paper_model, m)
+                if math.isfinite(pv) and split in job.eval_splits:
+                    pairs.append((pv, constant[m] if constant is not None else math.nan))
+        consts = [c for _, c in pairs if math.isfinite(c)]
+        if not pairs or not consts:
+            continue
+        ours = [p for p, _ in pairs]
+        reached = sum(p >= c for p, c in pairs if math.isfinite(c))
+        parts.append(
+            f"{METRIC_LABELS.get(m, m)}: constant {_span(consts)}, paper {_span(ours)} "
+            f"({reached} of {len(pairs)} paper numbers at or above the constant's on their split)"
+        )
+    if not parts:
+        return ""
+    return (
+        "Columns *paper (mean)*, *ours (mean)*: the paper's mean errors and ours (mean over the "
+        "frames, then over the seeds); every median is named so. Columns *constant (mean)*: the "
+        "constant predictor (the training split's mean pose; it reads no image) on the same "
+        "split, the error a model reaches by learning nothing, beside each paper number: "
+        + "; ".join(parts)
+        + "."
+    )
+
+
+def _span(values: list[float]) -> str:
+    """``"76.37–98.83"`` (or one value)."""
+    lo, hi = min(values), max(values)
+    return f"{lo:.2f}" if lo == hi else f"{lo:.2f}–{hi:.2f}"
 
 
 def swap_probe_table(
@@ -354,10 +463,12 @@ def swap_probe_table(
     summary: pd.DataFrame,
     failed: frozenset[str] = frozenset(),
     references: list[str] = (),
+    shown: Mapping[str, str] | None = None,
 ) -> str:
     """Per trained row, then per non-learned reference (labels ``references``): the paired
     per-frame effect of swapping the satellite image (rows of the labels in ``failed`` read
-    ``failed``)."""
+    ``failed``; ``shown``: labels shown instead, as in :func:`markdown_table`)."""
+    shown = shown or {}
     lines = [
         "Satellite-swap probe: each pair's satellite image replaced by another place's (another "
         "centre of the same city; for `generalized/test` another city; for `towns/*` another "
@@ -377,7 +488,7 @@ def swap_probe_table(
         for label, _, train in table_rows(spec, split, list(references)):
             row = pick(summary, label, split, "true", train)
             swap = pick(summary, label, split, "swap", train)
-            cells = [f"`{split}`", row_name(label, row, swap)]
+            cells = [f"`{split}`", row_name(shown.get(label, label), row, swap)]
             gone = "failed" if label in failed else "not run"
             # A reference with no estimate of its own under either image has no swap effect.
             blind = fails_text(1.0) if fails_everywhere(row) or fails_everywhere(swap) else None
@@ -390,7 +501,8 @@ def swap_probe_table(
 
 
 def _effect(swap: pd.Series | None, e: str) -> str:
-    """``+Δ [lo, hi]`` of one swap effect; ``+Δ`` and :data:`NO_INTERVAL` without bounds."""
+    """``+Δ [lo, hi]`` of one swap effect; ``+Δ (no interval)`` without bounds (one flight and
+    one seed, or no per-frame errors: the verdict column says which)."""
     mean, lo, hi = (
         swap.get(f"swap_{e}_{k}_deg", math.nan) if swap is not None else math.nan
         for k in ("diff", "boot_lo", "boot_hi")
@@ -398,13 +510,20 @@ def _effect(swap: pd.Series | None, e: str) -> str:
     if not _finite(mean):
         return "not run"
     if not (_finite(lo) and _finite(hi)):
-        return f"{mean:+.2f}, {NO_INTERVAL}"
+        return f"{mean:+.2f} (no interval)"
     return f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]"
 
 
-def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[str]) -> str:
+def extra_metrics_table(
+    spec: TableSpec,
+    summary: pd.DataFrame,
+    metrics: list[str],
+    shown: Mapping[str, str] | None = None,
+) -> str:
     """Our metrics the paper does not report (medians, accuracies, uncertainty quality), those
-    the spec's own columns do not already show (``""`` when none is left)."""
+    the spec's own columns do not already show (``""`` when none is left); ``shown``: labels
+    shown instead, as in :func:`markdown_table`."""
+    shown = shown or {}
     present = [
         m
         for m in metrics
@@ -423,7 +542,7 @@ def extra_metrics_table(spec: TableSpec, summary: pd.DataFrame, metrics: list[st
         "|" + "---|" * len(header),
     ]
     for _, r in summary.iterrows():
-        cells = [f"`{r['split']}`", row_name(str(r["label"]), r)]
+        cells = [f"`{r['split']}`", row_name(shown.get(str(r["label"]), str(r["label"])), r)]
         if fails_everywhere(r):
             cells += [fails_text(1.0)] * len(present)
         else:
