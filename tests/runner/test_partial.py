@@ -235,7 +235,9 @@ class TestClaims:
         assert [c.verdict for c in claims] == [EARLIER, NOT_RUN]
         assert claims[0].facts["earlier"] == ("fig5", COMMIT)
         text = findings_markdown(claims, {"fig5": COMMIT})
-        assert text.splitlines()[0] == (f"Of 2 claims checked: 1 not run, 1 {EARLIER}.")
+        assert text.splitlines()[0] == (
+            f"Of 2 claims checked: 1 not run, 1 {EARLIER} (on the main test splits)."
+        )
         assert (
             "- **from an earlier run at `1fe0c26-dirty`, not re-decided**: `fig5` (kept as "
             "written by that run, see *Partial rerun*); claim 1 uses them and is not "

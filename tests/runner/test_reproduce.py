@@ -57,8 +57,16 @@ class TestReproduceSmoke:
                 assert (reports / f"{spec.name}.png").stat().st_size > 0
         readme = (reports / "README.md").read_text()
         # fifteen claims of the paper and its controls, and one ranking claim per test split of
-        # table extended, each with a verdict
-        assert readme.count("| **") == 17
+        # table extended, each with a verdict, and the confirmation draw's cell beside it
+        rows = [line for line in readme.splitlines() if re.match(r"\| \d+ \| ", line)]
+        assert len(rows) == 17
+        assert all(re.search(r" \| \*\*[a-z ()]+\*\* \| ", row) for row in rows)
+        confirmation = [row.split(" | ")[6] for row in rows]
+        assert all(
+            c.startswith("**") or c == "– (no confirmation split for its test splits)"
+            for c in confirmation
+        )
+        assert sum(c.startswith("**") for c in confirmation) >= 10  # decided on confirm/* too
         table1 = (reports / "table1.md").read_text()
         assert "| UAV-only control |" in table1 and "swapped sat." in table1
         assert "Satellite-swap probe" in table1
