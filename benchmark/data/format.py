@@ -13,6 +13,19 @@ Layout (all paths relative to the dataset root)::
     .simulate.lock         while simulate runs: its pid, host and start (benchmark.locks)
     .render-journal.jsonl  while unfinished: sha256 of each shard as rendered (data.journal)
 
+**Odometry columns** (issue 39; :data:`ODOMETRY_COLUMNS`, float64, on every row of
+``uav.parquet`` and carried to every row of ``pairs.parquet``): the motion from the previous
+sample of the same flight (by ``frame``) to this one, as a consumer IMU plus visual odometry
+reports it. ``odo_dyaw`` (rad, wrapped to (-pi, pi]): the measured heading increment;
+``odo_dx``, ``odo_dy``, ``odo_dz`` (m): the measured displacement in the *levelled heading frame of
+the previous sample* (x right, y forward, z up: the body frame with pitch and roll removed,
+``Rz(yaw_prev)^T (dE, dN, dU)``). NaN on the first sample of every flight. Simulated datasets
+measure them with the profile's ``odometry_*`` noise figures (``benchmark.sim.odometry``); a
+user's real data brings its own in the same columns, frame and units. Readers that need them call
+:func:`require_odometry`, which names the file and the missing columns. New columns that old
+readers can ignore do not change ``FORMAT_VERSION``; it changes when a reader of the old format
+could no longer read the files.
+
 Every file is written to a temporary name and renamed into place, so a killed run leaves either a
 complete file or none; the manifest exists only once every shard does. Its digests are those
 of the bytes simulate rendered, never of whatever is found on disk. Opening a dataset checks them
@@ -28,11 +41,17 @@ import json
 import os
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+if TYPE_CHECKING:  # the writer's and the dataset's tables; format itself needs no pandas
+    import pandas as pd
+
 FORMAT_VERSION = 2
+# The odometry columns (module docstring); equal to benchmark.sim.ODOMETRY_COLUMNS (tested: the
+# format is the data package's, and reading it needs no simulator).
+ODOMETRY_COLUMNS: tuple[str, ...] = ("odo_dyaw", "odo_dx", "odo_dy", "odo_dz")
 MANIFEST = "manifest.json"
 CONFIG = "config.json"
 TABLES = ("uav.parquet", "sat.parquet", "pairs.parquet")
@@ -40,6 +59,22 @@ TABLES = ("uav.parquet", "sat.parquet", "pairs.parquet")
 
 class DatasetError(RuntimeError):
     """A dataset directory is missing, incomplete or corrupted (the message names the file)."""
+
+
+def require_odometry(table: pd.DataFrame, where: str | Path) -> np.ndarray:
+    """The odometry of every row of ``table`` (``uav.parquet`` or ``pairs.parquet`` rows) as
+    float64 ``(n, 4)``, columns in :data:`ODOMETRY_COLUMNS` order (``odo_dyaw`` rad, ``odo_dx,
+    odo_dy, odo_dz`` m; NaN on a flight's first sample). ``where`` names the file the table came
+    from; a table without some of the columns raises :class:`DatasetError` naming it and them."""
+    missing = [c for c in ODOMETRY_COLUMNS if c not in table.columns]
+    if missing:
+        raise DatasetError(
+            f"{where}: no odometry columns {missing} (a dataset from before issue 39: "
+            f"re-simulate it; real data must bring odo_dyaw (rad), odo_dx, odo_dy, odo_dz (m, in "
+            f"the levelled heading frame of the previous sample of the flight), NaN on a "
+            f"flight's first sample; benchmark.data.format)"
+        )
+    return table[list(ODOMETRY_COLUMNS)].to_numpy(np.float64)
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

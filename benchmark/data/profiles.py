@@ -3,6 +3,10 @@
 ``smoke`` is for tests and the CI smoke reproduction (seconds), ``quick`` the default (minutes on
 2 cores), ``paper`` the full-size reproduction (224 px, tens of thousands of pairs, paper Sec. 3.1).
 ``--size N`` rescales every set of a profile so that the standard split holds N pairs.
+
+Each profile also states the noise of the odometry every UAV sample carries (``odometry_*``,
+degrees at this edge; ``benchmark.sim.odometry_noise`` turns them into radians) and how many long
+test flights (``long/{standard,towns,london}``, issue 39) it renders.
 """
 
 from __future__ import annotations
@@ -19,11 +23,24 @@ FLIGHT_STYLE = "industrial"
 # Roles of the towns family, split names towns/<role>; the order of Profile.n_towns and
 # n_town_pairs. Same as benchmark.sim.towns.TOWN_ROLES (tested; data does not import sim here).
 TOWN_ROLES: tuple[str, ...] = ("train", "val", "test", "london")
+# Profile's odometry noise fields, as benchmark.sim.odometry.PROFILE_FIELDS reads them (tested).
+ODOMETRY_FIELDS: tuple[str, ...] = (
+    "odometry_gyro_bias_dps",
+    "odometry_yaw_walk_deg",
+    "odometry_scale_sigma",
+    "odometry_step_sigma_m",
+)
 
 
 @dataclass(frozen=True)
 class Profile:
-    """Everything that determines a dataset besides the seed. Stored in the manifest."""
+    """Everything that determines a dataset besides the seed. Stored in the manifest.
+
+    Pair counts per set, image and flight geometry, the towns family, the confirmation draw, the
+    odometry noise figures (``odometry_*``: deg/s, deg, fraction, m; the UAV rows' ``odo_*``
+    columns are measured with them) and the long test flights (``n_long_flights``,
+    ``long_samples_per_flight``, ``long_frame_stride``: splits ``long/{standard,towns,london}``).
+    Degrees and metres here, the config edge."""
 
     name: str
     image_size: int  # UAV and satellite images are image_size x image_size (paper: 224)
@@ -74,6 +91,26 @@ class Profile:
     # of their own (draw k), with n_towns[test] new towns of the training styles. Nothing may be
     # chosen on them; a draw once used for a choice is replaced by the next one (k + 1). 0: none.
     confirm_draw: int = 0
+    # Odometry noise (issue 39): what a consumer MEMS IMU plus visual odometry (VIO) gives per
+    # sample (model: benchmark.sim.odometry). Gyro bias 0.2 deg/s per flight: a consumer MEMS
+    # gyro's turn-on bias is of order 1 deg/s (BMI088: +-1 deg/s), and in-flight bias estimation
+    # leaves a residual of order 0.1-0.2 deg/s; we take the top. 0.2 deg per step: the gyro's
+    # angle random walk (0.3-0.9 deg/sqrt(h) for MPU-6000/BMI088-class parts: 0.01-0.02 deg over a
+    # 2 s step) is small beside the VIO's own rotation noise between keyframes, which this covers.
+    # Scale 3 %: a VIO's translation scale error is a few percent. 0.5 m per step and axis: VIO
+    # over 0.5-2 s steps at 6-15 m/s. Each figure is at least the issue's yardstick (0.2 deg/s,
+    # 0.2 deg per step, 3 %), so a fusion shown to work here works on odometry no better.
+    odometry_gyro_bias_dps: float = 0.2  # deg/s, std of the per-flight gyro bias
+    odometry_yaw_walk_deg: float = 0.2  # deg, std of the heading noise per step
+    odometry_scale_sigma: float = 0.03  # fraction, std of the per-flight translation scale error
+    odometry_step_sigma_m: float = 0.5  # metres, std of the displacement noise per step and axis
+    # Long test flights (issue 39): flights of 16 samples at 2 Hz (8 s) are too short to show what
+    # fusing along a flight gains. ``long/{standard,towns,london}`` hold n_long_flights flights
+    # each (0: none) of long_samples_per_flight samples every long_frame_stride video frames: the
+    # default 32 samples every 60 frames (2 s at 30 fps) span 62 s. Test-only; cheap to render.
+    n_long_flights: int = 0
+    long_samples_per_flight: int = 32
+    long_frame_stride: int = 60
 
     def __post_init__(self) -> None:
         if self.image_size < 8:
@@ -111,6 +148,19 @@ class Profile:
             raise ValueError(
                 f"Profile.confirm_draw must be an integer >= 0, got {self.confirm_draw!r}"
             )
+        for name in ODOMETRY_FIELDS:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"Profile.{name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"Profile.{name} must be finite and >= 0, got {value!r}")
+        # a long flight needs two samples for one odometry step
+        for name, least in (("n_long_flights", 0), ("long_samples_per_flight", 2),
+                            ("long_frame_stride", 1)):  # fmt: skip
+            value = getattr(self, name)
+            whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+            if isinstance(value, bool) or not whole or value < least:
+                raise ValueError(f"Profile.{name} must be an integer >= {least}, got {value!r}")
         for role, towns, pairs in zip(TOWN_ROLES, self.n_towns, self.n_town_pairs, strict=True):
             if pairs > 0 and towns == 0:
                 raise ValueError(
@@ -118,7 +168,12 @@ class Profile:
                 )
 
     def with_size(self, n_standard: int) -> Profile:
-        """This profile rescaled so that the standard split holds ``n_standard`` pairs."""
+        """This profile rescaled so that the standard split holds ``n_standard`` pairs.
+
+        Every set scales by its number of pairs; the long test splits by their number of flights
+        (``n_long_flights``, at least 1 if any), never by their length: a long flight stays as
+        long as the profile says, since its length is what those splits are for. The length of
+        the other flights does not change either."""
         if n_standard < 3:
             raise ValueError(f"size must be >= 3 pairs (train, val, test), got {n_standard}")
         f = n_standard / self.n_standard
@@ -135,6 +190,7 @@ class Profile:
             n_height_train=scale(self.n_height_train),
             n_height_test=scale(self.n_height_test),
             n_town_pairs=tuple(scale(n) for n in self.n_town_pairs),
+            n_long_flights=scale(self.n_long_flights),
         )
 
     def standard_only(self) -> Profile:
@@ -152,6 +208,7 @@ class Profile:
             n_towns=(0, 0, 0, 0),
             n_town_pairs=(0, 0, 0, 0),
             confirm_draw=0,
+            n_long_flights=0,
         )
 
     def to_dict(self) -> dict:
@@ -185,6 +242,10 @@ PROFILES: dict[str, Profile] = {
         n_town_pairs=(16, 4, 4, 4),
         town_size_m=(1024.0, 768.0),
         confirm_draw=1,
+        # 2 flights of 6 samples per long split (10 s): the splits exist, tests stay fast.
+        n_long_flights=2,
+        long_samples_per_flight=6,
+        long_frame_stride=60,
     ),
     "quick": Profile(
         name="quick",
@@ -206,6 +267,9 @@ PROFILES: dict[str, Profile] = {
         eval_samples_per_flight=4,
         shard_size=256,
         confirm_draw=1,
+        # 24 flights of 32 samples (62 s) per long split: 768 pairs each, 2304 in all, about 20 s
+        # of one core to render at 96 px (6-8 ms a frame).
+        n_long_flights=24,
     ),
     "paper": Profile(
         name="paper",
@@ -223,6 +287,7 @@ PROFILES: dict[str, Profile] = {
         eval_samples_per_flight=6,
         shard_size=256,
         confirm_draw=1,
+        n_long_flights=40,  # 1280 pairs per long split
     ),
 }
 

@@ -53,6 +53,14 @@ light=0)``
 ``CONFIRM_SPLITS``, ``CONFIRMS``
     The confirmation draw's splits, and the test split each one repeats (``standard/test`` ->
     ``confirm/standard``, ...; issue 38).
+``LONG_SPLITS``
+    ``("long/standard", "long/towns", "long/london")``: test-only flights of >= 60 s for the
+    flight-fusion curves (issue 39; ``benchmark.sim.splits``).
+``ODOMETRY_COLUMNS``, ``OdometryNoise``, ``odometry_noise(profile)``, ``flight_odometry(E, N, U,
+yaw, time_s, *, noise, rng) -> (K, 4)``, ``odometry_rng(seed, flight)``, ``plan_odometry(...)``
+    The odometry every UAV sample carries (``odo_dyaw`` rad, ``odo_dx odo_dy odo_dz`` m in the
+    levelled heading frame of the previous sample; NaN on a flight's first sample) and its noise
+    model (``benchmark.sim.odometry``; imported on first use).
 ``town_list(n_towns, seed) -> [Town]``, ``build_town(town, size_m=, metres_per_px=)``
     The many-towns family (``benchmark.sim.towns``; imported on first use).
 
@@ -86,11 +94,14 @@ __all__ = [
     "CONFIRMS",
     "CONFIRM_SPLITS",
     "GENERATOR_VERSION",
+    "LONG_SPLITS",
+    "ODOMETRY_COLUMNS",
     "STYLES",
     "TOWN_ROLES",
     "Camera",
     "City",
     "FlightSpec",
+    "OdometryNoise",
     "Town",
     "build_city",
     "build_town",
@@ -98,8 +109,12 @@ __all__ = [
     "city_seed",
     "detmath",
     "euler_to_rotmat_np",
+    "flight_odometry",
     "generate_flight",
     "make_plan",
+    "odometry_noise",
+    "odometry_rng",
+    "plan_odometry",
     "project_enu_to_pixel",
     "render_satellite",
     "render_uav",
@@ -111,8 +126,16 @@ __all__ = [
 ]
 
 # Imported on first access (PEP 562): render workers import this package and need none of them.
-_FROM_SPLITS = ("CONFIRMS", "CONFIRM_SPLITS", "make_plan")
+_FROM_SPLITS = ("CONFIRMS", "CONFIRM_SPLITS", "LONG_SPLITS", "make_plan")
 _FROM_TOWNS = ("TOWN_ROLES", "Town", "build_town", "town_list")
+_FROM_ODOMETRY = (
+    "ODOMETRY_COLUMNS",
+    "OdometryNoise",
+    "flight_odometry",
+    "odometry_noise",
+    "odometry_rng",
+    "plan_odometry",
+)
 
 
 def __getattr__(name: str) -> Any:
@@ -124,4 +147,8 @@ def __getattr__(name: str) -> Any:
         from benchmark.sim import towns
 
         return getattr(towns, name)
+    if name in _FROM_ODOMETRY:
+        from benchmark.sim import odometry
+
+        return getattr(odometry, name)
     raise AttributeError(f"module 'benchmark.sim' has no attribute {name!r}")

@@ -32,6 +32,19 @@ Split definitions (paper Sec. 3.1, 3.3.2, 3.5; decisions where the paper is sile
   (``town-confirm<d>-*``), new london flights; as large as standard/test, towns/test and
   generalized/test. Seed groups ``100 d + (0, 1, 2)``, so every draw has streams of its own. The
   groups come after every other group, so the other splits are the same with or without them.
+- ``long/{standard,towns,london}`` (issue 39, beyond the paper*): test-only flights long enough
+  for flight-fusion curves, ``profile.n_long_flights`` flights of ``long_samples_per_flight``
+  samples every ``long_frame_stride`` video frames (quick: 32 samples every 2 s, 62 s): new
+  oxford + cambridge flights around the standard centres, leak-checked like standard/test; flights
+  over the towns/test towns (``long/towns`` exists when towns/test does); london flights. Seed
+  groups ``LONG_GROUPS`` (90, 91, 92, not 100 d + k: those are the confirmation draws'), planned
+  after every other group and paired last, so every other split keeps its flight numbers,
+  illumination and satellite indices with or without them.
+
+Every UAV sample carries the odometry since the previous sample of its flight (columns
+``ODOMETRY_COLUMNS``: ``odo_dyaw`` rad, ``odo_dx odo_dy odo_dz`` m in the levelled heading frame
+of the previous sample; NaN on a flight's first sample), measured with the profile's noise
+figures (``benchmark.sim.odometry``); the pairs carry their UAV sample's.
 
 Every flight has its own capture time (illumination state and fog) and every satellite image its
 own, independent one (``benchmark.sim.illumination``).
@@ -57,6 +70,7 @@ from benchmark.sim import detmath
 from benchmark.sim.camera import euler_to_rotmat_np
 from benchmark.sim.flights import FlightSpec, generate_flight
 from benchmark.sim.illumination import assign_illumination
+from benchmark.sim.odometry import ODOMETRY_COLUMNS, odometry_noise, plan_odometry
 from benchmark.sim.render import satellite_pose
 from benchmark.sim.towns import TOWN_ROLES, Town, town_list
 
@@ -70,6 +84,11 @@ CONFIRM_SPLITS = ("confirm/standard", "confirm/towns", "confirm/generalized")
 CONFIRMS = dict(
     zip(("standard/test", "towns/test", "generalized/test"), CONFIRM_SPLITS, strict=True)
 )
+# The long test flights (issue 39): one split per family of test flights, in this order.
+LONG_SPLITS = ("long/standard", "long/towns", "long/london")
+# Their seed groups. Not 200-202: the confirmation draw d uses 100 d + (0, 1, 2), so draw 2 would
+# fly the very curves of the long flights (flight_rng draws the same shape for any length).
+LONG_GROUPS = (90, 91, 92)
 R_COLUMNS = [f"R{i}{j}" for i in range(3) for j in range(3)]  # row-major R_uav^sat
 POSE_COLUMNS = ["E", "N", "U", "yaw", "pitch", "roll"]
 
@@ -152,6 +171,17 @@ def _groups(
             Group(CONFIRM_SPLITS[2], 100 * draw + 2, (london,), p.n_generalized_test,
                   spec(held_out=True)),
         ]  # fmt: skip
+    n_long = int(getattr(p, "n_long_flights", 0))
+    if n_long:
+        long_spec = FlightSpec(samples=p.long_samples_per_flight, frame_stride=p.long_frame_stride)
+        n = n_long * long_spec.samples
+        test_towns = tuple(t.name for t in towns if t.role == "test")
+        families = (styles_train, test_towns, (london,))
+        for name, gid, family in zip(LONG_SPLITS, LONG_GROUPS, families, strict=True):
+            if family:  # no towns/test towns: no long/towns
+                out.append(
+                    Group(name, gid, family, n, long_spec, leak_check=name == LONG_SPLITS[0])
+                )
     return [g for g in out if g.n > 0]
 
 
@@ -298,6 +328,11 @@ def make_plan(
                 )  # fmt: skip
     uav = pd.DataFrame(uav_rows)
     uav.insert(0, "uav_index", np.arange(len(uav), dtype=np.int64))
+    # Odometry from the planned poses, one generator per flight (benchmark.sim.odometry): it
+    # depends on the flight's own poses and number only, never on rendering or other flights.
+    odometry = plan_odometry(uav.flight, uav.frame, uav, odometry_noise(p), seed)
+    for k, col in enumerate(ODOMETRY_COLUMNS):
+        uav[col] = odometry[:, k]
 
     # Satellite images, one per (city, variant, centre, height, footprint).
     sat_rows: list[dict[str, Any]] = []
@@ -362,7 +397,7 @@ def make_plan(
         for h in p.sat_heights_m:
             for part in ("train", "test"):
                 add_pairs(f"height{h:g}/{part}", subsets[part], "now", h, footprint(h))
-    for name in CONFIRM_SPLITS:  # last: every other split keeps its satellite indices
+    for name in (*CONFIRM_SPLITS, *LONG_SPLITS):  # last: the others keep their satellite indices
         if name in by_group:
             add_pairs(name, by_group[name], "now", h0, fp0)
 
@@ -371,6 +406,8 @@ def make_plan(
     u = uav.set_index("uav_index").loc[pairs.uav_index]
     s = sat.set_index("sat_index").loc[pairs.sat_index]
     for col in ("city", "style", "centre", "flight", "frame", "time_s", *POSE_COLUMNS):
+        pairs[col] = u[col].to_numpy()
+    for col in ODOMETRY_COLUMNS:
         pairs[col] = u[col].to_numpy()
     for col in ("light", "visibility_m", "sun_az", "sun_el"):
         pairs[col] = u[col].to_numpy()

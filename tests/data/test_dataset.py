@@ -16,7 +16,14 @@ import torch
 from scipy.spatial.transform import Rotation
 from torch.utils.data import DataLoader
 
-from benchmark.data import DatasetError, PairDataset, list_splits
+from benchmark.data import (
+    ODOMETRY_COLUMNS,
+    DatasetError,
+    PairDataset,
+    list_splits,
+    odometry_noise,
+    require_odometry,
+)
 from benchmark.data.profiles import PROFILES
 from benchmark.data.swap import swap_targets
 from benchmark.data.writer import ConfigMismatchError, simulate_dataset
@@ -163,6 +170,23 @@ class TestPairDataset:
         assert ds.splits == names and ds.manifest["splits"]["flight/pitch-50"] == len(ds)
         with pytest.raises(ValueError, match="available"):
             PairDataset(smoke_root, "nope")
+
+    def test_odometry_columns_and_long_splits(self, smoke_root):
+        """Issue 39: every UAV row and pair row carries its odometry (NaN on a flight's first
+        sample), and the smoke dataset holds the long test splits."""
+        names = list_splits(smoke_root)
+        assert {"long/standard", "long/towns", "long/london"} <= set(names)
+        uav = pd.read_parquet(smoke_root / "uav.parquet")
+        odo = require_odometry(uav, smoke_root / "uav.parquet")
+        first = (uav.frame == uav.groupby("flight").frame.transform("min")).to_numpy()
+        assert np.isnan(odo[first]).all() and np.isfinite(odo[~first]).all()
+        ds = PairDataset(smoke_root, "long/london")
+        assert len(ds) == SMOKE.n_long_flights * SMOKE.long_samples_per_flight
+        odo = require_odometry(ds.poses, smoke_root / "pairs.parquet")
+        by_uav = uav.set_index("uav_index").loc[ds.poses.uav_index, list(ODOMETRY_COLUMNS)]
+        np.testing.assert_array_equal(odo, by_uav.to_numpy())
+        manifest_noise = odometry_noise(ds.manifest["profile"])
+        assert manifest_noise == odometry_noise(SMOKE)
 
     def test_dataloader_workers_and_pickling(self, smoke_root):
         ds = PairDataset(smoke_root, "standard/train")

@@ -44,6 +44,47 @@ class TestProfiles:
             with pytest.raises(ValueError, match="eval_samples_per_flight must be None or an"):
                 dataclasses.replace(PROFILES["smoke"], eval_samples_per_flight=bad)
 
+    def test_odometry_noise_and_long_flights(self):
+        """Issue 39: the stated odometry figures (at least the issue's yardstick) and the long
+        test flights per profile: quick's and paper's last >= 60 s."""
+        for p in PROFILES.values():
+            assert (p.odometry_gyro_bias_dps, p.odometry_yaw_walk_deg) == (0.2, 0.2)
+            assert (p.odometry_scale_sigma, p.odometry_step_sigma_m) == (0.03, 0.5)
+        counts = {k: (p.n_long_flights, p.long_samples_per_flight, p.long_frame_stride)
+                  for k, p in PROFILES.items()}  # fmt: skip
+        assert counts == {"smoke": (2, 6, 60), "quick": (24, 32, 60), "paper": (40, 32, 60)}
+        for name in ("quick", "paper"):
+            p = PROFILES[name]
+            assert (p.long_samples_per_flight - 1) * p.long_frame_stride / 30.0 >= 60.0
+            assert p.standard_only().n_long_flights == 0
+
+    def test_size_override_scales_long_flights_not_their_length(self):
+        q = PROFILES["quick"]
+        small = q.with_size(q.n_standard // 10)
+        assert small.n_long_flights == 3  # ceil(24 / 10): fewer flights, each as long
+        assert small.long_samples_per_flight == q.long_samples_per_flight
+        assert small.long_frame_stride == q.long_frame_stride
+        assert q.with_size(3).n_long_flights == 1
+        assert q.standard_only().with_size(300).n_long_flights == 0
+
+    @pytest.mark.parametrize(
+        "field", ["odometry_gyro_bias_dps", "odometry_yaw_walk_deg", "odometry_scale_sigma",
+                  "odometry_step_sigma_m"],
+    )  # fmt: skip
+    @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf"), "0.2", True])
+    def test_bad_odometry_figure_named(self, field, bad):
+        with pytest.raises(ValueError, match=f"Profile.{field} must be"):
+            dataclasses.replace(PROFILES["smoke"], **{field: bad})
+
+    @pytest.mark.parametrize(
+        ("field", "bad"),
+        [("n_long_flights", -1), ("n_long_flights", 1.5), ("long_samples_per_flight", 1),
+         ("long_frame_stride", 0), ("n_long_flights", float("nan")), ("n_long_flights", True)],
+    )  # fmt: skip
+    def test_bad_long_flights_named(self, field, bad):
+        with pytest.raises(ValueError, match=f"Profile.{field} must be an integer"):
+            dataclasses.replace(PROFILES["smoke"], **{field: bad})
+
     def test_dict_round_trip(self):
         for p in PROFILES.values():
             assert Profile.from_dict(p.to_dict()) == p

@@ -13,13 +13,18 @@ from scipy.spatial.transform import Rotation
 
 from benchmark.data.profiles import PROFILES
 from benchmark.geometry import euler_to_rotmat, relative_rotation
+from benchmark.sim.flights import FlightSpec
+from benchmark.sim.odometry import ODOMETRY_COLUMNS, OdometryNoise
 from benchmark.sim.seeds import city_seed, sample_seed
 from benchmark.sim.splits import (
     CONFIRM_SPLITS,
     CONFIRMS,
     LEAK_ANGLE_DEG,
     LEAK_DIST_M,
+    LONG_GROUPS,
+    LONG_SPLITS,
     R_COLUMNS,
+    _groups,
     make_plan,
     relative_labels,
 )
@@ -240,7 +245,7 @@ class TestConfirmationDraw:
         counts = plan.pairs.split.value_counts()
         for test, confirm in CONFIRMS.items():
             assert counts[confirm] == counts[test]
-        assert plan.splits[-3:] == list(CONFIRM_SPLITS)
+        assert plan.splits[-6:] == [*CONFIRM_SPLITS, *LONG_SPLITS]  # only the long ones after
 
     def test_new_flights_same_cities_new_towns(self, plan):
         pairs = plan.pairs
@@ -271,7 +276,8 @@ class TestConfirmationDraw:
             assert not leak.leaks(style, {k: rows[k].to_numpy() for k in POSE})
 
     def test_other_splits_unchanged_without_the_draw(self, plan):
-        without = make_plan(small_profile(confirm_draw=0), CITIES, seed=7)
+        # without the long splits too: they are planned after the draw (TestLongSplits)
+        without = make_plan(small_profile(confirm_draw=0, n_long_flights=0), CITIES, seed=7)
         assert not set(CONFIRM_SPLITS) & set(without.splits)
         n_uav, n_sat, n_pairs = len(without.uav), len(without.sat), len(without.pairs)
         pd.testing.assert_frame_equal(without.uav, plan.uav.iloc[:n_uav])
@@ -286,6 +292,134 @@ class TestConfirmationDraw:
         a = plan.uav[plan.uav.group == "confirm/standard"][["E", "N", "yaw"]].to_numpy()
         b = second.uav[second.uav.group == "confirm/standard"][["E", "N", "yaw"]].to_numpy()
         assert a.shape == b.shape and not np.allclose(a, b)
+
+
+def long_flight_seconds(spec):
+    return (spec.samples - 1) * spec.frame_stride / spec.fps
+
+
+class TestLongSplits:
+    """Issue 39: long/{standard,towns,london}, test-only flights of >= 60 s (quick) planned after
+    every other group, leaving every other split as it was."""
+
+    def test_exist_with_the_stated_flight_length(self, plan):
+        p = small_profile()
+        assert p.n_long_flights == 2 and p.long_samples_per_flight == 6
+        assert plan.splits[-3:] == list(LONG_SPLITS)
+        for name in LONG_SPLITS:
+            rows = plan.pairs[plan.pairs.split == name]
+            per_flight = rows.groupby("flight").size()
+            assert len(per_flight) == p.n_long_flights and (per_flight == 6).all(), name
+            for _, f in rows.groupby("flight"):
+                np.testing.assert_array_equal(f.frame, np.arange(6) * p.long_frame_stride)
+                np.testing.assert_allclose(np.diff(f.time_s), 2.0)  # 60 frames at 30 fps
+            uav = plan.uav.set_index("uav_index").loc[rows.uav_index]
+            assert (uav.group == name).all() and not uav.camera_effects.any()
+
+    def test_quick_flights_last_at_least_60_s(self):
+        q = PROFILES["quick"]
+        towns = town_list(q.n_towns, 0, confirm_draw=q.confirm_draw)
+        groups = {g.name: g for g in _groups(q, ("oxford", "cambridge"), "london", "ind", towns)}
+        for name in LONG_SPLITS:
+            g = groups[name]
+            assert long_flight_seconds(g.spec) >= 60.0, name
+            assert g.spec.samples == 32 and g.n == 24 * 32 == 768, name
+        assert groups["long/towns"].styles == tuple(t.name for t in towns if t.role == "test")
+        assert groups["long/standard"].leak_check and not groups["long/london"].leak_check
+        assert long_flight_seconds(groups["standard/test"].spec) < 60.0  # what long/* adds
+        paper = PROFILES["paper"]
+        spec = FlightSpec(
+            samples=paper.long_samples_per_flight, frame_stride=paper.long_frame_stride
+        )
+        assert long_flight_seconds(spec) >= 60.0
+
+    def test_seed_groups_never_collide(self):
+        """The confirmation draw d uses groups 100 d + (0, 1, 2); the long groups are none of
+        those, so no draw flies the long flights' curves."""
+        for draw in range(1, 50):
+            p = small_profile(confirm_draw=draw)
+            towns = town_list(p.n_towns, 7, confirm_draw=draw)
+            gids = [g.gid for g in _groups(p, ("oxford", "cambridge"), "london", "ind", towns)]
+            assert len(gids) == len(set(gids)) and set(LONG_GROUPS) <= set(gids), draw
+
+    def test_families(self, plan):
+        pairs = plan.pairs
+        city = {s: set(pairs.loc[pairs.split == s, "city"]) for s in LONG_SPLITS}
+        assert city["long/standard"] <= {"oxford", "cambridge"}
+        assert city["long/london"] == {"london"}
+        test_towns = set(pairs.loc[pairs.split == "towns/test", "city"])
+        assert city["long/towns"] <= test_towns
+        for name in LONG_SPLITS:  # new flights, standard satellite images
+            rows = pairs[pairs.split == name]
+            for other in set(plan.splits) - {name}:
+                assert not flights_of(plan, name) & flights_of(plan, other), (name, other)
+            np.testing.assert_allclose(rows.sat_height_m, 1000.0)
+
+    def test_long_standard_is_leak_checked_like_test(self, plan):
+        from benchmark.sim.splits import POSE_COLUMNS as POSE
+        from benchmark.sim.splits import _LeakIndex
+
+        leak = _LeakIndex()
+        train = plan.uav[plan.uav.group == "standard/train"]
+        for style, rows in train.groupby("city"):
+            leak.add(style, {k: rows[k].to_numpy() for k in POSE})
+        for style, rows in plan.uav[plan.uav.group == "long/standard"].groupby("city"):
+            assert not leak.leaks(style, {k: rows[k].to_numpy() for k in POSE})
+
+    def test_other_splits_unchanged_without_them(self, plan):
+        without = make_plan(small_profile(n_long_flights=0), CITIES, seed=7)
+        assert not set(LONG_SPLITS) & set(without.splits)
+        assert without.splits == plan.splits[: len(without.splits)]
+        n_uav, n_sat, n_pairs = len(without.uav), len(without.sat), len(without.pairs)
+        pd.testing.assert_frame_equal(without.uav, plan.uav.iloc[:n_uav])
+        pd.testing.assert_frame_equal(without.sat, plan.sat.iloc[:n_sat])
+        pd.testing.assert_frame_equal(without.pairs, plan.pairs.iloc[:n_pairs])
+
+    def test_standard_only_has_none(self):
+        assert PROFILES["quick"].standard_only().n_long_flights == 0
+
+
+class TestMakePlanOdometry:
+    """make_plan's odometry columns (benchmark.sim.odometry): per UAV row, carried to pairs."""
+
+    def test_on_every_uav_and_pair_row(self, plan):
+        for col in ODOMETRY_COLUMNS:
+            assert plan.uav[col].dtype == np.float64 and plan.pairs[col].dtype == np.float64
+        u = plan.uav.set_index("uav_index").loc[plan.pairs.uav_index]
+        for col in ODOMETRY_COLUMNS:
+            np.testing.assert_array_equal(plan.pairs[col].to_numpy(), u[col].to_numpy())
+
+    def test_nan_exactly_on_each_flights_first_sample(self, plan):
+        first = plan.uav.frame == plan.uav.groupby("flight").frame.transform("min")
+        odo = plan.uav[list(ODOMETRY_COLUMNS)].to_numpy()
+        assert np.isnan(odo[first.to_numpy()]).all()
+        assert np.isfinite(odo[~first.to_numpy()]).all()
+
+    def test_zero_noise_equals_the_true_increments(self):
+        exact = small_profile(odometry_gyro_bias_dps=0.0, odometry_yaw_walk_deg=0.0,
+                              odometry_scale_sigma=0.0, odometry_step_sigma_m=0.0)  # fmt: skip
+        uav = make_plan(exact, CITIES, seed=7).uav
+        for _, f in uav.groupby("flight"):
+            f = f.sort_values("frame")
+            yaw = f.yaw.to_numpy()
+            d_nav = np.diff(f[["E", "N", "U"]].to_numpy(), axis=0)
+            level = Rotation.from_euler("z", yaw[:-1, None]).inv().apply(d_nav)
+            dyaw = np.angle(np.exp(1j * np.diff(yaw)))
+            np.testing.assert_allclose(f.odo_dyaw.to_numpy()[1:], dyaw, atol=1e-12)
+            np.testing.assert_allclose(f[["odo_dx", "odo_dy", "odo_dz"]].to_numpy()[1:], level,
+                                       atol=1e-9)  # fmt: skip
+
+    def test_profile_noise_is_used(self, plan):
+        noisy = make_plan(small_profile(odometry_gyro_bias_dps=2.0), CITIES, seed=7)
+        dyaw = (noisy.uav.odo_dyaw - plan.uav.odo_dyaw).abs()
+        assert dyaw.max() > 0.0  # a larger bias moves the heading increments ...
+        cols = ["odo_dx", "odo_dy", "odo_dz", *(c for c in plan.uav if not c.startswith("odo"))]
+        pd.testing.assert_frame_equal(noisy.uav[cols], plan.uav[cols])  # ... and nothing else
+
+    def test_default_noise_is_the_profile_s(self, plan):
+        from benchmark.sim.odometry import odometry_noise
+
+        assert odometry_noise(small_profile()) == OdometryNoise()
 
 
 class TestRelativeLabels:
