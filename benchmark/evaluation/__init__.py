@@ -1,5 +1,13 @@
 """Evaluation: the paper's metrics (``metrics``) and running a model over a split (``evaluate``)."""
 
+from benchmark.evaluation.beliefs import (
+    AttitudeCalibration,
+    PositionCalibration,
+    calibrate_from_predictions,
+    gives_density,
+    position_beliefs,
+    yaw_beliefs,
+)
 from benchmark.evaluation.metrics import (
     ACCURACY_THRESHOLDS_DEG,
     ERROR_COLUMNS,
@@ -18,16 +26,22 @@ from benchmark.evaluation.reference import constant_predictor, dataset_labels, m
 __all__ = [
     "ACCURACY_THRESHOLDS_DEG",
     "ERROR_COLUMNS",
+    "AttitudeCalibration",
     "PoseErrors",
+    "PositionCalibration",
     "SeedInterval",
+    "calibrate_from_predictions",
     "constant_predictor",
     "dataset_labels",
+    "gives_density",
     "mean_rotation",
     "pose_errors",
+    "position_beliefs",
     "predictions_frame",
     "relative_to_uav_attitude",
     "seed_interval",
     "spearman",
     "summarize",
     "write_predictions_csv",
+    "yaw_beliefs",
 ]
