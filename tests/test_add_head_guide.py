@@ -153,3 +153,113 @@ def test_guide_runs_and_touches_one_file_and_one_line(tmp_path, cue_datasets):
     configs = [yaml.safe_load(p.read_text()) for p in (repo / "runs").glob("train-*/config.yaml")]
     assert [c["model"]["attitude"] for c in configs] == [name]
     assert configs[0]["model"]["attitude_options"] == {option: yaml.safe_load(value)}
+
+
+# -- A new head gets fusion without writing any (issue 39, item 2) -------------------------------
+@pytest.fixture
+def isolated_registry(monkeypatch):
+    """Register heads for one test only: the registry's dict is swapped for a copy (discovered
+    first, so that the built-in heads are in it and the real one stays complete)."""
+    from benchmark.models import list_heads, registry
+
+    list_heads()
+    monkeypatch.setattr(registry, "_HEADS", dict(registry._HEADS))
+    return registry
+
+
+def _fusion_free(cls: type) -> bool:
+    """No name of the class (or of its own bases below the contract) mentions beliefs/fusion."""
+    names = {n.lower() for klass in cls.__mro__ if klass.__module__ != "torch.nn.modules.module"
+             for n in vars(klass)}  # fmt: skip
+    return not any(word in n for n in names for word in ("belief", "fusion", "calibrat"))
+
+
+class TestYawBeliefsOfANewHead:
+    """The README's guide says fusion needs nothing from a new head: ``yaw_beliefs`` reads its
+    ``log_prob`` if it gives one, else the density calibrated on the validation split. Both kinds,
+    registered as the guide registers a head, get their beliefs with no fusion code of their own."""
+
+    def test_the_guides_regression_head(self, isolated_registry):
+        import math
+
+        import torch
+
+        from benchmark.evaluation.beliefs import calibrate_from_predictions, yaw_beliefs
+        from benchmark.evaluation.fusion_grid import CircularGrid
+        from benchmark.evaluation.metrics import predictions_frame, relative_to_uav_attitude
+        from benchmark.geometry import rotmat_to_euler, rotvec_to_rotmat
+
+        namespace = {"__name__": "baselines.re_net_cayley"}
+        exec(blocks(guide(), "python")[0], namespace)  # the guide's file, as written
+        head = isolated_registry.create_head("re_net_cayley", in_features=8).eval()
+        assert not head.is_probabilistic and not head.gives_log_prob
+        assert _fusion_free(type(head))
+        torch.manual_seed(0)
+        with torch.no_grad():
+            raw = head(torch.randn(64, 8))
+            R_hat = head.decode(raw).double()
+        # its calibration from a validation table (predictions_frame), then its beliefs
+        noise = torch.randn(64, 3, dtype=torch.float64) * 0.1
+        R_gt = rotvec_to_rotmat(noise) @ R_hat
+        T = torch.zeros(64, 3, dtype=torch.float64)
+        frame = predictions_frame(R_hat, R_gt, T + torch.randn(64, 3, dtype=T.dtype), T)
+        attitude, _ = calibrate_from_predictions(frame, "standard/val", 1e6)
+        grid = CircularGrid(720)
+        beliefs = yaw_beliefs(head, raw, R_hat, grid, attitude)
+        assert beliefs.shape == (64, 720) and bool(torch.isfinite(beliefs).all())
+        yaw_hat = rotmat_to_euler(relative_to_uav_attitude(R_hat))[0]
+        peak = grid.centres()[beliefs.argmax(-1)]
+        gap = torch.remainder(peak - yaw_hat + math.pi, 2 * math.pi) - math.pi
+        assert float(gap.abs().max()) <= grid.spacing / 2 + 1e-12
+
+    def test_a_new_density_head(self, isolated_registry):
+        import torch
+        from torch import nn
+
+        from benchmark.evaluation.beliefs import yaw_beliefs
+        from benchmark.evaluation.fusion_grid import (
+            CircularGrid,
+            normalize_log_density,
+            von_mises_belief,
+        )
+        from benchmark.geometry import SAT_R_N, euler_to_rotmat, rotmat_to_euler
+        from benchmark.models import AttitudeHead, register_head
+
+        @register_head("toy_yaw_density")
+        class ToyYawDensity(AttitudeHead):
+            """A von Mises density of the UAV yaw only (uniform pitch and roll), dict raw."""
+
+            gives_log_prob = True
+
+            def __init__(self, in_features: int) -> None:
+                super().__init__(in_features)
+                self.net = nn.Linear(in_features, 2)
+
+            def forward(self, features):
+                out = self.net(features)
+                return {"yaw": out[:, 0], "kappa": 5 + out[:, 1].exp()}
+
+            def decode(self, raw):
+                zero = torch.zeros_like(raw["yaw"])
+                R_n = euler_to_rotmat(raw["yaw"], zero, zero)
+                return R_n @ SAT_R_N.to(R_n.dtype).T
+
+            def loss(self, raw, R_gt):
+                return -self.log_prob(raw, R_gt).mean()
+
+            def log_prob(self, raw, R):
+                k = raw["kappa"]
+                yaw = rotmat_to_euler(R.to(k.dtype) @ SAT_R_N.to(k.dtype))[0]
+                return k * torch.cos(yaw - raw["yaw"]) - torch.log(torch.special.i0(k))
+
+        head = isolated_registry.create_head("toy_yaw_density", in_features=8).double().eval()
+        assert _fusion_free(ToyYawDensity)
+        torch.manual_seed(0)
+        with torch.no_grad():
+            raw = head(torch.randn(5, 8, dtype=torch.float64))
+        grid = CircularGrid(360)
+        beliefs = yaw_beliefs(head, raw, head.decode(raw), grid)  # no calibration needed
+        expected = von_mises_belief(grid, raw["yaw"], raw["kappa"])
+        torch.testing.assert_close(
+            normalize_log_density(beliefs, grid), expected, atol=1e-9, rtol=0
+        )
