@@ -237,6 +237,15 @@ class ImplicitPDF(GridDistribution, AttitudeHead):
         at_R = self.score(raw["embedding"], R)
         return at_R - torch.logsumexp(logits, dim=-1) + math.log(logits.shape[-1])
 
+    def log_prob_many(self, raw: dict[str, Tensor], R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the
+        evaluation grid's normaliser once per sample, not once per rotation."""
+        logits = self._eval_logits(raw)
+        code = positional_encoding(R.to(raw["embedding"].dtype), self.frequencies)  # (B, K, D)
+        at_R = self._tail(raw["embedding"][:, None] + self.rotation_layer(code))  # (B, K)
+        norm = torch.logsumexp(logits, dim=-1) - math.log(logits.shape[-1])
+        return at_R - norm[:, None]
+
     def distribution(self, raw: dict[str, Tensor]) -> Tensor:
         """(B, n_eval) probabilities over the evaluation grid."""
         return super().distribution(self._eval_logits(raw))

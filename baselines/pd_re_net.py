@@ -51,11 +51,15 @@ Haar measure.
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor
 
 from benchmark.geometry import fibonacci_sphere, special_orthogonalize
 from benchmark.models import LatticeHead, register_head
-from benchmark.models.spherical import column_product_log_density
+from benchmark.models.spherical import (
+    column_product_log_density,
+    column_product_log_density_many,
+)
 
 
 @register_head("pd_re_net")
@@ -81,3 +85,8 @@ class PdReNet(LatticeHead):
     def log_density(self, log_p: Tensor, R: Tensor) -> Tensor:
         """Product of the column densities normalised over SO(3) by Haar quadrature."""
         return column_product_log_density(log_p, R, self.grid)
+
+    def log_prob_many(self, raw: Tensor, R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the Haar
+        quadrature of the normaliser (2^15 rotations) once per sample, not once per rotation."""
+        return column_product_log_density_many(torch.log_softmax(raw, dim=-1), R, self.grid)

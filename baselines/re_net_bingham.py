@@ -184,3 +184,12 @@ class ReNetBingham(RegressionAttitudeHead):
         q = rotmat_to_quat(R).to(raw.dtype)
         energy = (q[..., None, :] @ A @ q[..., :, None]).squeeze(-1).squeeze(-1) - L[..., 0]
         return -energy - log_mean_bingham(L[..., 1:] - L[..., :1])
+
+    def log_prob_many(self, raw: Tensor, R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the
+        eigendecomposition and the normaliser's quadrature once per sample."""
+        A = symmetric_matrix(raw)
+        L = smallest_eigenpair(A)[0]
+        q = rotmat_to_quat(R).to(raw.dtype)  # (B, K, 4)
+        energy = torch.einsum("bki,bij,bkj->bk", q, A, q) - L[..., :1]
+        return -energy - log_mean_bingham(L[..., 1:] - L[..., :1])[:, None]

@@ -74,6 +74,9 @@ if TYPE_CHECKING:  # annotations only: importing the models package costs ~0.2 s
 # grid (IPDF: 2^15 float32 logits per rotation, 64 MB at 512 rotations). Larger chunks were
 # measured no faster (IPDF, Pd/Re-Net; one thread).
 DEFAULT_CHUNK = 512
+# Rotations per ``log_prob_many`` call (frames x bins): Pd/Re-Net's nearest lattice points take
+# a (rows, 3, n_points) product, 2048 x 3 x 4096 float32 = 100 MB.
+MANY_ROWS = 2048
 VALIDATION_SUFFIX = "/val"
 
 # Fit bounds. kappa: at 1e-2 the density varies by exp(4 kappa) = 1.04 over SO(3) (uniform, for
@@ -436,6 +439,15 @@ def yaw_beliefs(
     if raw_batch_size(raw) != batch:
         raise ValueError(f"raw has batch size {raw_batch_size(raw)}, R_hat {batch}")
     rotations = yaw_slice(R_hat, grid.centres(torch.float64, R_hat.device))  # (B, n, 3, 3)
+    many = getattr(head, "log_prob_many", None)
+    if many is not None:  # the head shares its per-frame normaliser over the n rotations
+        slices = rotations.to(_raw_float_dtype(raw))
+        frames_per_call = max(1, MANY_ROWS // n)
+        out = [
+            many(take_raw(raw, part), slices[part])
+            for part in torch.arange(batch, device=R_hat.device).split(frames_per_call)
+        ]
+        return torch.cat(out).to(torch.float64)
     flat = rotations.reshape(batch * n, 3, 3).to(_raw_float_dtype(raw))
     frames = torch.arange(batch, device=R_hat.device).repeat_interleave(n)  # row k -> frame k // n
     # Near-equal chunks (sizes differ by at most one), never a remainder of one or two rows: a

@@ -189,6 +189,11 @@ class AttitudeHead(Head):
     def log_prob(self, raw: Raw, R: Tensor) -> Tensor:  # -> (B,)
         raise self._not_probabilistic("log_prob")
 
+    # Optional: ``log_prob_many(raw, R (B, K, 3, 3)) -> (B, K)``, the log_prob of K rotations per
+    # sample, for a head whose log_prob pays a per-sample cost (a normaliser) that K rotations
+    # can share. The flight fusion's beliefs use it when present (benchmark.evaluation.beliefs),
+    # else log_prob row by row; a test checks the two agree for every head that defines it.
+
 
 class TranslationHead(Head):
     """Base class of translation heads. Label ``T = [dE, dN, dU] (B, 3)`` in metres.

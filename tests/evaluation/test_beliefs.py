@@ -388,6 +388,39 @@ class TestCalibrateFromPredictions:
 
 
 # -- yaw beliefs ---------------------------------------------------------------------------------
+MANY = [n for n in DENSITY if hasattr(get_head_class(n), "log_prob_many")]
+
+
+class TestLogProbMany:
+    """The optional contract hook: K rotations per sample, the normaliser shared."""
+
+    def test_nearest_lattice_points_tree_equals_dense_argmax(self):
+        from benchmark.geometry import fibonacci_sphere
+        from benchmark.models.spherical import KD_TREE_QUERIES, nearest_lattice_points
+
+        grid = fibonacci_sphere(4096, dtype=F64)
+        x = torch.tensor(Rotation.random(KD_TREE_QUERIES + 100, random_state=7).as_matrix()[:, 0])
+        tree = nearest_lattice_points(x, grid)  # above the threshold: the k-d tree
+        dense = (x @ grid.T).argmax(-1)
+        assert torch.equal(tree, dense)
+        assert torch.equal(nearest_lattice_points(x[:10], grid), dense[:10])  # dense path
+
+    def test_the_heads_with_a_normaliser_define_it(self):
+        assert {"pd_re_net", "ipdf", "re_net_bingham"} <= set(MANY)
+
+    @pytest.mark.parametrize("name", MANY)
+    def test_equals_log_prob_row_by_row(self, name):
+        head = make_head(name, F64)
+        raw, _ = head_output(head, 3, F64)
+        R = torch.tensor(Rotation.random(3 * 5, random_state=4).as_matrix()).reshape(3, 5, 3, 3)
+        with torch.no_grad():
+            many = head.log_prob_many(raw, R)
+            rows = torch.stack([head.log_prob(take_raw(raw, torch.full((5,), b)), R[b])
+                                for b in range(3)])  # fmt: skip
+        assert many.shape == (3, 5)
+        torch.testing.assert_close(many, rows, atol=1e-9, rtol=1e-9)
+
+
 class TestYawBeliefs:
     GRID = CircularGrid(24)
 
