@@ -14,7 +14,7 @@ Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,6 +48,12 @@ class Predictions:
     log_likelihood: torch.Tensor | None
     uncertainty: torch.Tensor | None
     loss: dict[str, float]
+    beliefs: torch.Tensor | None = None  # (N, ...) from ``predict``'s ``beliefs``, or None
+
+
+# (attitude head, its raw output for a batch, decoded R_hat (B, 3, 3)) -> (B, ...) per-frame
+# beliefs, e.g. ``benchmark.evaluation.beliefs.yaw_beliefs`` on a grid (issue 39).
+BeliefFn = Callable[[torch.nn.Module, Any, torch.Tensor], torch.Tensor]
 
 
 def make_loader(
@@ -87,13 +93,16 @@ def predict(
     desc: str = "eval",
     precision: str = "fp32",
     num_workers: int = 0,
+    beliefs: BeliefFn | None = None,
 ) -> Predictions:
     """Predict every item of ``dataset`` (items as ``PairDataset`` gives them) in eval mode.
 
     Batches go to the model's device; the forward pass runs under autocast for ``precision``
     ``"bf16"``/``"fp16"`` (resolved, not ``"auto"``), decoding, losses and densities in float32
     on its outputs; results come back to the CPU in float64. The model's train/eval mode is
-    restored afterwards.
+    restored afterwards. ``beliefs`` (optional) is called on every batch with the attitude
+    head, its float32 raw output and ``R_hat``; its outputs are concatenated in
+    ``Predictions.beliefs`` (float64, CPU).
     """
     weight = next(iter(model.parameters()), None)  # a parameter-free model runs on the CPU
     device = weight.device if weight is not None else torch.device("cpu")
@@ -107,7 +116,17 @@ def predict(
     with_log_prob = probabilistic or bool(getattr(head, "gives_log_prob", False))
     with_uncertainty = probabilistic or bool(getattr(head, "gives_uncertainty", False))
     parts: dict[str, list[torch.Tensor]] = {
-        k: [] for k in ("index", "R_hat", "R_gt", "T_hat", "T_gt", "log_likelihood", "uncertainty")
+        k: []
+        for k in (
+            "index",
+            "R_hat",
+            "R_gt",
+            "T_hat",
+            "T_gt",
+            "log_likelihood",
+            "uncertainty",
+            "beliefs",
+        )
     }
     loss_sums: dict[str, float] = {}
     count = 0
@@ -135,6 +154,8 @@ def predict(
                     parts["log_likelihood"].append(ll.double().cpu())
                 if with_uncertainty:
                     parts["uncertainty"].append(head.uncertainty(out.attitude).double().cpu())
+                if beliefs is not None:
+                    parts["beliefs"].append(beliefs(head, out.attitude, R_hat).double().cpu())
                 bar.update(1)
     finally:
         model.train(was_training)
@@ -150,6 +171,7 @@ def predict(
         log_likelihood=cat["log_likelihood"],
         uncertainty=cat["uncertainty"],
         loss={k: v / count for k, v in loss_sums.items()},
+        beliefs=cat["beliefs"],
     )
 
 

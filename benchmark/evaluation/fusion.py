@@ -80,6 +80,8 @@ __all__ = [
     "YawPosterior",
     "carry_position",
     "carry_yaw",
+    "filter_and_smooth_position",
+    "filter_and_smooth_yaw",
     "filter_position",
     "filter_yaw",
     "gaussian_belief",
@@ -289,6 +291,19 @@ def _fuse(
     smooth: bool,
 ) -> tuple[Tensor, Tensor]:
     """``(log posteriors (B, K, *cells), escaped (B, K))`` of the filter or the smoother."""
+    filtered, smoothed, escaped = _fuse_both(flights, grid, carry, outlier_weight, smooth)
+    return (smoothed if smooth else filtered), escaped
+
+
+def _fuse_both(
+    flights: YawFlights | PositionFlights,
+    grid: Grid,
+    carry: _Carry,
+    outlier_weight: float,
+    smooth: bool = True,
+) -> tuple[Tensor, Tensor | None, Tensor]:
+    """One forward pass and, if ``smooth``, its backward pass: ``(filtered, smoothed or None,
+    escaped)`` log posteriors ``(B, K, *cells)`` (the smoother reuses the filter's)."""
     beliefs = flights.beliefs
     log_lik = _log_likelihoods(beliefs, grid, flights.observed, outlier_weight)
     if flights.prior is None:
@@ -297,9 +312,8 @@ def _fuse(
         prior = check_belief(flights.prior, grid, "prior")
         log_prior = normalize_log_density(prior, grid).expand_as(beliefs[:, 0])
     log_post, escaped = _forward(log_lik, log_prior, grid, carry)
-    if smooth:
-        log_post = _backward(log_post, log_lik, grid, carry)
-    return log_post, escaped
+    smoothed = _backward(log_post, log_lik, grid, carry) if smooth else None
+    return log_post, smoothed, escaped
 
 
 def filter_yaw(
@@ -332,3 +346,22 @@ def smooth_position(
     """Forward-backward smoother of positions (``escaped``: the filter's)."""
     carry = _position_carry(grid, flights)
     return _position_estimates(*_fuse(flights, grid, carry, outlier_weight, smooth=True), grid)
+
+
+def filter_and_smooth_yaw(
+    flights: YawFlights, grid: CircularGrid, outlier_weight: float = 0.3
+) -> tuple[YawPosterior, YawPosterior]:
+    """``(filter_yaw, smooth_yaw)`` from one forward pass (bit-identical to the two calls)."""
+    f, s, _ = _fuse_both(flights, grid, _yaw_carry(grid, flights), outlier_weight)
+    assert s is not None
+    return _yaw_estimates(f, grid), _yaw_estimates(s, grid)
+
+
+def filter_and_smooth_position(
+    flights: PositionFlights, grid: PlanarGrid, outlier_weight: float = 0.3
+) -> tuple[PositionPosterior, PositionPosterior]:
+    """``(filter_position, smooth_position)`` from one forward pass (bit-identical to the two
+    calls)."""
+    f, s, escaped = _fuse_both(flights, grid, _position_carry(grid, flights), outlier_weight)
+    assert s is not None
+    return _position_estimates(f, escaped, grid), _position_estimates(s, escaped, grid)

@@ -20,6 +20,8 @@ from benchmark.evaluation.fusion import (
     YawFlights,
     carry_position,
     carry_yaw,
+    filter_and_smooth_position,
+    filter_and_smooth_yaw,
     filter_position,
     filter_yaw,
     gaussian_belief,
@@ -616,3 +618,22 @@ class TestPositionTransitionCovariance:
         length = np.linalg.norm(d.numpy(), axis=-1)
         np.testing.assert_allclose(along_var, step + 4.0 * (noise.scale_sigma * length) ** 2)
         np.testing.assert_allclose(across_var, step)
+
+
+class TestFilterAndSmooth:
+    """One forward pass for both estimates: bit-identical to the two separate calls."""
+
+    def test_yaw(self):
+        _, _, flights = synthetic_yaw_flights(5, B=3, K=12)
+        f, s = filter_and_smooth_yaw(flights, YAW)
+        for both, alone in ((f, filter_yaw(flights, YAW)), (s, smooth_yaw(flights, YAW))):
+            for name in ("log_density", "map", "mean", "resultant"):
+                assert torch.equal(getattr(both, name), getattr(alone, name))
+
+    def test_position(self):
+        grid, _, _, flights = synthetic_position_flights(6, B=2, K=8)
+        f, s = filter_and_smooth_position(flights, grid)
+        pairs = ((f, filter_position(flights, grid)), (s, smooth_position(flights, grid)))
+        for both, alone in pairs:
+            for name in ("log_density", "map", "mean", "escaped"):
+                assert torch.equal(getattr(both, name), getattr(alone, name))

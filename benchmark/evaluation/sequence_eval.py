@@ -1,0 +1,174 @@
+"""Run a trained model over a split and fuse its beliefs along the flights (issue 39).
+
+:func:`evaluate_sequence` is the evaluation step behind the ``sequence`` table: one pass of the
+model that also records every frame's yaw belief through the head contract
+(:func:`benchmark.evaluation.beliefs.yaw_beliefs`: the head's own density, or the calibrated
+density of a regression head), then :func:`benchmark.evaluation.sequence.fuse_split` twice:
+
+- ``odometry = "data"``: with the odometry the dataset carries (``odo_*`` columns, the profile's
+  stated noise, which the filters are told);
+- ``odometry = "<s>x"``: with odometry drawn again from the true poses at ``s`` times every noise
+  figure (default 4x, the stress row of the issue), the filters told the same figures. Seeded by
+  the split name and the dataset seed, so it is the same for every head and every run.
+
+Calibration (regression heads' densities, every head's position belief) comes from the unit's
+validation predictions only (``calibrate_from_predictions`` refuses any other split).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from functools import partial
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import torch
+from torch.utils.data import Dataset
+
+from benchmark.data import ODOMETRY_COLUMNS, flight_odometry
+from benchmark.evaluation.beliefs import (
+    AttitudeCalibration,
+    PositionCalibration,
+    position_beliefs,
+    yaw_beliefs,
+)
+from benchmark.evaluation.evaluate import predict, predictions_to_frame
+from benchmark.evaluation.fusion import CircularGrid, OdometryNoise
+from benchmark.evaluation.sequence import (
+    FusionSettings,
+    SplitFrames,
+    fuse_split,
+    summarize_sequence,
+)
+
+STRESS_SCALE = 4.0
+
+
+def _scaled(noise: OdometryNoise, scale: float) -> OdometryNoise:
+    return OdometryNoise(**{k: v * scale for k, v in dataclasses.asdict(noise).items()})
+
+
+def stress_odometry(
+    poses: pd.DataFrame, noise: OdometryNoise, seed: int, split: str
+) -> pd.DataFrame:
+    """``odo_*`` columns drawn again from the true poses of ``poses`` with ``noise``, one
+    generator per flight seeded by (``seed``, ``split``, flight): aligned with ``poses``."""
+    tag = int.from_bytes(hashlib.sha256(split.encode()).digest()[:4], "little")
+    out = pd.DataFrame(index=poses.index, columns=list(ODOMETRY_COLUMNS), dtype=np.float64)
+    for flight, rows in poses.groupby("flight", sort=True):
+        rows = rows.sort_values("time_s", kind="stable")
+        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(tag, int(flight))))
+        odo = flight_odometry(
+            *(rows[k].to_numpy(np.float64) for k in ("E", "N", "U", "yaw", "time_s")),
+            noise=noise,
+            rng=rng,
+        )
+        out.loc[rows.index, list(ODOMETRY_COLUMNS)] = odo
+    return out
+
+
+def _frames(
+    frame: pd.DataFrame,
+    poses: pd.DataFrame,
+    beliefs: torch.Tensor,
+    odometry: pd.DataFrame,
+    footprint: np.ndarray,
+    position: PositionCalibration,
+) -> SplitFrames:
+    rad = math.pi / 180.0
+    return SplitFrames(
+        flight=poses["flight"].to_numpy(np.int64),
+        time_s=poses["time_s"].to_numpy(np.float64),
+        yaw_beliefs=beliefs,
+        yaw_hat=frame["yaw_hat_deg"].to_numpy(np.float64) * rad,
+        pitch_hat=frame["pitch_hat_deg"].to_numpy(np.float64) * rad,
+        roll_hat=frame["roll_hat_deg"].to_numpy(np.float64) * rad,
+        position_hat=frame[["E_hat_m", "N_hat_m"]].to_numpy(np.float64),
+        position_log_belief=partial(_position_log_belief, calibration=position),
+        odo_dyaw=odometry["odo_dyaw"].to_numpy(np.float64),
+        odo_dxy=odometry[["odo_dx", "odo_dy"]].to_numpy(np.float64),
+        footprint_m=footprint,
+        yaw=poses["yaw"].to_numpy(np.float64),
+        pitch=poses["pitch"].to_numpy(np.float64),
+        roll=poses["roll"].to_numpy(np.float64),
+        position=poses[["dE", "dN"]].to_numpy(np.float64),
+        index=frame["index"].to_numpy(np.int64),
+    )
+
+
+def _position_log_belief(
+    hat: torch.Tensor, grid: Any, calibration: PositionCalibration
+) -> torch.Tensor:
+    return position_beliefs(hat, grid, calibration)
+
+
+def footprints(poses: pd.DataFrame, sat_table: pd.DataFrame) -> np.ndarray:
+    """``(N, 2)`` E x N extent (m) of the satellite image each pair was shown."""
+    sat = sat_table.set_index("sat_index").loc[poses["sat_index"].to_numpy()]
+    return sat[["footprint_E_m", "footprint_N_m"]].to_numpy(np.float64)
+
+
+def evaluate_sequence(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    poses: pd.DataFrame,
+    sat_table: pd.DataFrame,
+    calibration: tuple[AttitudeCalibration, PositionCalibration],
+    noise: OdometryNoise,
+    *,
+    split: str,
+    seed: int,
+    settings: FusionSettings | None = None,
+    stress_scale: float | None = STRESS_SCALE,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    precision: str = "fp32",
+    num_workers: int = 0,
+    progress: bool = False,
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Fuse ``model``'s beliefs over the flights of ``dataset`` (items indexing ``poses``, the
+    split's pair table with the ``odo_*`` columns); returns the summary (``seq_*`` keys for the
+    dataset's odometry, ``seq{s}x_*`` for the stress odometry; ``stress_scale=None``: none) and
+    the long per-frame table of :func:`~benchmark.evaluation.sequence.fuse_split` with an
+    ``odometry`` column."""
+    settings = settings or FusionSettings()
+    grid = CircularGrid(settings.yaw_bins)
+    attitude, position = calibration
+    pred = predict(
+        model,
+        dataset,
+        batch_size=batch_size,
+        shared_satellite=shared_satellite,
+        progress=progress,
+        desc=f"beliefs {split}",
+        precision=precision,
+        num_workers=num_workers,
+        beliefs=partial(yaw_beliefs, grid=grid, calibration=attitude),
+    )
+    frame = predictions_to_frame(pred)
+    rows = poses.iloc[frame["index"].to_numpy()].reset_index(drop=True)
+    missing = [c for c in ODOMETRY_COLUMNS if c not in rows.columns]
+    if missing:
+        raise ValueError(f"split {split}: the pair table has no odometry columns {missing}")
+    assert pred.beliefs is not None
+    extent = footprints(rows, sat_table)
+    runs = [("data", rows, noise)]
+    if stress_scale is not None:
+        stressed = _scaled(noise, stress_scale)
+        runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
+    tables, summary = [], {}
+    for name, odometry, told in runs:
+        frames = _frames(frame, rows, pred.beliefs, odometry, extent, position)
+        table = fuse_split(frames, told, settings)
+        table.insert(0, "odometry", name)
+        tables.append(table)
+        prefix = "seq" if name == "data" else f"seq{name}"
+        summary.update(
+            {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
+        )
+    summary["calibration_kappa"] = attitude.kappa if attitude is not None else math.nan
+    summary["calibration_sigma_m"] = position.sigma_m
+    return summary, pd.concat(tables, ignore_index=True)
