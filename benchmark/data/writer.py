@@ -44,8 +44,9 @@ from benchmark.progress import Progress
 
 LOCK = ".simulate.lock"  # one writer per dataset directory (benchmark.locks)
 # Bump when benchmark.sim.flights / splits change what they produce. 3: labels through
-# benchmark.sim.detmath (libm, fixed-order products) instead of torch (issue 20).
-PLAN_VERSION = 3
+# benchmark.sim.detmath (libm, fixed-order products) instead of torch (issue 20). 4: odometry
+# columns (odo_*) and the long/* test splits (issue 39).
+PLAN_VERSION = 4
 
 
 SPLIT_NOTES = {
@@ -64,6 +65,14 @@ SPLIT_NOTES = {
     "towns/{train,val,test,london}": "many small procedurally distinct towns, one centre each; "
     "train/val/test towns are distinct oxford/cambridge-style towns, london towns the held-out "
     "style",
+    "confirm/{standard,towns,generalized}": "the confirmation draw (issue 38): new test flights "
+    "as large as standard/test, towns/test, generalized/test, from seed streams nothing was "
+    "chosen on",
+    "long/{standard,towns,london}": "test-only flights of 62 s (a sample every 2 s) in the "
+    "standard test cities, the towns/test towns and the london style, for the flight fusion",
+    "odometry": "every UAV sample carries the motion since the previous sample of its flight "
+    "(odo_dyaw rad; odo_dx, odo_dy, odo_dz m in the levelled heading frame of the previous "
+    "sample; NaN on a flight's first sample) with the profile's odometry noise",
     "illumination": "every flight has its own illumination state (sun, shadows) and fog "
     "visibility, every satellite image its own independent state (columns light, sun_az, sun_el, "
     "visibility_m, sat_light, sat_sun_az, sat_sun_el)",

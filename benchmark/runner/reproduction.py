@@ -25,7 +25,7 @@ from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
 from benchmark.runner.claims.data_audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
-from benchmark.runner.execute.worker import UnitResult, UnitTask
+from benchmark.runner.execute.worker import UnitResult, UnitTask, sequence_paths
 from benchmark.runner.plan.invocations import (
     LOCK,
     owner_tags,
@@ -239,7 +239,13 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         if unit.shared_encoder and not unit.jobs:
             continue  # trained when a unit that needs it trains (below)
         stored = [s for job in unit.jobs if (s := logbook.finished(job, unit)) is not None]
-        if len(stored) == len(unit.jobs):
+        # the flight-fusion files are read from the work directory by the report: a unit whose
+        # jobs are all in the store but whose files are gone runs again (it retrains nothing)
+        fused = all(
+            sequence_paths(workdir / "units" / unit.key, split)[1].is_file()
+            for split in unit.fuse_splits
+        )
+        if len(stored) == len(unit.jobs) and fused:
             merged: dict[str, dict[str, float]] = {}
             for metrics, _ in stored:
                 merged.update(metrics)
@@ -250,7 +256,19 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         live = None
         if config.tracker != "null":
             live = logbook.unit_tracking(unit, log_model=config.log_models)
-        todo.append((unit, UnitTask(unit.key, unit.cfg, unit.eval_splits, unit_dir, tracking=live)))
+        todo.append(
+            (
+                unit,
+                UnitTask(
+                    unit.key,
+                    unit.cfg,
+                    unit.eval_splits,
+                    unit_dir,
+                    tracking=live,
+                    fuse_splits=unit.fuse_splits,
+                ),
+            )
+        )
     todo = _with_shared_encoders(todo, units, workdir, logbook, config)
     print(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
@@ -348,7 +366,7 @@ def _with_shared_encoders(
             if config.tracker != "null":
                 live = logbook.unit_tracking(unit, log_model=config.log_models)
             task = UnitTask(unit.key, unit.cfg, unit.eval_splits, workdir / "units" / unit.key,
-                            tracking=live)  # fmt: skip
+                            tracking=live, fuse_splits=unit.fuse_splits)  # fmt: skip
             shared.append((unit, task))
     return shared + todo
 

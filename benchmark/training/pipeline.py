@@ -75,6 +75,8 @@ class TrainEvalResult:
     trained: TrainResult
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)  # eval_key -> summary
     predictions: dict[str, Path] = field(default_factory=dict)  # eval_key -> CSV
+    # split -> (summary, CSV) of the flight fusion (``eval/<split>.sequence.*``, issue 39)
+    sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
 
     @property
     def history(self) -> list[dict[str, float]]:
@@ -91,12 +93,22 @@ def train_and_evaluate(
     datasets: tuple[Dataset, Dataset | None] | None = None,
     eval_batch: int = EVAL_BATCH,
     placement: Placement | None = None,
+    fuse_splits: list[str] | tuple[str, ...] = (),
 ) -> TrainEvalResult:
     """Train ``cfg`` into ``out_dir/train`` (resuming), then evaluate each split of
     ``cfg.data.root`` in ``eval_splits`` with the true and the swapped satellite image (files
     already written are read back, not recomputed), all on ``placement`` (``cfg.device`` and
     ``cfg.precision`` resolved and checked once by the caller; None: here). See the module doc
-    for the layout."""
+    for the layout. ``fuse_splits`` (each also in ``eval_splits``) are fused along their flights
+    afterwards (:func:`benchmark.evaluation.sequence_eval.evaluate_sequence`), calibrated on
+    ``cfg.data.val_split``, which is then evaluated first."""
+    if fuse_splits and cfg.data.val_split is None:
+        raise ValueError(
+            f"fuse_splits {list(fuse_splits)} need a validation split to calibrate the beliefs "
+            f"on; the config trained on {cfg.data.train_split!r} has none"
+        )
+    if fuse_splits:  # calibration reads the validation predictions: evaluate them first
+        eval_splits = [cfg.data.val_split, *(s for s in eval_splits if s != cfg.data.val_split)]
     if placement is None:
         placement = resolve_placement(cfg.device, cfg.precision)
     out_dir = Path(out_dir)
@@ -120,7 +132,73 @@ def train_and_evaluate(
             result.metrics[key], result.predictions[key] = _evaluate_split(
                 cfg, model, out_dir, split, satellite, eval_batch, progress, placement
             )
+    for split in fuse_splits:
+        result.sequences[split] = _sequence_split(
+            cfg, model, out_dir, split, eval_batch, progress, placement
+        )
     return result
+
+
+def sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
+    """``(csv, json)`` of one split's flight fusion under ``out_dir/eval``."""
+    # "__sequence" joined to the name: a ".sequence" suffix would be replaced by with_suffix
+    stem = Path(out_dir) / "eval" / f"{split_filename(split)}__sequence"
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def _sequence_split(
+    cfg: TrainConfig,
+    model: torch.nn.Module,
+    out_dir: Path,
+    split: str,
+    batch_size: int,
+    progress: bool,
+    placement: Placement,
+) -> tuple[dict[str, float], Path]:
+    """Fuse one split along its flights, or read what a previous run wrote."""
+    import pandas as pd
+
+    from benchmark.data import PairDataset, odometry_noise
+    from benchmark.evaluation.beliefs import calibrate_from_predictions
+    from benchmark.evaluation.metrics import write_predictions_csv
+    from benchmark.evaluation.sequence_eval import STRESS_SCALE, evaluate_sequence
+
+    csv_path, json_path = sequence_paths(out_dir, split)
+    if json_path.is_file() and csv_path.is_file():
+        return json.loads(json_path.read_text()), csv_path
+    val_split = str(cfg.data.val_split)
+    val_csv, _ = eval_paths(out_dir, eval_key(val_split, "true"))
+    base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
+    profile = base.manifest["profile"]
+    footprint = profile["sat_footprint_m"]
+    calibration = calibrate_from_predictions(
+        pd.read_csv(val_csv), val_split, float(footprint[0]) * float(footprint[1])
+    )
+    dataset = (
+        encode_for_heads(model, cfg, base, progress=progress) if cfg.pretrained.enabled else base
+    )
+    summary, table = evaluate_sequence(
+        model,
+        dataset,
+        base.poses,
+        base.sat_table,
+        calibration,
+        odometry_noise(profile),
+        split=split,
+        seed=int(base.manifest["seed"]),
+        # the stress odometry (4x its noise) only where the figure draws it: the long flights
+        stress_scale=STRESS_SCALE if split.startswith("long/") else None,
+        batch_size=batch_size,
+        shared_satellite=cfg.model.shared_satellite,
+        progress=progress,
+        precision=placement.precision,
+        num_workers=loader_workers(cfg, placement.device),
+    )
+    write_predictions_csv(table, csv_path)
+    tmp = json_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(json_path)  # written last: its presence means the split is done
+    return summary, csv_path
 
 
 def _evaluate_split(

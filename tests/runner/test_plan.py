@@ -17,6 +17,7 @@ SPLITS = (
     + [f"pitch{a}to{b}/test" for a, b in ((0, -10), (-10, -20), (-20, -30), (-30, -40), (-40, -50))]
     + [f"frames/{part}" for part in ("train", "val", "test")]
     + [f"towns/{part}" for part in ("train", "val", "test", "london")]
+    + ["long/standard", "long/towns", "long/london"]
 )
 
 
@@ -36,14 +37,31 @@ class TestPlanUnits:
         # towns/train = 30; + Fig. 9's GoogLeNet in its 4 variants (end to end, 4 units).
         # (The extended table adds one unit per head beyond the paper; it grows with the registry.
         # The encoders table adds 3 GoogLeNet rows and 3 gravity-aided matching rows.)
-        paper = [s.name for s in load_specs() if s.name not in ("extended", "encoders")]
+        paper = [s.name for s in load_specs()
+                 if s.name not in ("extended", "encoders", "sequence")]  # fmt: skip
         assert len(plan(only=paper)) == 35
         assert len(plan(seeds=(0, 1, 2), only=paper)) == 105
         assert len(plan(only=[*paper, "encoders"])) == 41
         extra = {u.key for u in plan()} - {u.key for u in plan(only=[*paper, "encoders"])}
         for unit in plan():
             if unit.key in extra:
-                assert {j.table for j in unit.jobs} == {"extended"}
+                assert {j.table for j in unit.jobs} <= {"extended", "sequence"}
+
+    def test_the_sequence_table_trains_nothing_of_its_own(self):
+        # issue 39: its rows are the extended and encoders tables' units, which also fuse its
+        # splits (and their confirmation splits), after evaluating the validation split
+        others = [s.name for s in load_specs() if s.name != "sequence"]
+        assert {u.key for u in plan()} == {u.key for u in plan(only=others)}
+        confirm = ["confirm/standard", "confirm/towns", "confirm/generalized"]
+        units = plan_units(load_specs(), PROFILES["quick"], [0], Path("/d"), SPLITS + confirm, "h")
+        fused = [u for u in units if u.fuse_splits]
+        sequence = load_specs(only=["sequence"])[0]
+        assert len(fused) == len({r.label for r in sequence.rows})
+        for unit in fused:
+            assert set(sequence.eval_splits) <= set(unit.fuse_splits) <= set(unit.eval_splits)
+            assert set(confirm) <= set(unit.fuse_splits)  # the claims are decided there too
+            assert unit.val_split == "standard/val"
+        assert not any(u.fuse_splits for u in plan(only=others))
 
     def test_control_is_its_own_unit(self):
         units = plan()
@@ -54,7 +72,7 @@ class TestPlanUnits:
         std = next(u for u in blank if u.cfg.data.train_split == "standard/train"
                    and u.cfg.model.encoder == "matching")  # fmt: skip
         assert {j.table for j in std.jobs} == {"table1", "table2", "table3", "table4", "table5",
-                                               "leakage", "encoders"}  # fmt: skip
+                                               "leakage", "encoders", "sequence"}  # fmt: skip
         assert std.cfg.data.val_split == "standard/val"
 
     def test_pd_re_net_is_shared_across_tables(self):
@@ -70,7 +88,7 @@ class TestPlanUnits:
         # encoder: the row runs it plain)
         assert tables == {
             "table1", "table2", "table3", "table4", "table5", "fig6", "fig7", "leakage",
-            "extended", "encoders",
+            "extended", "encoders", "sequence",
         }  # fmt: skip
         assert shared[0].cfg.model.attitude_options == {}  # kappa 10 is the head's default
 

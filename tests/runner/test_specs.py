@@ -22,7 +22,7 @@ PAPER_ITEMS = {
     "fig7",
     "fig9",
 }
-BEYOND_PAPER = {"leakage", "towns", "extended", "encoders"}  # issues 9, 10, 21
+BEYOND_PAPER = {"leakage", "towns", "extended", "encoders", "sequence"}  # issues 9, 10, 21, 39
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:

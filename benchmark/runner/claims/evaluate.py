@@ -20,6 +20,7 @@ from benchmark.runner.claims.evidence import (
     unit_of,
 )
 from benchmark.runner.claims.frame_errors import FrameStore
+from benchmark.runner.claims.fusion import fusion_claims
 from benchmark.runner.claims.paper import (
     ablation_claim,
     constant_claim,
@@ -81,6 +82,7 @@ def _decide(ev: Evidence, pairs: dict | None = None) -> list[Claim]:
         *satellite_claims(ev),
         control_claim(ev),
         *ranking_claims(ev, pairs),
+        *fusion_claims(ev),
     ]  # fmt: skip
 
 

@@ -19,14 +19,14 @@ Files are read lazily and cached; a planned unit whose file is missing raises
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from benchmark.runner.execute.worker import eval_key, split_filename
+from benchmark.runner.execute.worker import eval_key, sequence_paths, split_filename
 from benchmark.runner.plan.specs import RowSpec
 from benchmark.runner.plan.units import Unit
 
@@ -217,11 +217,26 @@ class FrameStore:
                 f"model ({table!r}, {label!r}, x={x!r}) is not evaluated on {split!r}; "
                 f"its splits: {self.splits(table, label, x)}"
             )
+
+        def part_of(key: str) -> tuple[pd.DataFrame, Path]:
+            path = self.csv_path(key, self.evaluated(split), satellite)
+            return self._read(path), path
+
+        return self._stack(jobs, split, metric, part_of)
+
+    def _stack(
+        self,
+        jobs: list[tuple[int, tuple[str, object]]],
+        split: str,
+        metric: str,
+        part_of: Callable[[str], tuple[pd.DataFrame, Path]],
+    ) -> FrameErrors:
+        """Seeds of one model stacked: ``part_of(unit key)`` gives the frames (sorted by
+        ``index``) and the file they come from (named in the errors)."""
         rows, index, flight, first, trained_from = [], None, None, None, []
         for _seed, (key, _job) in jobs:
             trained_from.append(self._trained_from.get(key, key))
-            path = self.csv_path(key, self.evaluated(split), satellite)
-            frame = self._read(path)
+            frame, path = part_of(key)
             if metric not in frame:
                 raise ValueError(f"{path}: no column {metric!r}")
             if index is None:
@@ -236,6 +251,40 @@ class FrameStore:
             seeds=tuple(seed for seed, _ in jobs),
             trained_from=tuple(trained_from),
         )
+
+    def sequence_path(self, unit_key: str, split: str) -> Path:
+        """The unit's flight-fusion file of ``split`` (``sequence_paths``, issue 39)."""
+        return sequence_paths(self.workdir / "units" / unit_key, split)[0]
+
+    def has_sequence(self, table: str, label: str, split: str) -> bool:
+        """Whether every seed of the model fused ``split`` along its flights."""
+        by_seed = self._models.get((table, label, None))
+        if not by_seed or not self.has(table, label, split):
+            return False
+        where = self.evaluated(split)
+        return all(self.sequence_path(key, where).is_file() for key, _ in by_seed.values())
+
+    def sequence_errors(
+        self, table: str, label: str, split: str, metric: str, mode: str, odometry: str = "data"
+    ) -> FrameErrors:
+        """Per-frame ``metric`` (``dpsi_deg``, ``dphi_deg``, ``horizontal_m``) of the model's
+        flight fusion on ``split`` in ``mode`` (``frame``, ``filter``, ``smooth``), with the
+        dataset's odometry by default: the :meth:`errors` of the fused estimates (same frames,
+        same seeds). Raises ``FileNotFoundError`` naming a missing sequence file."""
+
+        def part_of(key: str) -> tuple[pd.DataFrame, Path]:
+            path = self.sequence_path(key, self.evaluated(split))
+            if not path.is_file():
+                raise FileNotFoundError(f"sequence file missing: {path}")
+            if path not in self._csv:
+                self._csv[path] = pd.read_csv(path)
+            frame = self._csv[path]
+            part = frame[(frame["mode"] == mode) & (frame["odometry"] == odometry)]
+            if part.empty:
+                raise ValueError(f"{path}: no {mode!r} rows with odometry {odometry!r}")
+            return part.sort_values("index", kind="stable"), path
+
+        return self._stack(self._jobs(table, label, None), split, metric, part_of)
 
     def evaluated(self, split: str) -> str:
         """The split whose files hold ``split``'s frames: itself here (a

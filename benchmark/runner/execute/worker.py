@@ -34,6 +34,7 @@ from benchmark.training.pipeline import (
     SWAP_SUFFIX,
     eval_key,
     eval_keys,
+    sequence_paths,
     split_filename,
     train_and_evaluate,
 )
@@ -47,6 +48,7 @@ __all__ = [
     "eval_key",
     "eval_keys",
     "run_unit",
+    "sequence_paths",
     "split_filename",
     "worker_init",
 ]
@@ -60,6 +62,7 @@ class UnitTask:
     unit_dir: Path
     eval_batch: int = EVAL_BATCH
     tracking: UnitTracking | None = None  # None: nothing is logged from the worker
+    fuse_splits: list[str] = field(default_factory=list)  # fused along their flights (issue 39)
 
 
 @dataclass
@@ -69,6 +72,7 @@ class UnitResult:
     history: list[dict[str, float]] = field(default_factory=list)
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)  # eval_key -> summary
     predictions: dict[str, str] = field(default_factory=dict)  # eval_key -> CSV path
+    sequences: dict[str, str] = field(default_factory=dict)  # fused split -> sequence CSV path
     seconds: float = 0.0
     error: str = ""
     run_id: str = ""  # the unit's training run ("" without tracking)
@@ -124,14 +128,14 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
     if task.tracking is None:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
-            eval_batch=task.eval_batch,
+            eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
         )  # fmt: skip
         return _result(task, done, start)
     run, reused = open_unit_run(task.tracking)
     if reused is not None:  # a FINISHED run of this unit: compute (or read) the numbers only
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
-            eval_batch=task.eval_batch,
+            eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
         )  # fmt: skip
         result = _result(task, done, start)
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
@@ -139,7 +143,8 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         return result
     with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (one worker: inline)
         done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
-                                     task.eval_batch, heartbeat=beat)  # fmt: skip
+                                     task.eval_batch, heartbeat=beat,
+                                     fuse_splits=task.fuse_splits)  # fmt: skip
     result = _result(task, done, start)
     result.run_id, result.model_uri = run.run_id, model_uri
     result.started_ms, result.ended_ms = run.start_time_ms, run.end_time_ms
@@ -153,5 +158,6 @@ def _result(task: UnitTask, done, start: float) -> UnitResult:
         history=list(done.history),
         metrics=done.metrics,
         predictions={k: str(v) for k, v in done.predictions.items()},
+        sequences={k: str(path) for k, (_, path) in done.sequences.items()},
         seconds=time.perf_counter() - start,
     )

@@ -58,7 +58,7 @@ import yaml
 
 from benchmark.models.model_config import SATELLITE_INPUTS, ModelConfig, parse_scalar
 
-KINDS = ("table", "sweep", "cost")
+KINDS = ("table", "sweep", "cost", "sequence")
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
 
@@ -156,6 +156,7 @@ class Job:
     row: RowSpec  # {x} filled in
     train_split: str
     eval_splits: tuple[str, ...]
+    fuse: bool = False  # a ``kind: sequence`` job: its splits are fused along their flights
 
 
 @dataclass(frozen=True)
@@ -200,6 +201,7 @@ class TableSpec:
                                 self.eval_splits if row.eval_splits is None else row.eval_splits
                             )
                         ),
+                        fuse=self.kind == "sequence",
                     )
                 )
         return out

@@ -74,6 +74,21 @@ class Unit:
         return list(seen)
 
     @property
+    def fuse_splits(self) -> list[str]:
+        """The splits of its ``kind: sequence`` jobs and their confirmation splits: fused along
+        their flights after the evaluation (``benchmark.evaluation.sequence_eval``), calibrated
+        on ``val_split``."""
+        seen: dict[str, None] = {}
+        for job in self.jobs:
+            if job.fuse:
+                seen.update(dict.fromkeys(job.eval_splits))
+        # and their confirmation splits, so the fusion claims are decided again there
+        for split in list(seen):
+            if CONFIRMS.get(split) in self.confirm_splits:
+                seen[CONFIRMS[split]] = None
+        return list(seen)
+
+    @property
     def title(self) -> str:
         if not self.jobs:
             return (f"shared {self.cfg.model.encoder} encoder on {self.cfg.data.train_split}, "

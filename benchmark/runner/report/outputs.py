@@ -61,6 +61,7 @@ from benchmark.runner.report.provenance import (
     provenance_summary,
     write_provenance,
 )
+from benchmark.runner.report.sequence import sequence_report
 from benchmark.runner.report.sweeps import sweep_figure, sweep_table
 from benchmark.runner.report.tables import (
     CONSTANT_LABEL,
@@ -255,6 +256,9 @@ def write_reports(
                 text += f"\n{relabelled}\n" if relabelled else ""
                 text += reference_note(spec, references)
                 text += extra_metrics_table(spec, summary, EXTRA_METRICS, shown)
+            elif spec.kind == "sequence":  # every head fused along its flights (issue 39)
+                text, figures, _ = sequence_report(spec, planned, workdir, out)
+                paths += figures
             elif spec.kind == "sweep":
                 text = sweep_table(spec, summary, show_val)
                 if len(summary):

@@ -1,0 +1,213 @@
+"""The ``sequence`` table and figure (issue 39): every head fused along its flights.
+
+A ``kind: sequence`` spec's units write, per fused split, ``eval/<split>.sequence.csv``
+(``benchmark.evaluation.sequence_eval``): one row per (odometry, mode, pair). Here, per split and
+head, on the dataset's odometry:
+
+- per frame / causal filter / smoother: mean and median δψ, mean δφ, acc@10° (the fraction of
+  frames with δφ <= 10°) and the median horizontal error, each the mean over seeds;
+- the paired gain of fusion on δφ, smoothed minus per-frame and filtered minus per-frame, on the
+  same frames, with the 95 % flight x seed bootstrap interval (seeds paired: one seed's run gives
+  all three modes).
+
+The figure: mean δψ of the causal filter against seconds of flight fused, a line per head on each
+long split, with the dataset's odometry (solid) and the stress odometry (dashed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.evaluation.paired import median_bootstrap, pooled_bootstrap
+from benchmark.runner.execute.worker import sequence_paths
+from benchmark.runner.plan.specs import TableSpec
+from benchmark.runner.plan.units import Unit
+
+MODES = ("frame", "filter", "smooth")
+MODE_NAMES = {"frame": "per frame", "filter": "filtered", "smooth": "smoothed"}
+N_BOOT = 2000
+
+
+@dataclass(frozen=True)
+class SequenceErrors:
+    """One (head, split): ``errors[odometry][mode][column]`` ``(S, N)`` over the S seeds on the
+    same N frames (rows sorted by pair index), ``flight (N,)``, ``t_s (N,)``."""
+
+    label: str
+    split: str
+    errors: dict[str, dict[str, dict[str, np.ndarray]]]
+    flight: np.ndarray
+    t_s: np.ndarray
+
+
+def _read(path: Path) -> pd.DataFrame:
+    return pd.read_csv(path).sort_values(["odometry", "mode", "index"], kind="stable")
+
+
+def load_sequences(spec: TableSpec, units: list[Unit], workdir: Path) -> list[SequenceErrors]:
+    """Every (row, split) of ``spec`` whose units' sequence files exist, seeds stacked."""
+    out = []
+    for job in spec.jobs():
+        mine = sorted(
+            (u for u in units if any(j.table == spec.name and j.label == job.label
+                                     for j in u.jobs)),
+            key=lambda u: u.cfg.seed,
+        )  # fmt: skip
+        for split in job.eval_splits:
+            paths = [sequence_paths(workdir / "units" / u.key, split)[0] for u in mine]
+            frames = [_read(p) for p in paths if p.is_file()]
+            if not frames:
+                continue
+            errors: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+            first = frames[0]
+            for odo, mode in first[["odometry", "mode"]].drop_duplicates().itertuples(index=False):
+                cols = {}
+                for col in ("dpsi_deg", "dphi_deg", "horizontal_m"):
+                    stack = []
+                    for f in frames:
+                        sel = f[(f["odometry"] == odo) & (f["mode"] == mode)]
+                        stack.append(sel[col].to_numpy(np.float64))
+                    cols[col] = np.stack(stack)
+                errors.setdefault(str(odo), {})[str(mode)] = cols
+            base = first[(first["odometry"] == "data") & (first["mode"] == "frame")]
+            out.append(
+                SequenceErrors(
+                    job.label,
+                    split,
+                    errors,
+                    base["flight"].to_numpy(),
+                    base["t_s"].to_numpy(np.float64),
+                )
+            )
+    return out
+
+
+def _fmt(x: float, digits: int = 1) -> str:
+    return "–" if not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _interval(point: float, lo: float, hi: float) -> str:
+    return f"{point:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+
+
+def sequence_rows(items: list[SequenceErrors], seed: int = 0) -> pd.DataFrame:
+    """One row per (split, head, mode): the cells of the table, and the paired gains."""
+    rows = []
+    for item in items:
+        modes = item.errors.get("data", {})
+        frame = modes.get("frame")
+        for mode in MODES:
+            if mode not in modes:
+                continue
+            e = modes[mode]
+            row = {
+                "split": item.split,
+                "label": item.label,
+                "mode": mode,
+                "seeds": e["dpsi_deg"].shape[0],
+                "flights": len(np.unique(item.flight)),
+                "mean_dpsi_deg": float(e["dpsi_deg"].mean()),
+                "median_dpsi_deg": float(np.median(e["dpsi_deg"], axis=1).mean()),
+                "mean_dphi_deg": float(e["dphi_deg"].mean()),
+                "acc10": float((e["dphi_deg"] <= 10.0).mean()),
+                "median_horizontal_m": float(np.median(e["horizontal_m"], axis=1).mean()),
+            }
+            _, lo, hi = median_bootstrap(e["horizontal_m"], item.flight, N_BOOT, seed)
+            row["median_horizontal_lo"], row["median_horizontal_hi"] = lo, hi
+            if mode != "frame" and frame is not None:
+                for col in ("dphi_deg", "dpsi_deg"):
+                    d, lo, hi = pooled_bootstrap(frame[col], e[col], item.flight, N_BOOT, seed,
+                                                 paired_seeds=True)  # fmt: skip
+                    row[f"gain_{col}"], row[f"gain_{col}_lo"], row[f"gain_{col}_hi"] = d, lo, hi
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def sequence_markdown(spec: TableSpec, table: pd.DataFrame, figure: str | None) -> str:
+    """The rendered table: a section per split, a row per (head, mode)."""
+    lines = [f"# {spec.title}", ""]
+    if spec.note:
+        lines += [spec.note.strip(), ""]
+    if not len(table):
+        return "\n".join([*lines, "No sequence results yet (no unit wrote its fusion files).", ""])
+    head = ("| head | estimate | mean δψ (°) | median δψ (°) | mean δφ (°) | acc@10° (δφ) | "
+            "median horizontal (m) [95 %] | Δ mean δφ vs per frame (°) [95 %] |")  # fmt: skip
+    for split, part in table.groupby("split", sort=False):
+        flights, seeds = int(part["flights"].iloc[0]), int(part["seeds"].max())
+        lines += [f"## {split}", "", f"{flights} flights, {seeds} seed(s).", "", head,
+                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for _, r in part.iterrows():
+            gain = (
+                _interval(r["gain_dphi_deg"], r["gain_dphi_deg_lo"], r["gain_dphi_deg_hi"])
+                if r["mode"] != "frame" and math.isfinite(r.get("gain_dphi_deg", math.nan))
+                else "–"
+            )
+            horizontal = (f"{_fmt(r['median_horizontal_m'])} [{_fmt(r['median_horizontal_lo'])}, "
+                          f"{_fmt(r['median_horizontal_hi'])}]")  # fmt: skip
+            lines.append(
+                f"| {r['label']} | {MODE_NAMES[r['mode']]} | {_fmt(r['mean_dpsi_deg'])} | "
+                f"{_fmt(r['median_dpsi_deg'])} | {_fmt(r['mean_dphi_deg'])} | "
+                f"{100 * r['acc10']:.0f} % | {horizontal} | {gain} |"
+            )
+        lines.append("")
+    if figure:
+        lines += [f"![{spec.name}]({figure})", ""]
+    return "\n".join(lines)
+
+
+def sequence_figure(items: list[SequenceErrors], path: Path) -> bool:
+    """Mean δψ of the causal filter against seconds fused, per head, on each long split (or every
+    split when there is none): solid the dataset's odometry, dashed the stress odometry. False
+    when there is nothing to draw."""
+    long = [i for i in items if i.split.startswith("long/")] or items
+    splits = list(dict.fromkeys(i.split for i in long))
+    if not splits:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(splits), figsize=(4.6 * len(splits), 3.6), squeeze=False)
+    colours: dict[str, str] = {}
+    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, split in zip(axes.flat, splits, strict=True):
+        for item in (i for i in long if i.split == split):
+            colour = colours.setdefault(item.label, cycle[len(colours) % len(cycle)])
+            t = np.round(item.t_s, 6)
+            for odo, style in (("data", "-"), *((o, "--") for o in item.errors if o != "data")):
+                e = item.errors.get(odo, {}).get("filter")
+                if e is None:
+                    continue
+                err = e["dpsi_deg"].mean(axis=0)
+                times = np.unique(t)
+                curve = [err[t == x].mean() for x in times]
+                ax.plot(times, curve, style, color=colour, lw=1.2,
+                        label=item.label if odo == "data" else None)  # fmt: skip
+        ax.set_title(split)
+        ax.set_xlabel("seconds of flight fused (causal filter)")
+        ax.set_ylabel("mean δψ (°)")
+        ax.grid(alpha=0.3)
+    axes.flat[0].legend(fontsize=6, ncol=2)
+    fig.suptitle("solid: the dataset's odometry; dashed: 4x its noise", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def sequence_report(
+    spec: TableSpec, units: list[Unit], workdir: Path | None, out: Path
+) -> tuple[str, list[Path], pd.DataFrame]:
+    """``(markdown, [figure path], table rows)`` of a ``kind: sequence`` spec."""
+    items = load_sequences(spec, units, workdir) if workdir is not None else []
+    table = sequence_rows(items)
+    png = out / f"{spec.name}.png"
+    drawn = sequence_figure(items, png) if items else False
+    text = sequence_markdown(spec, table, png.name if drawn else None)
+    return text, [png] if drawn else [], table

@@ -1,0 +1,145 @@
+"""The sequence table's cells (report/sequence.py) and the fusion claims (claims/fusion.py) on
+per-frame errors whose answers are known."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmark.evaluation.paired import pooled_bootstrap
+from benchmark.runner.claims.evidence import (
+    CONTRADICTED,
+    NO_DIFFERENCE,
+    SUPPORTED,
+    Evidence,
+)
+from benchmark.runner.claims.frame_errors import FrameErrors
+from benchmark.runner.claims.fusion import (
+    fused_family_claim,
+    fusion_claims,
+    fusion_gain_claim,
+    uncertainty_gain_claim,
+)
+from benchmark.runner.report.sequence import SequenceErrors, sequence_rows
+
+N_FLIGHTS, PER_FLIGHT = 20, 8
+FLIGHT = np.repeat(np.arange(N_FLIGHTS), PER_FLIGHT)
+N = len(FLIGHT)
+
+
+def errors(level: float, seed: int, seeds: int = 2) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.abs(level + rng.normal(0, 2.0, (seeds, N)))
+
+
+class TestSequenceRows:
+    def test_cells_against_numpy(self):
+        frame, fused = errors(30.0, 1), errors(10.0, 2)
+        modes = {
+            m: {"dpsi_deg": e, "dphi_deg": e + 1.0, "horizontal_m": 5 * e}
+            for m, e in (("frame", frame), ("filter", fused), ("smooth", fused * 0.5))
+        }
+        item = SequenceErrors("A", "long/standard", {"data": modes}, FLIGHT, np.zeros(N))
+        rows = sequence_rows([item]).set_index("mode")
+        assert rows.loc["frame", "mean_dpsi_deg"] == pytest.approx(frame.mean())
+        assert rows.loc["smooth", "acc10"] == pytest.approx(((fused * 0.5 + 1) <= 10).mean())
+        assert rows.loc["filter", "median_horizontal_m"] == pytest.approx(
+            np.median(5 * fused, axis=1).mean()
+        )
+        d, lo, hi = pooled_bootstrap(frame + 1, fused + 1, FLIGHT, 2000, 0, paired_seeds=True)
+        assert rows.loc["filter", "gain_dphi_deg"] == pytest.approx(d)
+        assert (rows.loc["filter", "gain_dphi_deg_lo"], rows.loc["filter", "gain_dphi_deg_hi"]) == (
+            pytest.approx(lo), pytest.approx(hi))  # fmt: skip
+        assert np.isnan(rows.loc["frame"].get("gain_dphi_deg", np.nan))
+
+
+class FakeStore:
+    """The parts of ``FrameStore`` the fusion claims read: per-frame errors by (label, mode)."""
+
+    def __init__(self, fused: dict[tuple[str, str, str], np.ndarray], heads: list[str],
+                 uncertainty: dict[str, np.ndarray] | None = None):  # fmt: skip
+        self.fused, self.heads, self.unc = fused, heads, uncertainty or {}
+
+    def _fe(self, values: np.ndarray) -> FrameErrors:
+        return FrameErrors(values, np.arange(N), FLIGHT, (0, 1), ("enc0", "enc1"))
+
+    def labels(self, table, split=None, control=None):
+        return list(self.heads)
+
+    def has(self, table, label, split, x=None):
+        return True
+
+    def has_sequence(self, table, label, split):
+        return (label, split, "frame") in self.fused
+
+    def sequence_errors(self, table, label, split, metric, mode, odometry="data"):
+        return self._fe(self.fused[label, split, mode])
+
+    def errors(self, table, label, split, metric, x=None, satellite="true"):
+        if metric == "uncertainty":
+            if label not in self.unc:
+                raise ValueError("no column 'uncertainty'")
+            return self._fe(self.unc[label])
+        return self._fe(self.fused[label, split, "frame"])
+
+    def train_split(self, table, label, x=None):
+        return "standard/train"
+
+    def constant(self, split, metric, train_split):
+        return FrameErrors(np.full((1, N), 90.0), np.arange(N), FLIGHT, (0,))
+
+
+def store_with(gains: dict[str, float], splits: tuple[str, ...]) -> FakeStore:
+    fused = {}
+    for k, (label, gain) in enumerate(gains.items()):
+        for j, split in enumerate(splits):
+            frame = errors(30.0, 10 * k + j)
+            fused[label, split, "frame"] = frame
+            fused[label, split, "filter"] = np.abs(frame - gain)
+            fused[label, split, "smooth"] = np.abs(frame - 1.5 * gain)
+    return FakeStore(fused, list(gains))
+
+
+GAIN = ("standard/test", "towns/test", "generalized/test")
+LONG = ("long/standard", "long/towns", "long/london")
+
+
+class TestFusionGainClaim:
+    def test_supported_when_every_head_gains(self):
+        claim = fusion_gain_claim(Evidence(store_with({"A": 10.0, "B": 8.0}, GAIN), 400))
+        assert claim.verdict == SUPPORTED and len(claim.comparisons) == 6
+
+    def test_a_head_without_a_gain_is_no_practical_difference(self):
+        claim = fusion_gain_claim(Evidence(store_with({"A": 10.0, "B": 0.0}, GAIN), 400))
+        assert claim.verdict == NO_DIFFERENCE
+
+
+class TestFusedFamilyClaim:
+    def test_distribution_better_fused(self):
+        store = store_with({"Pd/Re-Net": 12.0, "Re-Net-R": 2.0}, LONG)
+        claim = fused_family_claim(Evidence(store, 400))
+        assert claim.verdict == SUPPORTED and len(claim.comparisons) == 3
+
+    def test_regression_better_fused_contradicts(self):
+        store = store_with({"Pd/Re-Net": 2.0, "Re-Net-R": 14.0}, LONG)
+        assert fused_family_claim(Evidence(store, 400)).verdict == CONTRADICTED
+
+
+class TestUncertaintyGainClaim:
+    def test_uncertainty_that_ranks_the_gain(self):
+        store = store_with({"Pd/Re-Net": 10.0, "Re-Net-R": 10.0}, LONG)
+        rng = np.random.default_rng(0)
+        frame = store.fused["Pd/Re-Net", "long/standard", "frame"]
+        gain = rng.uniform(0, 25, (1, N)).repeat(2, axis=0)  # varies from frame to frame
+        store.fused["Pd/Re-Net", "long/standard", "smooth"] = np.abs(frame - gain)
+        store.unc = {"Pd/Re-Net": gain + rng.normal(0, 3.0, (2, N))}  # ranks it, with noise
+        claim = uncertainty_gain_claim(Evidence(store, 400))
+        assert claim.verdict == SUPPORTED and len(claim.comparisons) == 1
+        assert "Re-Net-R" in claim.evidence  # named: no uncertainty to rank by
+
+
+class TestFusionClaims:
+    def test_none_without_a_sequence_table(self):
+        assert fusion_claims(Evidence(FakeStore({}, []), 100)) == []
+        claims = fusion_claims(Evidence(store_with({"A": 5.0}, GAIN + LONG), 100))
+        assert [c.kind for c in claims] == ["fusion"] * 3
