@@ -51,8 +51,8 @@ PROTOCOL = {
 }
 
 # Every value of a pair row, by who may see it. The UAV side: what a reference may be given (the
-# true pose) or is never given (the labels, flight, time, illumination), with the change the
-# test makes to it. The satellite side is the image's geo-reference, known to every method; the
+# true pose) or is never given (the labels, flight, time, illumination, odometry), with the change
+# the test makes to it. The satellite side is the image's geo-reference, known to every method; the
 # rest says which images and place the pair is.
 UAV_ROW = {
     **dict(zip(TRUE_POSE_COLUMNS, (53.0, -41.0, 17.0, 1.1, 0.09, -0.07), strict=True)),
@@ -67,6 +67,12 @@ UAV_ROW = {
     "visibility_m": 500.0,
     "sun_az": 0.5,
     "sun_el": -0.2,
+    # The motion since the flight's previous sample (NaN on its first): flight fusion reads it, a
+    # per-frame reference never does.
+    "odo_dyaw": 0.03,
+    "odo_dx": 1.5,
+    "odo_dy": 9.0,
+    "odo_dz": 0.4,
 }
 SATELLITE_ROW = ("sat_E", "sat_N", "sat_U", "sat_yaw", "sat_pitch", "sat_roll", "sat_light",
                  "sat_sun_az", "sat_sun_el", "sat_height_m")  # fmt: skip
