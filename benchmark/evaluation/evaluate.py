@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import torch
 from torch.utils.data import DataLoader, Dataset, Subset
@@ -222,12 +223,18 @@ def evaluate(
     desc: str = "eval",
     precision: str = "fp32",
     num_workers: int = 0,
+    beliefs: BeliefFn | None = None,
+    out_beliefs: str | Path | None = None,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Predict ``dataset``, write the per-sample CSV to ``out_csv`` (if given) and return
     ``(summary, frame)``: the :func:`~benchmark.evaluation.metrics.summarize` metrics (plus the
     mean losses as ``loss_<term>``) and the per-sample table. ``extra`` columns default to
     :func:`pair_columns` of the dataset. The model runs on its device in ``precision``
-    (:func:`predict`)."""
+    (:func:`predict`). With ``beliefs`` (see :func:`predict`), the same pass records every
+    frame's belief and saves it to ``out_beliefs`` (``.npy``, float64, rows in the order of the
+    CSV), so that fusing the split along its flights needs no second pass of the model."""
+    if (beliefs is None) != (out_beliefs is None):
+        raise ValueError("evaluate: beliefs and out_beliefs go together")
     pred = predict(
         model,
         dataset,
@@ -237,15 +244,40 @@ def evaluate(
         desc=desc,
         precision=precision,
         num_workers=num_workers,
+        beliefs=beliefs,
     )
     if extra is None:
         extra = pair_columns(dataset)
     frame = predictions_to_frame(pred, extra)
+    if out_beliefs is not None:
+        assert pred.beliefs is not None
+        save_beliefs(pred.beliefs.numpy(), out_beliefs)  # before the CSV: see _evaluate_split
     if out_csv is not None:
         write_predictions_csv(frame, out_csv)
     summary = summarize(frame)
     summary.update({f"loss_{k}": v for k, v in pred.loss.items()})
     return summary, frame
+
+
+def save_beliefs(beliefs: np.ndarray, path: str | Path) -> None:
+    """Write ``beliefs (N, ...)`` to ``path`` (``.npy``) whole or not at all (a temporary file
+    replaced at the end: an interrupted run leaves no half-written belief behind)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as f:
+        np.save(f, beliefs, allow_pickle=False)
+    tmp.replace(path)
+
+
+def load_beliefs(path: str | Path, rows: int) -> np.ndarray:
+    """The beliefs :func:`save_beliefs` wrote, checked to hold ``rows`` frames."""
+    beliefs = np.load(Path(path), allow_pickle=False)
+    if beliefs.ndim < 2 or beliefs.shape[0] != rows:
+        raise ValueError(
+            f"{path}: expected beliefs of {rows} frames (rows, bins), got shape {beliefs.shape}"
+        )
+    return beliefs
 
 
 def finite_keys(summary: Mapping[str, float]) -> list[str]:

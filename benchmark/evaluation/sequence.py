@@ -140,7 +140,8 @@ def flight_rows(flight: np.ndarray, time_s: np.ndarray) -> list[np.ndarray]:
 
 def _padded(values: np.ndarray | Tensor, rows: list[np.ndarray], fill: float) -> Tensor:
     """Rows ``(N, ...)`` -> ``(B, K, ...)`` by flight, short flights padded with ``fill``."""
-    x = torch.as_tensor(np.asarray(values) if not isinstance(values, Tensor) else values)
+    # (a copy: pandas hands out read-only arrays, which torch will not wrap)
+    x = values if isinstance(values, Tensor) else torch.from_numpy(np.array(values, np.float64))
     x = x.to(torch.float64)
     K = max(len(r) for r in rows)
     out = torch.full((len(rows), K, *x.shape[1:]), fill, dtype=torch.float64)

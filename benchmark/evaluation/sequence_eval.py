@@ -35,7 +35,7 @@ from benchmark.evaluation.beliefs import (
     position_beliefs,
     yaw_beliefs,
 )
-from benchmark.evaluation.evaluate import predict, predictions_to_frame
+from benchmark.evaluation.evaluate import BeliefFn, predict, predictions_to_frame
 from benchmark.evaluation.fusion import CircularGrid, OdometryNoise
 from benchmark.evaluation.sequence import (
     FusionSettings,
@@ -111,6 +111,16 @@ def footprints(poses: pd.DataFrame, sat_table: pd.DataFrame) -> np.ndarray:
     return sat[["footprint_E_m", "footprint_N_m"]].to_numpy(np.float64)
 
 
+def sequence_belief_fn(
+    attitude: AttitudeCalibration | None, settings: FusionSettings | None = None
+) -> BeliefFn:
+    """The per-batch belief recorder of :func:`~benchmark.evaluation.evaluate.predict` that
+    :func:`fuse_predictions` expects: yaw beliefs on ``settings``' circular grid, a regression
+    head's calibrated by ``attitude``."""
+    settings = settings or FusionSettings()
+    return partial(yaw_beliefs, grid=CircularGrid(settings.yaw_bins), calibration=attitude)
+
+
 def evaluate_sequence(
     model: torch.nn.Module,
     dataset: Dataset,
@@ -130,13 +140,8 @@ def evaluate_sequence(
     progress: bool = False,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse ``model``'s beliefs over the flights of ``dataset`` (items indexing ``poses``, the
-    split's pair table with the ``odo_*`` columns); returns the summary (``seq_*`` keys for the
-    dataset's odometry, ``seq{s}x_*`` for the stress odometry; ``stress_scale=None``: none) and
-    the long per-frame table of :func:`~benchmark.evaluation.sequence.fuse_split` with an
-    ``odometry`` column."""
-    settings = settings or FusionSettings()
-    grid = CircularGrid(settings.yaw_bins)
-    attitude, position = calibration
+    split's pair table with the ``odo_*`` columns): one pass of the model recording every
+    frame's belief, then :func:`fuse_predictions` (see there for the result)."""
     pred = predict(
         model,
         dataset,
@@ -146,14 +151,54 @@ def evaluate_sequence(
         desc=f"beliefs {split}",
         precision=precision,
         num_workers=num_workers,
-        beliefs=partial(yaw_beliefs, grid=grid, calibration=attitude),
+        beliefs=sequence_belief_fn(calibration[0], settings),
     )
-    frame = predictions_to_frame(pred)
+    assert pred.beliefs is not None
+    return fuse_predictions(
+        predictions_to_frame(pred),
+        pred.beliefs,
+        poses,
+        sat_table,
+        calibration,
+        noise,
+        split=split,
+        seed=seed,
+        settings=settings,
+        stress_scale=stress_scale,
+    )
+
+
+def fuse_predictions(
+    frame: pd.DataFrame,
+    beliefs: torch.Tensor | np.ndarray,
+    poses: pd.DataFrame,
+    sat_table: pd.DataFrame,
+    calibration: tuple[AttitudeCalibration | None, PositionCalibration],
+    noise: OdometryNoise,
+    *,
+    split: str,
+    seed: int,
+    settings: FusionSettings | None = None,
+    stress_scale: float | None = STRESS_SCALE,
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Fuse a split's per-frame predictions along its flights, with no model: ``frame`` the
+    per-frame table (``index`` into ``poses``, ``yaw/pitch/roll_hat_deg``, ``E/N_hat_m``: the
+    evaluation CSV), ``beliefs (N, bins)`` its rows' yaw beliefs (:func:`sequence_belief_fn`).
+    Returns the summary (``seq_*`` keys for the dataset's odometry, ``seq{s}x_*`` for the
+    stress odometry; ``stress_scale=None``: none) and the long per-frame table of
+    :func:`~benchmark.evaluation.sequence.fuse_split` with an ``odometry`` column."""
+    settings = settings or FusionSettings()
+    attitude, position = calibration
+    beliefs = torch.as_tensor(np.asarray(beliefs, dtype=np.float64))
+    if beliefs.shape != (len(frame), settings.yaw_bins):
+        raise ValueError(
+            f"split {split}: beliefs of shape {tuple(beliefs.shape)} for {len(frame)} frames; "
+            f"expected ({len(frame)}, {settings.yaw_bins}) (one per frame and yaw bin)"
+        )
     rows = poses.iloc[frame["index"].to_numpy()].reset_index(drop=True)
     missing = [c for c in ODOMETRY_COLUMNS if c not in rows.columns]
     if missing:
         raise ValueError(f"split {split}: the pair table has no odometry columns {missing}")
-    assert pred.beliefs is not None
     extent = footprints(rows, sat_table)
     runs = [("data", rows, noise)]
     if stress_scale is not None:
@@ -161,7 +206,7 @@ def evaluate_sequence(
         runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
     tables, summary = [], {}
     for name, odometry, told in runs:
-        frames = _frames(frame, rows, pred.beliefs, odometry, extent, position)
+        frames = _frames(frame, rows, beliefs, odometry, extent, position)
         table = fuse_split(frames, told, settings)
         table.insert(0, "odometry", name)
         tables.append(table)

@@ -16,6 +16,9 @@ Layout of ``out_dir``::
     eval/standard__test.csv       per-frame predictions, true satellite image
     eval/standard__test.json      its summary (written last: its presence means the split is done)
     eval/standard__test__swap.csv / .json   the same with the swapped satellite image
+    eval/long__standard__sequence.csv / .json   a fused split's per-frame/filter/smoother table
+    eval/long__standard__beliefs.npy   its yaw beliefs, recorded by the true image's pass; gone
+                                  once the fusion is written
 
 Running it again costs nothing once its files are complete, so an interrupted run resumes where it
 stopped: mid-training from the last epoch's checkpoint, after training from the evaluations already
@@ -29,6 +32,7 @@ import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch.utils.data import Dataset
@@ -129,8 +133,11 @@ def train_and_evaluate(
     for split in eval_splits:
         for satellite in SATELLITE_MODES:  # true first: the swap summary compares with it
             key = eval_key(split, satellite)
+            # A split to fuse records its beliefs in the true image's pass (the calibration
+            # reads the validation predictions, evaluated first), so fusion needs no second pass.
+            beliefs = satellite == "true" and split in fuse_splits and split != cfg.data.val_split
             result.metrics[key], result.predictions[key] = _evaluate_split(
-                cfg, model, out_dir, split, satellite, eval_batch, progress, placement
+                cfg, model, out_dir, split, satellite, eval_batch, progress, placement, beliefs
             )
     for split in fuse_splits:
         result.sequences[split] = _sequence_split(
@@ -146,6 +153,26 @@ def sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
     return stem.with_suffix(".csv"), stem.with_suffix(".json")
 
 
+def beliefs_path(out_dir: str | Path, split: str) -> Path:
+    """The yaw beliefs the true image's evaluation pass of ``split`` recorded for its fusion
+    (``eval/<split>__beliefs.npy``; deleted once the fusion is written)."""
+    return Path(out_dir) / "eval" / f"{split_filename(split)}__beliefs.npy"
+
+
+def _calibration(cfg: TrainConfig, out_dir: Path, manifest: dict) -> tuple[Any, Any]:
+    """The unit's belief calibration, from its validation predictions only."""
+    import pandas as pd
+
+    from benchmark.evaluation.beliefs import calibrate_from_predictions
+
+    val_split = str(cfg.data.val_split)
+    val_csv, _ = eval_paths(out_dir, eval_key(val_split, "true"))
+    footprint = manifest["profile"]["sat_footprint_m"]
+    return calibrate_from_predictions(
+        pd.read_csv(val_csv), val_split, float(footprint[0]) * float(footprint[1])
+    )
+
+
 def _sequence_split(
     cfg: TrainConfig,
     model: torch.nn.Module,
@@ -155,49 +182,70 @@ def _sequence_split(
     progress: bool,
     placement: Placement,
 ) -> tuple[dict[str, float], Path]:
-    """Fuse one split along its flights, or read what a previous run wrote."""
+    """Fuse one split along its flights, or read what a previous run wrote. The beliefs come
+    from the split's evaluation pass (:func:`beliefs_path`) when it recorded them, else from a
+    pass of their own (a unit evaluated before fusion existed)."""
     import pandas as pd
 
     from benchmark.data import PairDataset, odometry_noise
-    from benchmark.evaluation.beliefs import calibrate_from_predictions
+    from benchmark.evaluation.evaluate import load_beliefs
     from benchmark.evaluation.metrics import write_predictions_csv
-    from benchmark.evaluation.sequence_eval import STRESS_SCALE, evaluate_sequence
+    from benchmark.evaluation.sequence_eval import (
+        STRESS_SCALE,
+        evaluate_sequence,
+        fuse_predictions,
+    )
 
     csv_path, json_path = sequence_paths(out_dir, split)
     if json_path.is_file() and csv_path.is_file():
         return json.loads(json_path.read_text()), csv_path
-    val_split = str(cfg.data.val_split)
-    val_csv, _ = eval_paths(out_dir, eval_key(val_split, "true"))
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     profile = base.manifest["profile"]
-    footprint = profile["sat_footprint_m"]
-    calibration = calibrate_from_predictions(
-        pd.read_csv(val_csv), val_split, float(footprint[0]) * float(footprint[1])
-    )
-    dataset = (
-        encode_for_heads(model, cfg, base, progress=progress) if cfg.pretrained.enabled else base
-    )
-    summary, table = evaluate_sequence(
-        model,
-        dataset,
-        base.poses,
-        base.sat_table,
-        calibration,
-        odometry_noise(profile),
-        split=split,
-        seed=int(base.manifest["seed"]),
+    calibration = _calibration(cfg, out_dir, base.manifest)
+    common: dict[str, Any] = {
+        "split": split,
+        "seed": int(base.manifest["seed"]),
         # the stress odometry (4x its noise) only where the figure draws it: the long flights
-        stress_scale=STRESS_SCALE if split.startswith("long/") else None,
-        batch_size=batch_size,
-        shared_satellite=cfg.model.shared_satellite,
-        progress=progress,
-        precision=placement.precision,
-        num_workers=loader_workers(cfg, placement.device),
-    )
+        "stress_scale": STRESS_SCALE if split.startswith("long/") else None,
+    }
+    stored = beliefs_path(out_dir, split)
+    true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
+    if stored.is_file() and true_csv.is_file():
+        frame = pd.read_csv(true_csv)
+        summary, table = fuse_predictions(
+            frame,
+            load_beliefs(stored, len(frame)),
+            base.poses,
+            base.sat_table,
+            calibration,
+            odometry_noise(profile),
+            **common,
+        )
+    else:
+        dataset = (
+            encode_for_heads(model, cfg, base, progress=progress)
+            if cfg.pretrained.enabled
+            else base
+        )
+        summary, table = evaluate_sequence(
+            model,
+            dataset,
+            base.poses,
+            base.sat_table,
+            calibration,
+            odometry_noise(profile),
+            batch_size=batch_size,
+            shared_satellite=cfg.model.shared_satellite,
+            progress=progress,
+            precision=placement.precision,
+            num_workers=loader_workers(cfg, placement.device),
+            **common,
+        )
     write_predictions_csv(table, csv_path)
     tmp = json_path.with_suffix(".json.tmp")
     tmp.write_text(json.dumps(summary, indent=2))
     tmp.replace(json_path)  # written last: its presence means the split is done
+    stored.unlink(missing_ok=True)  # an intermediate: the fusion table holds what it gave
     return summary, csv_path
 
 
@@ -210,18 +258,29 @@ def _evaluate_split(
     batch_size: int,
     progress: bool,
     placement: Placement,
+    beliefs: bool = False,
 ) -> tuple[dict[str, float], Path]:
-    """Evaluate one split in one satellite mode, or read the files a previous run wrote."""
+    """Evaluate one split in one satellite mode, or read the files a previous run wrote. With
+    ``beliefs`` (the true image of a split to fuse), the same pass records the yaw beliefs
+    for :func:`_sequence_split` unless that split's fusion is already written."""
     import pandas as pd
 
     from benchmark.data import PairDataset
     from benchmark.evaluation.evaluate import evaluate, finite_keys
     from benchmark.evaluation.paired import swap_effect
+    from benchmark.evaluation.sequence_eval import sequence_belief_fn
 
     csv_path, json_path = eval_paths(out_dir, eval_key(split, satellite))
     if json_path.is_file() and csv_path.is_file():
         return json.loads(json_path.read_text()), csv_path
     dataset = PairDataset(cfg.data.root, split, verify=cfg.data.verify, satellite=satellite)
+    record: dict[str, Any] = {}
+    if beliefs and not all(p.is_file() for p in sequence_paths(out_dir, split)):
+        attitude, _ = _calibration(cfg, out_dir, dataset.manifest)
+        record = {
+            "beliefs": sequence_belief_fn(attitude),
+            "out_beliefs": beliefs_path(out_dir, split),
+        }
     if cfg.pretrained.enabled:  # the heads on the frozen encoder's cached features
         dataset = encode_for_heads(model, cfg, dataset, progress=progress)
     summary, _ = evaluate(
@@ -234,6 +293,7 @@ def _evaluate_split(
         desc=f"eval {eval_key(split, satellite)}",
         precision=placement.precision,
         num_workers=loader_workers(cfg, placement.device),
+        **record,
     )
     # A diverged model (finite weights, overflowing outputs) fails here, before its summary is
     # written, so a rerun evaluates again instead of reading back non-finite numbers.

@@ -66,3 +66,50 @@ class TestTrainAndEvaluate:
         (out / "eval" / "standard__test__swap.json").unlink()
         third = train_and_evaluate(cfg, out, ["standard/test"])
         assert third.metrics["standard/test/swap"] == pytest.approx(swap, nan_ok=True)
+
+
+class TestFusionFromTheEvaluationPass:
+    def test_fusion_reads_the_evaluation_pass(self, smoke_dataset, tmp_path, monkeypatch):
+        """A fused split's beliefs come from its true image's evaluation pass (no second pass
+        of the model), and fuse to exactly what a pass of their own gives (the path of a unit
+        evaluated before fusion existed)."""
+        from benchmark.evaluation import evaluate as evaluation
+        from benchmark.evaluation import sequence_eval
+        from benchmark.training.pipeline import beliefs_path, sequence_paths
+
+        cfg = load_train_config(
+            None,
+            [
+                f"data.root={smoke_dataset}", "data.limit_train=8", "data.limit_val=4",
+                "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
+                "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
+                "optim.epochs=1", "threads=1",
+            ],
+        )  # fmt: skip
+        split = "long/standard"
+        passes = []
+        real_predict = evaluation.predict
+
+        def counted(*args, **kwargs):
+            passes.append(kwargs.get("desc"))
+            return real_predict(*args, **kwargs)
+
+        monkeypatch.setattr(evaluation, "predict", counted)
+        monkeypatch.setattr(sequence_eval, "predict", counted)
+        out = tmp_path / "one-pass"
+        done = train_and_evaluate(cfg, out, ["standard/test", split], fuse_splits=[split])
+        assert not any(str(d).startswith("beliefs") for d in passes)  # no pass of its own
+        assert not beliefs_path(out, split).exists()  # an intermediate, removed
+        csv, _ = sequence_paths(out, split)
+        one_pass = pd.read_csv(csv)
+
+        # The same unit's fusion from a pass of its own: files gone, beliefs not recorded.
+        csv.unlink()
+        passes.clear()
+        again = train_and_evaluate(cfg, out, ["standard/test", split], fuse_splits=[split])
+        assert [d for d in passes if str(d).startswith("beliefs")] == [f"beliefs {split}"]
+        # equal up to the evaluation CSV's 10 significant digits
+        pd.testing.assert_frame_equal(pd.read_csv(csv), one_pass, check_exact=False, rtol=1e-7)
+        summary, _ = done.sequences[split]
+        assert again.sequences[split][0] == pytest.approx(summary, rel=1e-7, nan_ok=True)
+        assert {"seq_filter_dpsi_deg", "seq4x_smooth_dpsi_deg"} <= set(summary)
