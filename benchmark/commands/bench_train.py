@@ -34,8 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--precision", default=None, help="comma list of fp32,bf16 (default: both "
                    "where the device supports bf16, else fp32 and the reason)")  # fmt: skip
     p.add_argument("--no-plain", action="store_true", help="skip the plain reference loop")
-    p.add_argument("--no-base", action="store_true", help="skip the base row (ours fp32 before "
-                   "issue 20: per-tensor optimiser loop; with --optimizer adam)")  # fmt: skip
+    p.add_argument("--no-base", action="store_true", help="skip the base rows (ours fp32 "
+                   "before the encoder's last speed change: the matching encoder's 2-D DFT "
+                   "correlation before issue 40; GoogLeNet's per-tensor optimiser loop before "
+                   "issue 20, with --optimizer adam)")  # fmt: skip
     p.add_argument("--optimizer", choices=sorted(OPTIMIZERS), default="sgd", help="sgd: the "
                    "paper's SGD, momentum 0.9, lr 1e-3 (default); adam: the quick profile's Adam, "
                    "lr 3e-4, gradient norm clipped at 10")  # fmt: skip

@@ -80,7 +80,13 @@ from torch import Tensor, nn
 
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
 from benchmark.models.encoder import parse_variant
-from benchmark.models.matching_ops import bev_templates, bev_templates_planes, correlate, sat_grid
+from benchmark.models.matching_ops import (
+    CORRELATIONS,
+    bev_templates,
+    bev_templates_planes,
+    correlate,
+    sat_grid,
+)
 from benchmark.models.matching_pixels import (
     denormalize,
     grey_gradient,
@@ -153,7 +159,7 @@ class MatchingEncoder(PairEncoder):
         gravity_dim: int = 32,
         smoothing: float = 0.5,
         temperature: float = 50.0,
-        correlation: str = "dft",
+        correlation: str = "xdft",
         default_fov_deg: float = 60.0,
         default_footprint_m: tuple[float, float] = (2000.0, 1000.0),
         default_sat_height_m: float = 1000.0,
@@ -203,8 +209,8 @@ class MatchingEncoder(PairEncoder):
         if alt_offsets and height_planes:
             raise ValueError("matching encoder: altitude_offsets_m and height_planes cannot be "
                              "combined (the height-aware view has no altitude search)")  # fmt: skip
-        if correlation not in ("dft", "fft", "conv"):
-            raise ValueError(f"matching encoder: correlation must be 'dft', 'fft' or 'conv', got "
+        if correlation not in CORRELATIONS:
+            raise ValueError(f"matching encoder: correlation must be one of {CORRELATIONS}, got "
                              f"{correlation!r}")  # fmt: skip
         if input_size < 16 or input_size % 2:
             raise ValueError(f"matching encoder: input_size must be even and >= 16, got "
@@ -684,9 +690,11 @@ def matching(
     paper's, ``"gravity_aided"``), ``volume_nll_weight`` (0: heads' loss only),
     ``gravity_weight``, ``n_yaw`` yaw bins, ``cell_m`` grid cell (m), ``search_m`` half-side of
     the searched square (m), ``template_m`` bird's-eye radius (m), ``smoothing`` of the NLL
-    target (cells/bins), ``temperature`` (initial), ``correlation`` (``"dft"`` by matrix
-    products, ``"fft"`` or ``"conv"``: the same numbers to float32 rounding; ``dft`` is the
-    fastest on this CPU), ``default_*`` (the geometry assumed without a ``context``),
+    target (cells/bins), ``temperature`` (initial), ``correlation`` (``"xdft"``: a real DFT
+    along the columns and one batched GEMM along the rows, the fastest here; ``"dft"``: the
+    2-D DFT by complex matrix products, the default before issue 40 and ``bench train``'s base
+    row; ``"fft"``, ``"conv"``: all the same numbers to float32 rounding), ``default_*`` (the
+    geometry assumed without a ``context``),
     ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones),
     ``photometric`` (strength of the training images' colour jitter, 0: none), and
     ``height_planes`` / ``plane_spacing_m`` (the height-aware view: 0 planes = the flat

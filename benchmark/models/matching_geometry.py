@@ -94,10 +94,11 @@ def ground_to_uav_pixel(
             raise ValueError(f"{name} must have shape ({batch},), got {tuple(t.shape)}")
     R = euler_to_rotmat(torch.zeros_like(pitch), pitch, roll)  # (B, 3, 3) body -> level frame
     extra = offsets_level.dim() - 2
-    Rv = R.view(batch, *([1] * extra), 3, 3)
     h = altitude.view(batch, *([1] * extra)).expand(offsets_level.shape[:-1])
     p = torch.stack([offsets_level[..., 0], offsets_level[..., 1], -h], dim=-1)  # level frame
-    body = (Rv.transpose(-1, -2) @ p.unsqueeze(-1)).squeeze(-1)  # R^T p
+    # R^T p for every point, as the row vectors p^T R: one (B, points, 3) @ (B, 3, 3) product
+    # (broadcasting R over the points would copy a 3 x 3 matrix per point)
+    body = (p.reshape(batch, -1, 3) @ R).view_as(p)
     x, y, z = body.unbind(-1)
     f = focal_px(size, fov).view(batch, *([1] * extra))
     c = 0.5 * (size - 1)

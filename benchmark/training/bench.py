@@ -13,9 +13,11 @@ Algorithm 1 loss plus the encoder's own loss, backward, optimiser update) of
   (``sat_ids``), as ``benchmark.training`` trains;
 - ours bf16: the same under ``torch.autocast`` bf16 (weights, optimiser state and the loss stay
   float32; the heads' outputs are cast back to float32 before the loss, as training does),
-- base fp32 (CPU, ``--optimizer adam``): ours fp32 as it ran before issue 20, the optimiser's
-  per-tensor Python loop (torch's CPU default) instead of ``make_optimizer``'s ``foreach`` (same
-  weights bit for bit; ``loop.CPU_FOREACH``): the before/after of that change, side by side,
+- base fp32: ours fp32 before the encoder's last speed change, side by side: for the matching
+  encoders, the correlation before issue 40 (the 2-D DFT by complex matrix products,
+  ``correlation="dft"``; ours is ``"xdft"``); for GoogLeNet (CPU, ``--optimizer adam``) before
+  issue 20, the optimiser's per-tensor Python loop (torch's CPU default) instead of
+  ``make_optimizer``'s ``foreach`` (same weights bit for bit; ``loop.CPU_FOREACH``),
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
 (``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step (both
@@ -39,12 +41,12 @@ FLOPs of a step are counted, not estimated: ``torch.utils.flop_counter.FlopCount
 whole step (forward and backward) and counts 2 x multiply-adds of every convolution and matrix
 product, including their input and weight gradients (about 3x the forward; the first convolution
 computes no input gradient), with ``benchmark.models.flop_count``'s formulas for what torch
-miscounts or skips: complex matrix products (the matching encoder's DFT correlation: 8 real FLOPs
-per complex multiply-add, not 2), the spectra's complex elementwise products, and bilinear
-``grid_sample`` (the bird's-eye templates and the satellite grid). Normalisation, activations,
-pooling, softmax, the losses and the optimiser are not counted (FFTs neither: the matching
-encoder's default correlation is the DFT by matrix products). The share of the convolution
-ceiling compares every counted FLOP (complex GEMMs included) with the best training
+miscounts or skips: complex matrix products (the base matcher's 2-D DFT correlation: 8 real
+FLOPs per complex multiply-add, not 2; kind ``dft``), the spectra's complex elementwise products,
+and bilinear ``grid_sample`` (the bird's-eye templates and the satellite grid). The default
+correlation's real GEMMs (``correlate_xdft``) count as ``matmul``. Normalisation, activations,
+pooling, softmax, the losses and the optimiser are not counted (FFTs neither). The share of the
+convolution ceiling compares every counted FLOP (complex GEMMs included) with the best training
 convolution's rate.
 """
 
@@ -95,6 +97,18 @@ class LoopSpec:
     channels_last: bool
     share: bool
     foreach: bool | None
+    # encoder options over the bench encoder's own (the matcher's base row: its correlation)
+    encoder_options: tuple[tuple[str, Any], ...] = ()
+
+
+# The base row of each encoder, the code before the change it measures: GoogLeNet before issue 20
+# (torch's per-tensor optimiser loop; only where make_optimizer chooses otherwise), the matching
+# encoder before issue 40 (the 2-D DFT correlation by complex matrix products).
+MATCHER_BASE_OPTIONS: tuple[tuple[str, Any], ...] = (("correlation", "dft"),)
+BASE_CHANGES = {
+    "googlenet": "optimiser foreach, issue 20",
+    "matching": "correlation by row DFT and one GEMM, issue 40",
+}
 
 
 def loop_specs(
@@ -103,17 +117,23 @@ def loop_specs(
     plain: bool,
     base: bool,
     optimizer: str = "sgd",
+    encoder: str = "googlenet",
 ) -> list[LoopSpec]:
-    """The loops of a run, in print order: plain fp32, base fp32, ours in each precision. Plain
-    and base use torch's default optimiser loop; base is there only where ``make_optimizer``
-    chooses otherwise (on the CPU for Adam: ``loop.CPU_FOREACH``), so it times the change."""
+    """The loops of one encoder (a :data:`BENCH_ENCODERS` name), in print order: plain fp32,
+    base fp32, ours in each precision. Plain uses torch's default optimiser loop. Base is
+    ``encoder``'s code before its last speed change: for the matching encoders the correlation
+    before issue 40 (:data:`MATCHER_BASE_OPTIONS`, always); for GoogLeNet torch's default
+    optimiser loop, only where ``make_optimizer`` chooses otherwise (on the CPU for Adam:
+    ``loop.CPU_FOREACH``)."""
     from benchmark.training.loop import CPU_FOREACH
 
     default = False if device.type == "cpu" else None  # torch's own default on that device
     specs = [LoopSpec("plain fp32", "fp32", False, False, default)] if plain else []
-    changed = device.type == "cpu" and CPU_FOREACH.get(OPTIMIZERS[optimizer]["name"]) is True
-    if base and changed and "fp32" in precisions:
-        specs.append(LoopSpec("base fp32", "fp32", True, True, False))
+    if base and "fp32" in precisions:
+        if BENCH_ENCODERS[encoder][0] == "matching":
+            specs.append(LoopSpec("base fp32", "fp32", True, True, None, MATCHER_BASE_OPTIONS))
+        elif device.type == "cpu" and CPU_FOREACH.get(OPTIMIZERS[optimizer]["name"]) is True:
+            specs.append(LoopSpec("base fp32", "fp32", True, True, False))
     specs += [LoopSpec(f"ours {p}", p, True, True, None) for p in precisions]
     return specs
 
@@ -272,7 +292,7 @@ def build(
     torch.manual_seed(0)
     m = create_model(
         encoder=registered,
-        encoder_options=options,
+        encoder_options={**options, **dict(spec.encoder_options)},
         width=width,
         input_size=size,
         attitude=config.attitude,
@@ -300,9 +320,10 @@ def measure(
 
     batch = batch_of(size, config.batch_size, config.distinct_sat, device)
     clip = optim_config(config).grad_clip
-    specs = loop_specs(precisions, device, config.plain, config.base, config.optimizer)
     loops: dict[tuple[str, str], tuple[str, Callable[[], float]]] = {}
     for encoder in encoders:
+        specs = loop_specs(precisions, device, config.plain, config.base, config.optimizer,
+                           encoder)  # fmt: skip
         for spec in specs:
             model, opt = build(size, width, config, spec, device, encoder)
             step = make_step(model, opt, batch, spec.share, device, spec.precision, clip)
@@ -407,8 +428,9 @@ def format_rows(name: str, size: int, width: float, results: list[LoopResult]) -
 
 
 def change_line(name: str, results: list[LoopResult], encoder: str = "googlenet") -> str | None:
-    """Before/after of issue 20's change (base fp32 -> ours fp32) for ``encoder``: pairs/s and
-    share of the ceiling; None without both rows."""
+    """Before/after of the change the base row measures (base fp32 -> ours fp32,
+    :data:`BASE_CHANGES`) for ``encoder``: pairs/s and share of the ceiling; None without both
+    rows."""
     by = {r.loop: r for r in results if r.encoder == encoder}
     base, ours = by.get("base fp32"), by.get("ours fp32")
     if base is None or ours is None:
@@ -417,7 +439,8 @@ def change_line(name: str, results: list[LoopResult], encoder: str = "googlenet"
     if base.ceiling_share is not None and ours.ceiling_share is not None:
         shares = f", {100 * base.ceiling_share:.0f}% -> {100 * ours.ceiling_share:.0f}% of ceiling"
     return (
-        f"{'':7s} {encoder}: before -> after (base fp32 -> ours fp32: optimiser foreach): "
+        f"{'':7s} {encoder}: before -> after (base fp32 -> ours fp32: "
+        f"{BASE_CHANGES[BENCH_ENCODERS[encoder][0]]}): "
         f"{base.pairs_per_s:.2f} -> {ours.pairs_per_s:.2f} pairs/s "
         f"({ours.pairs_per_s / base.pairs_per_s:.2f}x{shares})"
     )

@@ -16,6 +16,8 @@ from benchmark.models.matching_ops import (
     correlate_conv,
     correlate_dft,
     correlate_fft,
+    correlate_xdft,
+    fft_size,
 )
 
 
@@ -75,6 +77,66 @@ class TestCorrelate:
             grads.append((gs, gt))
         torch.testing.assert_close(grads[0][0], grads[1][0], rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(grads[0][1], grads[1][1], rtol=1e-4, atol=1e-4)
+
+
+class TestCorrelateXdft:
+    """The default correlation (issue 40): a real DFT along the columns, a batched GEMM along the
+    rows. Against the direct correlation (``correlate_conv``, a grouped conv2d) and a brute-force
+    sum, in float64; against the 2-D DFT it replaced (``correlate_dft``, complex64) in float32
+    on the quick step's shapes; gradients by float64 gradcheck and against conv's."""
+
+    # (b, k, c, t, g): the grid side g is a 2-3-5 FFT size (20, 10, 15) or not (13, 23, 63:
+    # the columns padded to 15, 24, 64); t == g leaves one position, t = 1 every cell.
+    SHAPES = ((1, 5, 4, 5, 13), (3, 2, 3, 9, 23), (2, 4, 2, 7, 20), (1, 3, 2, 10, 10),
+              (2, 3, 1, 1, 15), (2, 36, 8, 25, 63))  # fmt: skip
+
+    @pytest.mark.parametrize(("b", "k", "c", "t", "g"), SHAPES)
+    def test_equals_conv_and_brute_force_float64(self, b, k, c, t, g):
+        gen = torch.Generator().manual_seed(g)
+        sat = torch.randn(b, c, g, g, generator=gen, dtype=torch.float64)
+        tpl = torch.randn(b, k, c, t, t, generator=gen, dtype=torch.float64)
+        got, conv = correlate_xdft(sat, tpl), correlate_conv(sat, tpl)
+        m = g - t + 1
+        assert got.shape == (b, k, m, m) and got.dtype == torch.float64
+        torch.testing.assert_close(got, conv, rtol=1e-10, atol=1e-10)
+        i, j, y, x = b - 1, k - 1, m - 1, 0  # the last row: y + t - 1 = g - 1, no wrap-around
+        brute = (tpl[i, j] * sat[i, :, y : y + t, x : x + t]).sum()
+        assert float(got[i, j, y, x]) == pytest.approx(float(brute), rel=1e-12, abs=1e-12)
+
+    def test_gradcheck_float64(self):
+        gen = torch.Generator().manual_seed(0)
+        sat = torch.randn(2, 2, 7, 7, generator=gen, dtype=torch.float64, requires_grad=True)
+        tpl = torch.randn(2, 3, 2, 3, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+        assert torch.autograd.gradcheck(correlate_xdft, (sat, tpl))
+
+    def test_float32_matches_the_dft_it_replaced_forward_and_backward(self):
+        """The quick step's shapes (36 yaws, 8 channels, 25 x 25 templates, 63 x 63 grid):
+        both float32 paths within 2e-6 of the float64 direct correlation's largest value (the
+        stated tolerance: float32 rounding of ~5000-term sums), and their gradients within
+        1e-4 relative of conv's float64 ones."""
+        gen = torch.Generator().manual_seed(3)
+        sat = torch.randn(2, 8, 63, 63, generator=gen, requires_grad=True)
+        tpl = torch.randn(2, 36, 8, 25, 25, generator=gen, requires_grad=True)
+        w = torch.randn(2, 36, 39, 39, generator=gen)
+        sat64, tpl64 = (
+            sat.detach().double().requires_grad_(),
+            tpl.detach().double().requires_grad_(),
+        )
+        ref = correlate_conv(sat64, tpl64)
+        ref_grads = torch.autograd.grad((ref * w.double()).sum(), (sat64, tpl64))
+        scale = float(ref.abs().max())
+        for fn in (correlate_xdft, correlate_dft):
+            out = fn(sat, tpl)
+            assert out.dtype == torch.float32
+            assert float((out.double() - ref).abs().max()) <= 2e-6 * scale, fn.__name__
+            grads = torch.autograd.grad((out * w).sum(), (sat, tpl))
+            for got, want in zip(grads, ref_grads, strict=True):
+                err = float((got.double() - want).abs().max()) / float(want.abs().max())
+                assert err <= 1e-4, (fn.__name__, err)
+
+    def test_padding_is_the_2_3_5_fft_size(self):
+        # The columns are transformed at fft_size(g) >= g: nothing the kept outputs read wraps.
+        assert [fft_size(g) for g in (13, 23, 63, 64, 71)] == [15, 24, 64, 64, 72]
 
 
 class TestBevTemplates:
@@ -146,6 +208,37 @@ class TestVolumeOnRenderedPair:
         true = float(enc.volume_nll(lv, t64(yaw), t64(de), t64(dn)))
         assert true < float(enc.volume_nll(lv, t64(yaw + math.pi / 2), t64(de), t64(dn))) - 3
         assert true < float(enc.volume_nll(lv, t64(yaw), t64(de + 60.0), t64(dn - 40.0))) - 3
+
+    def test_the_default_correlation_gives_todays_volume(self, flat_scene):
+        """The rendered pair's pose volume with the default correlation (``xdft``): equal to
+        the direct correlation's in float64 and to the 2-D DFT's (the default before issue
+        40) in float32, within 1e-4 in log-probability, where the volume holds its mass."""
+        from benchmark.sim.camera import Camera
+        from benchmark.sim.render import render_uav
+
+        city, sat = flat_scene
+        yaw_deg, de, dn, pitch_deg = POSES[0]
+        img = render_uav(city, np.array([de, dn, 80.0]), math.radians(yaw_deg),
+                         math.radians(pitch_deg), 0.05, Camera.square(96, 60.0))  # fmt: skip
+        volumes = {}
+        for dtype in (torch.float64, torch.float32):
+            for method in ("xdft", "conv", "dft"):
+                enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0,
+                                      correlation=method).to(dtype)  # fmt: skip
+                t = lambda *v, d=dtype: torch.tensor(v, dtype=d)  # noqa: E731
+                with torch.no_grad():
+                    volumes[method, dtype] = enc.match(
+                        _raw(img).to(dtype), _raw(sat).to(dtype), t(math.radians(pitch_deg)),
+                        t(0.05), t(80.0), t(math.radians(60.0)), t([480.0, 480.0]), (1, 1), (1, 1),
+                    )  # fmt: skip
+        f64, f32 = torch.float64, torch.float32
+        torch.testing.assert_close(volumes["xdft", f64], volumes["conv", f64], rtol=0, atol=1e-9)
+        held = volumes["dft", f32] > -20.0  # where the mass is (e^-20 of the peak is nothing)
+        diff = (volumes["xdft", f32] - volumes["dft", f32]).abs()
+        assert float(diff[held].max()) <= 1e-4
+        assert (
+            float((volumes["xdft", f32].double() - volumes["conv", f64]).abs()[held].max()) <= 1e-4
+        )
 
 
 class TestVolumeNll:

@@ -244,7 +244,8 @@ class TestMatchingEncoder:
             assert float(got.group(2)) == pytest.approx(step, rel=0.01)
         kinds = next(x for x in out.splitlines() if "matching ours fp32: GFLOP/step by kind" in x)
         parts = dict(re.findall(r"(\w+) ([\d.]+)", kinds.split("by kind: ")[1]))
-        assert set(parts) == {"convolution", "matmul", "dft", "spectrum", "sampling"}, kinds
+        # the default correlation's real GEMMs count as matmul (no complex products left)
+        assert set(parts) == {"convolution", "matmul", "sampling"}, kinds
         assert sum(map(float, parts.values())) == pytest.approx(float(match["ours fp32"][3]),
                                                                 abs=0.003)  # fmt: skip
         bf16_row = r"^quick\s+(googlenet|matching)\s+([\d.]+)\s+([\d.]+)\s+[\d.]+x\s+[\d.]+x$"
@@ -262,12 +263,17 @@ class TestMatchingEncoder:
         sampling positions come from the context's priors in training, no gradient)."""
         args = command.parse([*TINY, "--optimizer", "adam"])
         cpu = torch.device("cpu")
-        spec = bench.loop_specs(["fp32"], cpu, plain=False, base=False, optimizer="adam")[-1]
-        model, opt = bench.build(32, 0.1, args, spec, cpu, "matching")
-        batch = bench.batch_of(32, 4, 2)
-        step = bench.make_step(model, opt, batch, spec.share, cpu, "fp32", 10.0)
-        step()  # builds the cached DFT matrices
-        got = step_flops(step)
+        specs = bench.loop_specs(["fp32"], cpu, False, True, "adam", "matching")
+        assert [s.name for s in specs] == ["base fp32", "ours fp32"]
+        assert dict(specs[0].encoder_options) == {"correlation": "dft"}  # before issue 40
+        counted = {}
+        for spec in specs:
+            model, opt = bench.build(32, 0.1, args, spec, cpu, "matching")
+            batch = bench.batch_of(32, 4, 2)
+            step = bench.make_step(model, opt, batch, spec.share, cpu, "fp32", 10.0)
+            step()  # builds the cached DFT matrices
+            counted[spec.name] = step_flops(step)
+        got, ours = counted["base fp32"], counted["ours fp32"]
         b, k, c = 4, 36, 8
         t, g = 25, 63
         L = fft_size(g)
@@ -290,6 +296,18 @@ class TestMatchingEncoder:
         assert got["spectrum"] == forward + backward
         assert got["sampling"] == 16 * b * c * (k * t * t + g * g)
         assert got["total"] == sum(got[kind] for kind in KINDS_OF_FLOPS)
+        # Ours (correlate_xdft): the same convolutions and sampling, no complex work, and real
+        # GEMMs counted as matmul: the template rows' and the grid rows' DFTs (forward, again
+        # in the backward pass, which recomputes them, and the gradient of their input), the
+        # batched GEMM along the rows (forward and both gradients) and the inverse (forward
+        # and its input's gradient).
+        for kind in ("convolution", "sampling"):
+            assert ours[kind] == got[kind]
+        assert ours["dft"] == ours["spectrum"] == 0
+        rows = b * 2 * v * t * (k * c * t) + (b * c * g) * g * 2 * v
+        inverse = (b * k * m) * 4 * v * m
+        batched = (b * v) * (2 * k) * (c * t) * (2 * m)
+        assert ours["matmul"] - got["matmul"] == 2 * (3 * rows + 3 * batched + 2 * inverse)
 
     def test_altitude_hypotheses_beside_the_matching_encoder(self, capsys):
         """``matching_alt3`` (three altitudes) in the same rounds as ``matching``: its own
@@ -311,7 +329,8 @@ class TestMatchingEncoder:
 
         args = command.parse([*TINY, "--optimizer", "adam"])
         cpu = torch.device("cpu")
-        spec = bench.loop_specs(["fp32"], cpu, plain=False, base=False, optimizer="adam")[-1]
+        # the base row's correlation (the 2-D DFT): its complex GEMMs have the closed forms below
+        spec = bench.loop_specs(["fp32"], cpu, False, True, "adam", "matching")[0]
         flops = {}
         for name in ("matching", "matching_alt3"):
             model, opt = bench.build(32, 0.1, args, spec, cpu, name)
