@@ -134,6 +134,24 @@ class TestCorrelateXdft:
                 err = float((got.double() - want).abs().max()) / float(want.abs().max())
                 assert err <= 1e-4, (fn.__name__, err)
 
+    def test_bf16_under_autocast(self):
+        """Under CPU autocast bf16 the GEMMs run in bf16 (the error is bf16's, far above
+        float32's) and the result and gradients come back in the inputs' float32; on unit
+        feature vectors, as the matcher correlates them, within 1 % of the largest value."""
+        gen = torch.Generator().manual_seed(4)
+        unit = torch.nn.functional.normalize
+        sat = unit(torch.randn(2, 8, 63, 63, generator=gen), dim=1).requires_grad_()
+        tpl = unit(torch.randn(2, 36, 8, 25, 25, generator=gen), dim=2).requires_grad_()
+        ref = correlate_conv(sat.detach().double(), tpl.detach().double())
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = correlate_xdft(sat, tpl)
+        assert out.dtype == torch.float32
+        err = float((out.double() - ref).abs().max()) / float(ref.abs().max())
+        assert 1e-4 < err < 1e-2, err
+        out.sum().backward()
+        assert sat.grad.dtype == tpl.grad.dtype == torch.float32
+        assert torch.isfinite(sat.grad).all() and torch.isfinite(tpl.grad).all()
+
     def test_padding_is_the_2_3_5_fft_size(self):
         # The columns are transformed at fft_size(g) >= g: nothing the kept outputs read wraps.
         assert [fft_size(g) for g in (13, 23, 63, 64, 71)] == [15, 24, 64, 64, 72]
