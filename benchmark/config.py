@@ -267,14 +267,26 @@ def _set_path(cfg: Any, path: list[str], raw: Any, full_key: str) -> Any:
     return dataclasses.replace(cfg, **{name: new})
 
 
+def split_assignment(item: str, example: str = "optim.lr=0.01") -> tuple[str, str]:
+    """``"a.b=value"`` -> ``("a.b", "value")``: the one KEY=VALUE reader of every ``--set``
+    (config overrides, model options, reference options). The value is returned as written;
+    :func:`parse_scalar` or the field's type converts it. ConfigError naming ``item`` and
+    ``example`` without a ``=`` or a key."""
+    key, sep, raw = item.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise ConfigError(f"{item!r}: expected KEY=VALUE, e.g. {example}")
+    return key, raw
+
+
 def apply_overrides(cfg: T, overrides: Iterable[str]) -> T:
     """Return ``cfg`` with each ``"a.b=value"`` applied in order (``cfg`` itself is frozen)."""
     _require_dataclass(cfg)
     for item in overrides:
-        key, sep, raw = item.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise ConfigError(f"override {item!r}: expected KEY=VALUE, e.g. optim.lr=0.01")
+        try:
+            key, raw = split_assignment(item)
+        except ConfigError as err:
+            raise ConfigError(f"override {err}") from None
         try:
             cfg = _set_path(cfg, key.split("."), raw, key)
         except (TypeError, ValueError) as err:  # __post_init__ validation of the new dataclass

@@ -233,3 +233,32 @@ class TestMappingFields:
         (tmp_path / "old.yaml").write_text("loss:\n  kappa: 5\n")
         with pytest.raises(ConfigError, match=r"old\.yaml: config key 'loss' has moved"):
             load_yaml(tmp_path / "old.yaml", WithHead)
+
+
+class TestOneKeyValueReader:
+    """Issue 41: one KEY=VALUE reader for every ``--set`` (config overrides, model-info's model
+    options, a reference's options): ``config.split_assignment``, and no other module splits an
+    assignment itself."""
+
+    def test_split_assignment(self):
+        from benchmark.config import split_assignment
+
+        assert split_assignment("optim.lr=0.01") == ("optim.lr", "0.01")
+        assert split_assignment(" a.b = x=y") == ("a.b", " x=y")  # the first '=' splits
+        for bad in ("seed", "=3", " =3"):
+            with pytest.raises(ConfigError, match=r"expected KEY=VALUE, e\.g\. k=1"):
+                split_assignment(bad, "k=1")
+
+    def test_no_other_reader_in_the_library(self):
+        import re
+        from pathlib import Path
+
+        root = Path(__file__).resolve().parents[1] / "benchmark"
+        splitting = re.compile(r"""\.(partition|split)\(\s*["']=["']""")
+        found = [
+            str(path.relative_to(root))
+            for path in sorted(root.rglob("*.py"))
+            for line in path.read_text().splitlines()
+            if splitting.search(line)
+        ]
+        assert found == ["config.py"], found  # the one in split_assignment

@@ -8,9 +8,9 @@ import json
 from dataclasses import asdict
 from typing import Any
 
+from benchmark.config import ConfigError, parse_scalar, split_assignment
 from benchmark.errors import UsageError
 from benchmark.models.info import OPTION_FIELDS
-from benchmark.models.model_config import parse_scalar
 
 HELP = "parameters, size, MFLOPs and CPU latency per pair of a model (paper Table 6)"
 
@@ -51,9 +51,12 @@ def parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
     read as YAML scalars; the head's signature types them). ValueError naming a bad item."""
     out: dict[str, dict[str, Any]] = {}
     for item in items:
-        key, sep, value = item.partition("=")
-        field, dot, option = key.strip().partition(".")
-        if not sep or not dot or not option or field not in OPTION_FIELDS:
+        try:
+            key, value = split_assignment(item, "attitude_options.hidden=512")
+        except ConfigError:
+            key, value = "", ""  # named below, with the fields it may set
+        field, dot, option = key.partition(".")
+        if not dot or not option or field not in OPTION_FIELDS:
             raise ValueError(
                 f"--set {item!r}: expected FIELD.OPTION=VALUE with FIELD one of "
                 f"{', '.join(OPTION_FIELDS)}, e.g. attitude_options.hidden=512"

@@ -57,17 +57,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _parse_options(items: list[str]) -> dict[str, object]:
-    """``["step_deg=2"]`` -> ``{"step_deg": 2}``: values read as YAML scalars by the one converter
-    (``benchmark.config.parse_scalar``, as ``model-info --set`` and ``train --set``)."""
-    from benchmark.config import parse_scalar
+    """``["step_deg=2"]`` -> ``{"step_deg": 2}``: the one KEY=VALUE reader and converter
+    (``benchmark.config.split_assignment`` and ``parse_scalar``, as ``model-info --set`` and
+    ``train --set``)."""
+    from benchmark.config import ConfigError, parse_scalar, split_assignment
     from benchmark.errors import UsageError
 
     out: dict[str, object] = {}
     for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
-            raise UsageError(f"--set {item!r}: expected KEY=VALUE")
-        out[key.strip()] = parse_scalar(value)
+        try:
+            key, value = split_assignment(item, "step_deg=2")
+        except ConfigError as err:
+            raise UsageError(f"--set {err}") from None
+        out[key] = parse_scalar(value)
     return out
 
 
