@@ -86,6 +86,7 @@ from benchmark.models.matching_ops import (
     bev_templates_planes,
     correlate,
     sat_grid,
+    unit_channels,
 )
 from benchmark.models.matching_pixels import (
     denormalize,
@@ -432,7 +433,7 @@ class MatchingEncoder(PairEncoder):
             raise ValueError("matching encoder: height_planes is set, so match() needs the "
                              "plane_logits of the UAV features")  # fmt: skip
         templates, mask = bev_templates_planes(
-            nnf.normalize(uav_feat, dim=1), plane_logits, self.plane_heights,
+            unit_channels(uav_feat), plane_logits, self.plane_heights,
             uav_stride or self.uav_stride, self.input_size, self.yaws, self.template_cells,
             self.cell_m, pitch, roll, altitude, fov,
         )  # fmt: skip
@@ -462,7 +463,7 @@ class MatchingEncoder(PairEncoder):
         this CPU: its spectra no longer fit the cache)."""
         size, r = self.input_size, self.template_cells
         stride = uav_stride or self.uav_stride
-        feats = nnf.normalize(uav_feat, dim=1)
+        feats = unit_channels(uav_feat)
         grid = self._sat_grid(sat_feat, sat_stride, footprint_m)
         banks = []
         for altitude in altitudes.unbind(1):
@@ -481,7 +482,7 @@ class MatchingEncoder(PairEncoder):
         n, r = self.search_cells, self.template_cells
         grid = sat_grid(sat_feat, sat_stride or self.sat_stride, self.input_size, footprint_m,
                         n + r, self.cell_m)  # fmt: skip
-        return nnf.normalize(grid, dim=1)
+        return unit_channels(grid)
 
     def _scores(self, templates: Tensor, mask: Tensor, grid: Tensor, footprint_m: Tensor) -> Tensor:
         """Masked scores ``(B, K, P, P)`` of ``templates (B, K, C, t, t)`` with their valid

@@ -174,6 +174,46 @@ class TestBevTemplates:
         assert torch.autograd.gradcheck(warp, (feats, pitch, roll, alt), atol=1e-6)
 
 
+class TestBevTemplatesMasking:
+    def test_masked_cells_are_exact_zeros_as_a_multiply_by_the_mask(self):
+        """Masked cells sample outside the map (``OUTSIDE_GRID``): the templates equal, bit for
+        bit, the unmasked sampling times the mask, and so do the features' gradients."""
+        from benchmark.models.matching_geometry import ground_to_uav_pixel, pixel_to_grid
+        from benchmark.models.matching_ops import _template_cells
+
+        g = torch.Generator().manual_seed(5)
+        feats = torch.randn(3, 4, 24, 24, generator=g, requires_grad=True)
+        pitch, roll = torch.tensor([-0.7, -0.3, -1.2]), torch.tensor([0.05, -0.1, 0.0])
+        alt, fov = torch.tensor([80.0, 60.0, 120.0]), torch.full((3,), 1.0)
+        yaws = torch.linspace(0.0, 6.0, 7)
+        got, mask = bev_templates(feats, (2, 2), 48, yaws, 6, 20.0, pitch, roll, alt, fov)
+        assert 0 < int(mask.sum()) < mask.numel()  # some cells masked, some not
+        level, _ = _template_cells(feats, yaws, 6, 20.0)
+        uv, _ = ground_to_uav_pixel(level, pitch, roll, alt, fov, 48)
+        coords = pixel_to_grid(uv, 48, (2, 2)).reshape(3, 7 * 13, 13, 2)
+        plain = torch.nn.functional.grid_sample(feats, coords, align_corners=True)
+        want = plain.view(3, 4, 7, 13, 13).permute(0, 2, 1, 3, 4) * mask.unsqueeze(2)
+        assert torch.equal(got, want)
+        w = torch.randn(got.shape, generator=g)
+        (g_got,) = torch.autograd.grad((got * w).sum(), feats)
+        (g_want,) = torch.autograd.grad((want * w).sum(), feats)
+        torch.testing.assert_close(g_got, g_want, rtol=1e-6, atol=1e-6)
+
+
+class TestUnitChannels:
+    def test_equals_torch_normalize_and_its_gradient_float64(self):
+        from benchmark.models.matching_ops import unit_channels
+
+        g = torch.Generator().manual_seed(6)
+        x = torch.randn(3, 5, 7, 9, generator=g, dtype=torch.float64)
+        x[0, :, 0, 0] = 0.0  # a zero cell stays zero (the norm floored, as normalize does)
+        want = torch.nn.functional.normalize(x, dim=1)
+        torch.testing.assert_close(unit_channels(x), want, rtol=1e-14, atol=1e-14)
+        assert torch.autograd.gradcheck(
+            unit_channels, (x[1:, :, 1:4, 1:4].clone().requires_grad_(),)
+        )
+
+
 @pytest.fixture(scope="module")
 def flat_scene():
     """A flat 512 m city (textures kept) and its nadir satellite image, 480 x 480 m at 96 px."""
