@@ -24,18 +24,23 @@ class TestKeys:
             eval_key("standard/test", "grey")
 
 
+def _tiny_config(root):
+    """One epoch of Re-Net-R at width 0.25 on 8 smoke pairs: a unit in seconds."""
+    return load_train_config(
+        None,
+        [
+            f"data.root={root}", "data.limit_train=8", "data.limit_val=4",
+            "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
+            "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
+            "optim.epochs=1", "threads=1",
+        ],
+    )  # fmt: skip
+
+
 @pytest.mark.slow
 class TestTrainAndEvaluate:
     def test_files_swap_and_resume(self, smoke_dataset, tmp_path, monkeypatch):
-        cfg = load_train_config(
-            None,
-            [
-                f"data.root={smoke_dataset}", "data.limit_train=8", "data.limit_val=4",
-                "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
-                "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
-                "optim.epochs=1", "threads=1",
-            ],
-        )  # fmt: skip
+        cfg = _tiny_config(smoke_dataset)
         out = tmp_path / "run"
         done = train_and_evaluate(cfg, out, ["standard/test"])
         assert set(done.metrics) == {"standard/test", "standard/test/swap"}
@@ -77,15 +82,7 @@ class TestFusionFromTheEvaluationPass:
         from benchmark.evaluation import sequence_eval
         from benchmark.training.pipeline import beliefs_path, sequence_paths
 
-        cfg = load_train_config(
-            None,
-            [
-                f"data.root={smoke_dataset}", "data.limit_train=8", "data.limit_val=4",
-                "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
-                "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
-                "optim.epochs=1", "threads=1",
-            ],
-        )  # fmt: skip
+        cfg = _tiny_config(smoke_dataset)
         split = "long/standard"
         passes = []
         real_predict = evaluation.predict
