@@ -56,7 +56,9 @@ from benchmark.evaluation.fusion_grid import (
     carry_position,
     carry_yaw,
     check_belief,
+    exp_floored,
     gaussian_belief,
+    logaddexp_constant,
     normalize_log_density,
     von_mises_belief,
 )
@@ -130,8 +132,9 @@ def robust_log_likelihood(beliefs: Tensor, grid: Grid, outlier_weight: float = 0
     b = normalize_log_density(check_belief(beliefs, grid, "beliefs"), grid)
     w = outlier_weight
     inlier = b + math.log1p(-w) if w < 1 else torch.full_like(b, -math.inf)
-    outlier = math.log(w) + grid.log_uniform if w > 0 else -math.inf
-    return torch.logaddexp(inlier, torch.full_like(b, outlier))
+    if w == 0:
+        return inlier
+    return logaddexp_constant(inlier, math.log(w) + grid.log_uniform)
 
 
 def _log_likelihoods(
@@ -187,7 +190,7 @@ def _parabola_offset(left: Tensor, centre: Tensor, right: Tensor) -> Tensor:
 
 def _yaw_estimates(log_density: Tensor, grid: CircularGrid) -> YawPosterior:
     psi = grid.centres(log_density.dtype, log_density.device)
-    p = torch.exp(log_density) * grid.cell
+    p = exp_floored(log_density) * grid.cell
     c, s = (p * torch.cos(psi)).sum(-1), (p * torch.sin(psi)).sum(-1)
     j = torch.argmax(log_density, dim=-1, keepdim=True)
     n = grid.n_bins
@@ -202,7 +205,7 @@ def _position_estimates(
     log_density: Tensor, escaped: Tensor, grid: PlanarGrid
 ) -> PositionPosterior:
     east, north = grid.centres(log_density.dtype, log_density.device)
-    p = torch.exp(log_density) * grid.cell
+    p = exp_floored(log_density) * grid.cell
     mean = torch.stack([(p.sum(-1) * east).sum(-1), (p.sum(-2) * north).sum(-1)], dim=-1)
     flat = torch.argmax(log_density.flatten(-2), dim=-1)
     i, j = flat // grid.n_north, flat % grid.n_north

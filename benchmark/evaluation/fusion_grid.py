@@ -64,6 +64,35 @@ from torch import Tensor
 _PAD_SIGMAS = 8.0
 # Relative level below which an FFT output is rounding, in units of the dtype's eps.
 _ROUNDING_EPS = 64.0
+# exp of anything below is < 1e-304: zero beside any peak (the rounding floor is 64 eps, 1.4e-14
+# of it in float64). Clamped first because the CPU's vectorised exp takes a slow path, measured
+# 50x slower on the fusion's (201, 101) float64 grids, when an input's result underflows, and
+# floored beliefs (log(tiny) below their peak) are full of such inputs.
+_EXP_FLOOR = -700.0
+
+
+def exp_floored(x: Tensor) -> Tensor:
+    """``exp(x)`` with every ``x < -700`` set to exactly 0 (same shape): the fast path of the
+    CPU's exp for beliefs whose floor lies below the underflow threshold."""
+    return torch.exp(x.clamp_min(_EXP_FLOOR)).masked_fill(x < _EXP_FLOOR, 0.0)
+
+
+def logaddexp_constant(x: Tensor, c: float) -> Tensor:
+    """``log(exp(x) + exp(c))`` of ``x (...)`` and a finite constant ``c``, same shape. ``x`` is
+    clamped at ``c - 700`` first: below it ``exp(x - c) < 1e-304``, so the result moves by at
+    most ``log1p(e^-700) ~ 1e-304`` (absolute), and the clamp keeps ``logaddexp``'s exp on its
+    fast path (:func:`exp_floored`)."""
+    if not math.isfinite(c):
+        raise ValueError(f"logaddexp_constant: c must be finite, got {c!r}")
+    constant = torch.tensor(c, dtype=x.dtype, device=x.device)
+    return torch.logaddexp(x.clamp_min(c + _EXP_FLOOR), constant)
+
+
+def logsumexp_floored(x: Tensor, dim: tuple[int, ...]) -> Tensor:
+    """``log(sum(exp(x)))`` over ``dim``, kept; the terms below ``-700`` of the maximum dropped
+    (relative ``< 1e-304``, :func:`exp_floored`). ``-inf`` where every term is ``-inf``."""
+    peak = torch.amax(x, dim=dim, keepdim=True).clamp_min(torch.finfo(x.dtype).min)
+    return torch.log(exp_floored(x - peak).sum(dim=dim, keepdim=True)) + peak
 
 
 @dataclass(frozen=True)
@@ -175,9 +204,7 @@ def check_belief(log_density: Tensor, grid: Grid, name: str = "log_density") -> 
 def normalize_log_density(log_density: Tensor, grid: Grid) -> Tensor:
     """Shift ``(..., *grid.shape)`` log-densities so that ``exp(L).sum() * cell == 1`` each."""
     dims = _grid_dims(grid)
-    return log_density - (
-        torch.logsumexp(log_density, dim=dims, keepdim=True) + math.log(grid.cell)
-    )
+    return log_density - (logsumexp_floored(log_density, dims) + math.log(grid.cell))
 
 
 def von_mises_belief(grid: CircularGrid, mean: float | Tensor, kappa: float | Tensor) -> Tensor:
@@ -214,7 +241,7 @@ def _spectral_apply(
     zero; peak)``."""
     dims = tuple(range(-len(size), 0))
     peak = torch.amax(log_f, dim=dims, keepdim=True).clamp_min(torch.finfo(log_f.dtype).min)
-    p = torch.exp(log_f - peak)
+    p = exp_floored(log_f - peak)
     q = torch.fft.irfftn(torch.fft.rfftn(p, s=size, dim=dims) * H, s=size, dim=dims)
     floor = _ROUNDING_EPS * torch.finfo(q.dtype).eps * torch.amax(q, dim=dims, keepdim=True)
     q = torch.where(q > floor, q, torch.zeros_like(q))
@@ -238,27 +265,39 @@ def _yaw_transition(
     return _to_log(q, peak)
 
 
-def _plane_step(
-    log_f: Tensor, grid: PlanarGrid, shift: Tensor, cov: Tensor, adjoint: bool
-) -> tuple[Tensor, Tensor]:
-    """One flight: ``(n_east, n_north)``, ``shift (2,)``, ``cov (2, 2)``; its own FFT length, so
-    that a flight's bits never depend on the other flights of a batch."""
-    h = grid.spacing
-    reach = (shift.abs() + _PAD_SIGMAS * cov.diagonal().clamp_min(0).sqrt()) / h
-    size = tuple(
-        next_fast_len(n + math.ceil(float(r)) + 2, real=True)
+def _plane_fft_size(grid: PlanarGrid, reach: list[float]) -> tuple[int, int]:
+    """FFT length per axis for a step reaching ``reach`` cells (E, N): the grid plus the pad
+    that keeps the blurred, shifted mass from wrapping back into it."""
+    return tuple(  # type: ignore[return-value]
+        next_fast_len(n + math.ceil(r) + 2, real=True)
         for n, r in zip(grid.shape, reach, strict=True)
     )
+
+
+def _plane_steps(
+    log_f: Tensor,
+    grid: PlanarGrid,
+    shift: Tensor,
+    cov: Tensor,
+    size: tuple[int, int],
+    adjoint: bool,
+) -> tuple[Tensor, Tensor]:
+    """Rows ``(R, n_east, n_north)``, ``shift (R, 2)``, ``cov (R, 2, 2)`` at one FFT ``size``:
+    ``(log T f (R, n_east, n_north), escaped (R,))``."""
+    h = grid.spacing
     kwargs = {"dtype": log_f.dtype, "device": log_f.device}
     we = 2 * math.pi * torch.fft.fftfreq(size[0], d=h, **kwargs)[:, None]
     wn = 2 * math.pi * torch.fft.rfftfreq(size[1], d=h, **kwargs)
-    phase = we * shift[0] + wn * shift[1]
-    quad = cov[0, 0] * we**2 + 2 * cov[0, 1] * we * wn + cov[1, 1] * wn**2
+    s, c = shift[:, :, None, None], cov[:, :, :, None, None]
+    phase = we * s[:, 0] + wn * s[:, 1]
+    quad = c[:, 0, 0] * we**2 + 2 * c[:, 0, 1] * we * wn + c[:, 1, 1] * wn**2
     H = torch.polar(torch.exp(-0.5 * quad), phase if adjoint else -phase)
     q, peak = _spectral_apply(log_f, H, size, conserve=not adjoint)
-    inside = q[: grid.n_east, : grid.n_north]
-    total, kept = q.sum(), inside.sum()
-    escaped = (1 - kept / total).clamp(0, 1) if total > 0 else torch.zeros_like(total)
+    inside = q[..., : grid.n_east, : grid.n_north]
+    total, kept = q.sum(dim=(-2, -1)), inside.sum(dim=(-2, -1))
+    escaped = torch.where(
+        total > 0, (1 - kept / total.clamp_min(torch.finfo(q.dtype).tiny)).clamp(0, 1), 0.0
+    )
     return _to_log(inside, peak), escaped
 
 
@@ -266,15 +305,23 @@ def _position_transition(
     log_f: Tensor, grid: PlanarGrid, shift: Tensor, cov: Tensor, adjoint: bool
 ) -> tuple[Tensor, Tensor]:
     """Plane analogue of :func:`_yaw_transition` over ``(..., n_east, n_north)``, ``shift
-    (..., 2)``, ``cov (..., 2, 2)``; also the mass fraction that left the grid ``(...)``."""
+    (..., 2)``, ``cov (..., 2, 2)``; also the mass fraction that left the grid ``(...)``.
+
+    Each row gets the FFT length its own step needs (:func:`_plane_fft_size`) and an FFT of
+    its own: batched transforms round differently from single ones (measured), so a row's bits
+    would depend on which other rows share its length."""
     batch = log_f.shape[:-2]
     rows = log_f.reshape(-1, *grid.shape)
     shifts, covs = shift.reshape(-1, 2), cov.reshape(-1, 2, 2)
-    steps = [
-        _plane_step(row, grid, s, c, adjoint) for row, s, c in zip(rows, shifts, covs, strict=True)
-    ]
-    out = torch.stack([o for o, _ in steps]).reshape(log_f.shape)
-    return out, torch.stack([e for _, e in steps]).reshape(batch)
+    sd = covs.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
+    reach = ((shifts.abs() + _PAD_SIGMAS * sd) / grid.spacing).tolist()
+    out, escaped = torch.empty_like(rows), rows.new_empty(rows.shape[0])
+    for i, r in enumerate(reach):
+        one = slice(i, i + 1)
+        out[one], escaped[one] = _plane_steps(
+            rows[one], grid, shifts[one], covs[one], _plane_fft_size(grid, r), adjoint
+        )
+    return out.reshape(log_f.shape), escaped.reshape(batch)
 
 
 def carry_yaw(

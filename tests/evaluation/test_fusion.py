@@ -34,6 +34,7 @@ from benchmark.evaluation.fusion import (
     von_mises_belief,
     yaw_transition_sigma,
 )
+from benchmark.evaluation.fusion_grid import exp_floored, logaddexp_constant, logsumexp_floored
 
 DEG = math.pi / 180
 F64 = torch.float64
@@ -128,6 +129,44 @@ class TestNormalizeLogDensity:
 
 
 # -------------------------------------------------------------------------------------- beliefs
+
+
+class TestExpFloored:
+    def test_equals_exp_above_the_floor_and_zero_below(self):
+        x = t(np.concatenate([np.linspace(-699.9, 5.0, 501), [-700.5, -708.4, -745.2, -1e4]]))
+        x = torch.cat([x, torch.tensor([-math.inf], dtype=F64)])
+        out = exp_floored(x)
+        assert torch.equal(out[:501], torch.exp(x[:501]))
+        assert torch.equal(out[501:], torch.zeros(5, dtype=F64))
+
+
+class TestLogsumexpFloored:
+    def test_against_torch_logsumexp(self):
+        rng = np.random.default_rng(0)
+        x = t(rng.normal(0, 200, (5, 30, 40)))  # spans the floor: terms 700 below the peak
+        x[1] = -math.inf  # every term -inf: -inf, as torch's
+        x[2, :3] = math.nan
+        ours = logsumexp_floored(x, (-2, -1))
+        ref = torch.logsumexp(x, dim=(-2, -1), keepdim=True)
+        assert ours.shape == ref.shape == (5, 1, 1)
+        torch.testing.assert_close(ours, ref, rtol=1e-15, atol=0, equal_nan=True)
+
+
+class TestLogaddexpConstant:
+    @pytest.mark.parametrize("c", [-750.0, -12.3, 0.0, 40.0])
+    def test_against_torch_logaddexp(self, c):
+        x = t(np.concatenate([np.linspace(-2000, 100, 3001), [-math.inf, math.inf]]))
+        ref = torch.logaddexp(x, torch.full_like(x, c))
+        # the clamp at c - 700 adds at most log1p(e^-700) ~ 1e-304, absolute
+        torch.testing.assert_close(logaddexp_constant(x, c), ref, rtol=1e-15, atol=1e-303)
+
+    def test_gradient_float64(self):
+        x = t(np.linspace(-5, 5, 7)).requires_grad_()
+        assert torch.autograd.gradcheck(lambda v: logaddexp_constant(v, 0.7), (x,))
+
+    def test_constant_must_be_finite(self):
+        with pytest.raises(ValueError, match="finite"):
+            logaddexp_constant(t(np.zeros(3)), -math.inf)
 
 
 class TestVonMisesBelief:
