@@ -178,6 +178,13 @@ class MatrixFisher(AttitudeHead):
         trace = (F * R.to(F.dtype)).sum(dim=(-1, -2))
         return trace - log_normaliser(proper_singular_values(F))
 
+    def log_prob_many(self, raw: Tensor, R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the
+        normaliser's quadrature (and its SVD) once per sample, not once per rotation."""
+        F = self.parameter(raw)
+        trace = (F[:, None] * R.to(F.dtype)).sum(dim=(-1, -2))
+        return trace - log_normaliser(proper_singular_values(F))[:, None]
+
     def loss(self, raw: Tensor, R_gt: Tensor) -> Tensor:
         """Negative log-likelihood of ``R_gt (B, 3, 3)``, mean over the batch."""
         return -self.log_prob(raw, R_gt).mean()

@@ -53,12 +53,13 @@ from torch import Tensor
 
 from benchmark.geometry import rotmat_to_rotvec, rotvec_to_rotmat
 from benchmark.models import AttitudeHead, LatticeDirections, register_head
-from benchmark.models.heads import check_option, mlp, nearest_grid_index
+from benchmark.models.heads import check_option, mlp
 from benchmark.models.spherical import (
     angle_bins_loss,
     circle_resultant,
     interval_decoding_grid,
     interval_mle,
+    nearest_lattice_points,
     unit_direction,
     von_mises_bins,
 )
@@ -151,13 +152,22 @@ class PdNetRv(LatticeDirections, AttitudeHead):
     def log_prob(self, raw: dict[str, Tensor], R: Tensor) -> Tensor:
         """(B,) log density of R w.r.t. the normalised Haar measure on SO(3) (module docstring):
         ``log P_axis + log P_angle - log((1/n) Delta(t - sin t) / pi)``."""
+        return self._log_prob(raw, R[:, None], tree=None)[:, 0]
+
+    def log_prob_many(self, raw: dict[str, Tensor], R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the two
+        softmaxes once per sample, the K axes' nearest lattice points from the lattice's k-d
+        tree (``nearest_lattice_points``)."""
+        return self._log_prob(raw, R, tree=True)
+
+    def _log_prob(self, raw: dict[str, Tensor], R: Tensor, tree: bool | None) -> Tensor:
         axis, angle = rotmat_to_axis_angle(R)
         log_axis = torch.log_softmax(raw["logits"], dim=-1)
-        k = nearest_grid_index(axis.to(log_axis.dtype), self.grid)  # (B,)
+        k = nearest_lattice_points(axis.to(log_axis.dtype), self.grid, tree)  # (B, K)
         j = (angle / (math.pi / self.n_angle_bins)).floor().long().clamp(0, self.n_angle_bins - 1)
         log_angle = torch.log_softmax(raw["angle_logits"], dim=-1)
-        log_mass = log_axis.gather(-1, k[:, None]) + log_angle.gather(-1, j[:, None])
-        return log_mass.squeeze(-1) - self.log_cells.to(log_mass.dtype)[j]
+        log_mass = log_axis.gather(-1, k) + log_angle.gather(-1, j)
+        return log_mass - self.log_cells.to(log_mass.dtype)[j]
 
     def uncertainty(self, raw: dict[str, Tensor]) -> Tensor:
         """(B,) mean of the axis' ``1 - |sum p x|`` and the angle's ``1 - |m|``, in [0, 1]."""

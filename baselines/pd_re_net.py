@@ -89,4 +89,5 @@ class PdReNet(LatticeHead):
     def log_prob_many(self, raw: Tensor, R: Tensor) -> Tensor:
         """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the Haar
         quadrature of the normaliser (2^15 rotations) once per sample, not once per rotation."""
-        return column_product_log_density_many(torch.log_softmax(raw, dim=-1), R, self.grid)
+        log_p = torch.log_softmax(raw, dim=-1)
+        return column_product_log_density_many(log_p, R, self.grid, tree=True)

@@ -64,7 +64,7 @@ import pandas as pd
 import torch
 from torch import Tensor
 
-from benchmark.evaluation.fusion_grid import CircularGrid, PlanarGrid
+from benchmark.evaluation.fusion_grid import CircularGrid, PlanarGrid, logaddexp_constant
 from benchmark.geometry import SAT_R_N, angle_difference, euler_to_rotmat, rotmat_to_euler
 
 if TYPE_CHECKING:  # annotations only: importing the models package costs ~0.2 s
@@ -74,9 +74,9 @@ if TYPE_CHECKING:  # annotations only: importing the models package costs ~0.2 s
 # grid (IPDF: 2^15 float32 logits per rotation, 64 MB at 512 rotations). Larger chunks were
 # measured no faster (IPDF, Pd/Re-Net; one thread).
 DEFAULT_CHUNK = 512
-# Rotations per ``log_prob_many`` call (frames x bins): Pd/Re-Net's nearest lattice points take
-# a (rows, 3, n_points) product, 2048 x 3 x 4096 float32 = 100 MB.
-MANY_ROWS = 2048
+# Rotations per ``log_prob_many`` call (frames x bins): the lattice heads look them up in a k-d
+# tree; IPDF's MLP holds (rows, hidden) activations. 8192 rows: 11 frames of 720 bins, a few MB.
+MANY_ROWS = 8192
 VALIDATION_SUFFIX = "/val"
 
 # Fit bounds. kappa: at 1e-2 the density varies by exp(4 kappa) = 1.04 over SO(3) (uniform, for
@@ -203,15 +203,14 @@ def _attitude_log_density(angle: Tensor, kappa: float, weight: float) -> Tensor:
     # two large terms, and 1 - cos a = 2 sin^2(a / 2) keeps its digits near a = 0.
     log_g = isotropic_fisher_log_normaliser(kappa) - 3 * kappa
     fisher = -4 * kappa * torch.sin(angle / 2) ** 2 - log_g
-    return torch.logaddexp(fisher + math.log1p(-weight), torch.full_like(fisher, math.log(weight)))
+    return logaddexp_constant(fisher + math.log1p(-weight), math.log(weight))
 
 
 def _position_log_density(d_en: Tensor, sigma: float, weight: float, area: float) -> Tensor:
     """``log((1 - w) N(d; 0, sigma^2 I_2) + w / area)`` of offsets ``d (..., 2)`` metres."""
     r2 = (d_en**2).sum(-1)
     gauss = -r2 / (2 * sigma**2) - math.log(2 * math.pi * sigma**2)
-    uniform = torch.full_like(gauss, math.log(weight) - math.log(area))
-    return torch.logaddexp(gauss + math.log1p(-weight), uniform)
+    return logaddexp_constant(gauss + math.log1p(-weight), math.log(weight) - math.log(area))
 
 
 def _fit_two(

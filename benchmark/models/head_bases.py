@@ -74,6 +74,7 @@ from benchmark.models.spherical import (
     LatticeDecoder,
     directionnet_loss,
     haar_log_density_s3,
+    haar_log_density_s3_many,
     resultant_length,
     single_direction_loss,
 )
@@ -230,6 +231,19 @@ class LatticeHead(LatticeDirections, AttitudeHead):
     def log_prob(self, raw: Tensor, R: Tensor) -> Tensor:
         """(B,) log density of R w.r.t. the normalised Haar measure (0 for a uniform prediction)."""
         return self.log_density(torch.log_softmax(raw, dim=-1), R)
+
+    def log_prob_many(self, raw: Tensor, R: Tensor) -> Tensor:
+        """``log_prob`` of ``R (B, K, 3, 3)``, K rotations per sample -> ``(B, K)``: the softmax
+        once per sample; the default S^3 density looks its K rotations up together in the
+        lattice's k-d tree. A subclass with its own ``log_density`` gets it row by row."""
+        log_p = torch.log_softmax(raw, dim=-1)
+        B, K = R.shape[:2]
+        if type(self).log_density is LatticeHead.log_density:
+            self._require_quaternions("log_density")
+            q = rotmat_to_quat(R).to(log_p.dtype)
+            return haar_log_density_s3_many(log_p, q, self.grid, tree=True)
+        rows = log_p[:, None].expand(B, K, *log_p.shape[1:]).reshape(B * K, *log_p.shape[1:])
+        return self.log_density(rows, R.reshape(B * K, 3, 3)).reshape(B, K)
 
     def uncertainty(self, raw: Tensor) -> Tensor:
         """(B,) spherical variance ``1 - |sum p x|`` (mean over the channels), in [0, 1]."""

@@ -178,9 +178,18 @@ def haar_log_density_s3(log_p: Tensor, q: Tensor, grid: Tensor) -> Tensor:
 
     log_p: ``(B, n)``; q: ``(B, 4)`` unit; grid: ``(n, 4)`` -> ``(B,)``.
     """
-    dots = q @ grid.to(q.dtype).T
-    near_pos = log_p.gather(-1, dots.argmax(-1, keepdim=True)).squeeze(-1)
-    near_neg = log_p.gather(-1, dots.argmin(-1, keepdim=True)).squeeze(-1)
+    return haar_log_density_s3_many(log_p, q[:, None], grid)[:, 0]
+
+
+def haar_log_density_s3_many(
+    log_p: Tensor, q: Tensor, grid: Tensor, tree: bool | None = None
+) -> Tensor:
+    """:func:`haar_log_density_s3` of ``K`` rotations per sample: ``log_p (B, n)``, ``q (B, K,
+    4)`` -> ``(B, K)``. The nearest lattice points of ``q`` and ``-q`` by
+    :func:`nearest_lattice_points` (``tree`` passed on); the point nearest ``-q`` is the one
+    with the smallest dot product with ``q``."""
+    near_pos = log_p.gather(-1, nearest_lattice_points(q, grid, tree))
+    near_neg = log_p.gather(-1, nearest_lattice_points(-q, grid, tree))
     return torch.logaddexp(near_pos, near_neg) + math.log(grid.shape[0] / 2)
 
 
@@ -237,15 +246,20 @@ def column_product_log_density(
 KD_TREE_QUERIES = 4096
 
 
-def nearest_lattice_points(x: Tensor, grid: Tensor) -> Tensor:
+def nearest_lattice_points(x: Tensor, grid: Tensor, tree: bool | None = None) -> Tensor:
     """Index of the lattice point nearest to each unit vector: ``x (..., d)``, ``grid (n, d)``
     -> ``(...)`` int64. For unit vectors the largest dot product is the smallest Euclidean
     distance, so the dense argmax (few queries) and the k-d tree (many, ``KD_TREE_QUERIES``, in
     float64) give the same index (tested in float64) except at near ties: float32 dot products
     pick the other of two points within ~1e-7 of each other for 4e-5 of Pd/Re-Net's yaw-slice
-    rotations (measured), where the tree's float64 distances are the exact answer."""
+    rotations (measured), where the tree's float64 distances are the exact answer.
+
+    ``tree``: None chooses by the number of queries; True always uses the tree (the ``_many``
+    densities of the yaw beliefs: then a frame's bits do not depend on how many frames share
+    a call), False never. Autograd inputs always take the dense path."""
     queries = x.reshape(-1, x.shape[-1])
-    if queries.shape[0] <= KD_TREE_QUERIES or x.requires_grad:
+    dense = queries.shape[0] <= KD_TREE_QUERIES if tree is None else not tree
+    if dense or x.requires_grad:
         return (x @ grid.to(x.dtype).T).argmax(-1)
     tree = _lattice_tree(grid.detach().cpu().double().numpy().tobytes(), grid.shape[-1])
     _, index = tree.query(queries.detach().cpu().double().numpy())
@@ -261,14 +275,18 @@ def _lattice_tree(points: bytes, dim: int):  # -> scipy.spatial.cKDTree, built o
 
 
 def column_product_log_density_many(
-    log_p: Tensor, R: Tensor, grid: Tensor, n_rotations: int = HAAR_GRID_SIZE
+    log_p: Tensor,
+    R: Tensor,
+    grid: Tensor,
+    n_rotations: int = HAAR_GRID_SIZE,
+    tree: bool | None = None,
 ) -> Tensor:
     """:func:`column_product_log_density` of ``K`` rotations per sample, the normaliser computed
     once per sample: ``log_p (B, 3, n)``, ``R (B, K, 3, 3)`` -> ``(B, K)``. Memory: the nearest
     lattice points take a ``(B, K, 3, n)`` product, so callers batch ``B K`` to a few thousand."""
     n = grid.shape[0]
     index = _haar_grid_column_indices(n, n_rotations).to(log_p.device)  # (M, 3)
-    at_R = nearest_lattice_points(R.transpose(-1, -2), grid)  # (B, K, 3) nearest points
+    at_R = nearest_lattice_points(R.transpose(-1, -2), grid, tree)  # (B, K, 3) nearest points
     per_sample = log_p[:, None].expand(-1, at_R.shape[1], -1, -1)  # (B, K, 3, n), a view
     score = per_sample.gather(-1, at_R[..., None]).squeeze(-1).sum(-1)  # (B, K)
     # s(R_m) for every grid rotation: gather column j's log-probability at index[:, j].

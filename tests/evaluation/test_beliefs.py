@@ -404,9 +404,15 @@ class TestLogProbMany:
         dense = (x @ grid.T).argmax(-1)
         assert torch.equal(tree, dense)
         assert torch.equal(nearest_lattice_points(x[:10], grid), dense[:10])  # dense path
+        # tree=True: the tree for any number of queries (a frame's belief bits then do not
+        # depend on how many frames share a call); tree=False: dense for any number.
+        assert torch.equal(nearest_lattice_points(x[:10], grid, tree=True), dense[:10])
+        assert torch.equal(nearest_lattice_points(x, grid, tree=False), dense)
 
     def test_the_heads_with_a_normaliser_define_it(self):
-        assert {"pd_re_net", "ipdf", "re_net_bingham"} <= set(MANY)
+        # a per-sample normaliser (quadrature, softmax over a lattice) shared by K rotations
+        assert {"pd_re_net", "ipdf", "re_net_bingham", "pd_net_q", "pd_net_q_sym",
+                "pd_net_rv", "matrix_fisher"} <= set(MANY)  # fmt: skip
 
     @pytest.mark.parametrize("name", MANY)
     def test_equals_log_prob_row_by_row(self, name):
