@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seeds",
         type=int,
         default=None,
-        help="training seeds per variant, on one dataset (default: the profile's, quick 2)",
+        help="training seeds per variant, on one dataset (default: the profile's, quick 3)",
     )
     parser.add_argument(
         "--stale",
