@@ -387,6 +387,18 @@ def calibrate_from_predictions(
 
 
 # -- beliefs -------------------------------------------------------------------------------------
+def calibrated_yaw_beliefs(
+    yaw_hat: Tensor, grid: CircularGrid, calibration: AttitudeCalibration
+) -> Tensor:
+    """The yaw belief of an estimate without a density of its own (a regression head, a
+    non-learned reference, the constant predictor): ``yaw_hat (B,)`` radians, the UAV yaw in the
+    navigation frame -> ``(B, n_bins)`` float64, the calibrated density at the geodesic angle
+    ``|psi_j - yaw_hat|`` (wrapped) between the estimate and each rotation of its yaw slice."""
+    psi = grid.centres(torch.float64, yaw_hat.device)
+    angle = angle_difference(psi[None, :], yaw_hat.to(torch.float64)[:, None]).abs()
+    return calibration.log_density(angle)
+
+
 @torch.no_grad()
 def yaw_beliefs(
     head: AttitudeHead,
@@ -432,9 +444,7 @@ def yaw_beliefs(
         # R(psi)) = tr(Rz(psi - yaw_hat)) (module docstring). Taken from the identity rather than
         # from the matrices: a float32 estimate is orthonormal to ~1e-7 only, which would move
         # the angle by as much and the log density by ~2 kappa 1e-7 (3e-5 at kappa 150).
-        yaw_hat = _uav_euler(R_hat)[0]
-        psi = grid.centres(torch.float64, R_hat.device)
-        return calibration.log_density(angle_difference(psi[None, :], yaw_hat[:, None]).abs())
+        return calibrated_yaw_beliefs(_uav_euler(R_hat)[0], grid, calibration)
     if raw_batch_size(raw) != batch:
         raise ValueError(f"raw has batch size {raw_batch_size(raw)}, R_hat {batch}")
     rotations = yaw_slice(R_hat, grid.centres(torch.float64, R_hat.device))  # (B, n, 3, 3)

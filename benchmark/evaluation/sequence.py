@@ -94,8 +94,9 @@ class SplitFrames:
     ``flight (N,)`` int, ``time_s (N,)`` s; ``yaw_beliefs (N, n_bins)`` torch log-density per
     radian on ``CircularGrid(n_bins)``; estimates ``yaw_hat``, ``pitch_hat``, ``roll_hat (N,)``
     rad (navigation frame, UAV), ``position_hat (N, 2)`` (dE, dN) m; ``position_log_belief``: a
-    function ``(position_hat (M, 2) tensor, grid) -> (M, n_east, n_north)`` log-density (the
-    head's calibrated position belief, ``benchmark.evaluation.beliefs``); odometry ``odo_dyaw
+    function ``(rows (M,) int64 tensor, grid) -> (M, n_east, n_north)`` log-density of the
+    frames at those rows of the arrays (-1: a flight's padding, any finite belief will do): a
+    head's calibrated belief around ``position_hat``, or a pose volume's own; odometry ``odo_dyaw
     (N,)`` rad and ``odo_dxy (N, 2)`` m (levelled frame of the previous sample; NaN on a flight's
     first sample); ``footprint_m (N, 2)`` the satellite image's E x N extent, m; truth ``yaw``,
     ``pitch``, ``roll (N,)`` rad and ``position (N, 2)`` m, used for the errors only."""
@@ -261,9 +262,9 @@ def _fuse_positions(
         members = [b for b, f in enumerate(footprints) if f == fp]
         for start in range(0, len(members), settings.flights_per_batch):
             batch = members[start : start + settings.flights_per_batch]
-            hat = _padded(frames.position_hat, [rows[b] for b in batch], 0.0)
-            K = hat.shape[1]
-            log_b = frames.position_log_belief(hat.reshape(-1, 2), grid)  # type: ignore[operator]
+            index = _padded(np.arange(len(frames.flight)), [rows[b] for b in batch], -1.0)
+            K = index.shape[1]
+            log_b = frames.position_log_belief(index.reshape(-1).long(), grid)  # type: ignore[operator]
             flights = PositionFlights(
                 log_b.reshape(len(batch), K, *grid.shape),
                 d[batch, : K - 1],

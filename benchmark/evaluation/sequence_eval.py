@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -32,6 +33,8 @@ from benchmark.data import ODOMETRY_COLUMNS, flight_odometry
 from benchmark.evaluation.beliefs import (
     AttitudeCalibration,
     PositionCalibration,
+    calibrate_from_predictions,
+    calibrated_yaw_beliefs,
     position_beliefs,
     yaw_beliefs,
 )
@@ -43,8 +46,16 @@ from benchmark.evaluation.sequence import (
     fuse_split,
     summarize_sequence,
 )
+from benchmark.evaluation.volume_beliefs import (
+    VolumeMarginals,
+    volume_estimates,
+    volume_position_beliefs,
+    volume_yaw_beliefs,
+)
 
 STRESS_SCALE = 4.0
+# (frame rows (M,) int64, -1 for padding; the position grid) -> (M, n_east, n_north) log-density
+PositionBeliefFn = Callable[[torch.Tensor, Any], torch.Tensor]
 
 
 def _scaled(noise: OdometryNoise, scale: float) -> OdometryNoise:
@@ -76,9 +87,15 @@ def _frames(
     beliefs: torch.Tensor,
     odometry: pd.DataFrame,
     footprint: np.ndarray,
-    position: PositionCalibration,
+    position: PositionCalibration | None,
+    position_belief: PositionBeliefFn | None = None,
 ) -> SplitFrames:
     rad = math.pi / 180.0
+    hats = frame[["E_hat_m", "N_hat_m"]].to_numpy(np.float64)
+    if position_belief is None:
+        if position is None:
+            raise ValueError("a position calibration or a position_belief is needed")
+        position_belief = partial(_calibrated_position, hats=hats, calibration=position)
     return SplitFrames(
         flight=poses["flight"].to_numpy(np.int64),
         time_s=poses["time_s"].to_numpy(np.float64),
@@ -86,8 +103,8 @@ def _frames(
         yaw_hat=frame["yaw_hat_deg"].to_numpy(np.float64) * rad,
         pitch_hat=frame["pitch_hat_deg"].to_numpy(np.float64) * rad,
         roll_hat=frame["roll_hat_deg"].to_numpy(np.float64) * rad,
-        position_hat=frame[["E_hat_m", "N_hat_m"]].to_numpy(np.float64),
-        position_log_belief=partial(_position_log_belief, calibration=position),
+        position_hat=hats,
+        position_log_belief=position_belief,
         odo_dyaw=odometry["odo_dyaw"].to_numpy(np.float64),
         odo_dxy=odometry[["odo_dx", "odo_dy"]].to_numpy(np.float64),
         footprint_m=footprint,
@@ -99,10 +116,11 @@ def _frames(
     )
 
 
-def _position_log_belief(
-    hat: torch.Tensor, grid: Any, calibration: PositionCalibration
+def _calibrated_position(
+    rows: torch.Tensor, grid: Any, hats: np.ndarray, calibration: PositionCalibration
 ) -> torch.Tensor:
-    return position_beliefs(hat, grid, calibration)
+    """The calibrated belief around each row's estimate (padding rows: row 0's)."""
+    return position_beliefs(torch.as_tensor(hats)[rows.clamp_min(0)], grid, calibration)
 
 
 def footprints(poses: pd.DataFrame, sat_table: pd.DataFrame) -> np.ndarray:
@@ -173,17 +191,20 @@ def fuse_predictions(
     beliefs: torch.Tensor | np.ndarray,
     poses: pd.DataFrame,
     sat_table: pd.DataFrame,
-    calibration: tuple[AttitudeCalibration | None, PositionCalibration],
+    calibration: tuple[AttitudeCalibration | None, PositionCalibration | None],
     noise: OdometryNoise,
     *,
     split: str,
     seed: int,
     settings: FusionSettings | None = None,
     stress_scale: float | None = STRESS_SCALE,
+    position_belief: PositionBeliefFn | None = None,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse a split's per-frame predictions along its flights, with no model: ``frame`` the
     per-frame table (``index`` into ``poses``, ``yaw/pitch/roll_hat_deg``, ``E/N_hat_m``: the
-    evaluation CSV), ``beliefs (N, bins)`` its rows' yaw beliefs (:func:`sequence_belief_fn`).
+    evaluation CSV), ``beliefs (N, bins)`` its rows' yaw beliefs (:func:`sequence_belief_fn`);
+    ``position_belief`` the rows' position beliefs (default: the calibrated density around
+    ``E/N_hat_m``, ``calibration[1]``).
     Returns the summary (``seq_*`` keys for the dataset's odometry, ``seq{s}x_*`` for the
     stress odometry; ``stress_scale=None``: none) and the long per-frame table of
     :func:`~benchmark.evaluation.sequence.fuse_split` with an ``odometry`` column."""
@@ -206,7 +227,7 @@ def fuse_predictions(
         runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
     tables, summary = [], {}
     for name, odometry, told in runs:
-        frames = _frames(frame, rows, beliefs, odometry, extent, position)
+        frames = _frames(frame, rows, beliefs, odometry, extent, position, position_belief)
         table = fuse_split(frames, told, settings)
         table.insert(0, "odometry", name)
         tables.append(table)
@@ -215,5 +236,83 @@ def fuse_predictions(
             {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
         )
     summary["calibration_kappa"] = attitude.kappa if attitude is not None else math.nan
-    summary["calibration_sigma_m"] = position.sigma_m
+    summary["calibration_sigma_m"] = position.sigma_m if position is not None else math.nan
     return summary, pd.concat(tables, ignore_index=True)
+
+
+def fuse_estimates(
+    frame: pd.DataFrame,
+    val_frame: pd.DataFrame,
+    poses: pd.DataFrame,
+    sat_table: pd.DataFrame,
+    noise: OdometryNoise,
+    *,
+    split: str,
+    val_split: str,
+    seed: int,
+    area_m2: float,
+    settings: FusionSettings | None = None,
+    stress_scale: float | None = STRESS_SCALE,
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Fuse per-frame point estimates that come with no density of their own (the constant
+    predictor, the non-learned references, a user's own estimator) exactly as a regression head
+    is fused: the calibrated isotropic matrix Fisher + uniform density around each frame's
+    estimate and the calibrated position density, both fitted on ``val_frame`` (the same
+    estimator's per-frame table on the validation split ``val_split``; any other split is
+    refused), then :func:`fuse_predictions`. ``frame``/``val_frame``: evaluation tables
+    (``index``, ``yaw/pitch/roll_hat_deg``, ``E/N_hat_m``; ``dphi_deg``, ``dE_m``, ``dN_m`` on
+    the validation one); ``area_m2`` the satellite footprint (the position density's uniform
+    part). Returns what :func:`fuse_predictions` returns."""
+    settings = settings or FusionSettings()
+    attitude, position = calibrate_from_predictions(val_frame, val_split, area_m2)
+    grid = CircularGrid(settings.yaw_bins)
+    yaw_hat = torch.as_tensor(np.radians(frame["yaw_hat_deg"].to_numpy(np.float64)))
+    beliefs = calibrated_yaw_beliefs(yaw_hat, grid, attitude)
+    return fuse_predictions(
+        frame, beliefs, poses, sat_table, (attitude, position), noise, split=split, seed=seed,
+        settings=settings, stress_scale=stress_scale,
+    )  # fmt: skip
+
+
+def fuse_volume(
+    frame: pd.DataFrame,
+    marginals: VolumeMarginals,
+    poses: pd.DataFrame,
+    sat_table: pd.DataFrame,
+    noise: OdometryNoise,
+    *,
+    split: str,
+    seed: int,
+    settings: FusionSettings | None = None,
+    stress_scale: float | None = STRESS_SCALE,
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Fuse a pair encoder's own pose volume along the flights (``benchmark.evaluation.
+    volume_beliefs``): its yaw marginal and its position marginal are the beliefs (no
+    calibration: the volume is a trained density, like a distribution head's), its maxima the
+    per-frame estimates; pitch and roll are the heads' (``frame``: the evaluation CSV of the
+    same split, matched to ``marginals`` on ``index``). Returns what :func:`fuse_predictions`
+    returns."""
+    settings = settings or FusionSettings()
+    position_of = {int(i): k for k, i in enumerate(marginals.index.tolist())}
+    missing = [int(i) for i in frame["index"] if int(i) not in position_of]
+    if missing:
+        raise ValueError(
+            f"split {split}: the volume pass has no frame {missing[:5]} of the evaluation table"
+        )
+    order = torch.as_tensor([position_of[int(i)] for i in frame["index"]], dtype=torch.long)
+    aligned = dataclasses.replace(
+        marginals,
+        index=marginals.index[order],
+        yaw_log_p=marginals.yaw_log_p[order],
+        position_log_p=marginals.position_log_p[order],
+    )
+    grid = CircularGrid(settings.yaw_bins)
+    yaw_hat, en_hat = volume_estimates(aligned, grid)
+    own = frame.copy()
+    own["yaw_hat_deg"] = np.degrees(yaw_hat.numpy())
+    own["E_hat_m"], own["N_hat_m"] = en_hat[:, 0].numpy(), en_hat[:, 1].numpy()
+    return fuse_predictions(
+        own, volume_yaw_beliefs(aligned, grid), poses, sat_table, (None, None), noise,
+        split=split, seed=seed, settings=settings, stress_scale=stress_scale,
+        position_belief=partial(volume_position_beliefs, aligned),
+    )  # fmt: skip

@@ -94,7 +94,7 @@ from benchmark.models.matching_pixels import (
     normalize,
     photometric_jitter,
 )
-from benchmark.models.pair_encoder import PairEncoder, PairEncoding
+from benchmark.models.pair_encoder import PairEncoder, PairEncoding, PoseVolumeAxes
 from benchmark.models.registry import register_encoder
 
 __all__ = ["PROTOCOLS", "MatchingEncoder", "matching"]
@@ -401,6 +401,14 @@ class MatchingEncoder(PairEncoder):
             **joint_extras,
         }
         return PairEncoding(features=feats, extras=extras)
+
+    def pose_volume_axes(self) -> PoseVolumeAxes:
+        """``log_volume``'s axes: ``n_yaw`` yaw bins from 0 (rad), rows north from ``+search``
+        down, columns east from ``-search`` up, ``cell_m`` apart (``pos_n``, ``pos_e``)."""
+        return PoseVolumeAxes(
+            yaw=self.yaws.detach().clone(), north=self.pos_n.detach().clone(),
+            east=self.pos_e.detach().clone(), cell_m=self.cell_m,
+        )  # fmt: skip
 
     def match(
         self,

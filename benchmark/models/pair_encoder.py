@@ -18,6 +18,11 @@ encodes each distinct image once; ``sat_index = arange(B)`` when every pair brin
 ``sat_height_m``, ``prior_attitude`` (pitch, roll rad) and ``prior_altitude_m``. A pair encoder
 has one level (no auxiliary attitude heads) and reads what it needs from ``context``; training and
 evaluation pass the dict through without knowing what is in it.
+
+A pair encoder with a pose volume (the matching encoder) puts it in ``extras["log_volume"]``
+``(B, K, P, Q)`` (log-probabilities over UAV yaw, north, east) and describes its axes by
+:meth:`PairEncoder.pose_volume_axes`; the flight fusion then fuses the volume itself as a belief
+(``benchmark.evaluation.volume_beliefs``). The default is None: no volume.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from benchmark.models.encoder import Encoder
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
-__all__ = ["PairEncoder", "PairEncoding"]
+__all__ = ["PairEncoder", "PairEncoding", "PoseVolumeAxes"]
 
 
 @dataclass
@@ -43,6 +48,20 @@ class PairEncoding:
 
     features: Tensor
     extras: dict[str, Tensor] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class PoseVolumeAxes:
+    """The axes of a pose volume ``extras["log_volume"] (B, K, P, Q)``: bin centres ``yaw (K,)``
+    rad (the UAV's yaw in the navigation frame, Eq. 1; equally spaced over the circle), row
+    offsets ``north (P,)`` and column offsets ``east (Q,)`` metres from the satellite image's
+    centre (the translation label's origin, ``T = [dE, dN, dU]``), both equally spaced by
+    ``cell_m`` (in any order)."""
+
+    yaw: Tensor
+    north: Tensor
+    east: Tensor
+    cell_m: float
 
 
 class PairEncoder(nn.Module):
@@ -71,3 +90,7 @@ class PairEncoder(nn.Module):
     def loss(self, extras: Mapping[str, Tensor], R_gt: Tensor, T_gt: Tensor) -> dict[str, Tensor]:
         """Named scalar terms; ``"enc"`` is the weighted sum added to the total loss."""
         raise NotImplementedError
+
+    def pose_volume_axes(self) -> PoseVolumeAxes | None:
+        """The axes of ``extras["log_volume"]`` (module docstring); None: no pose volume."""
+        return None

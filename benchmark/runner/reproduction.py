@@ -25,7 +25,12 @@ from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
 from benchmark.runner.claims.data_audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
-from benchmark.runner.execute.worker import UnitResult, UnitTask, sequence_paths
+from benchmark.runner.execute.worker import (
+    UnitResult,
+    UnitTask,
+    sequence_paths,
+    volume_sequence_paths,
+)
 from benchmark.runner.plan.invocations import (
     LOCK,
     owner_tags,
@@ -244,6 +249,9 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         fused = all(
             sequence_paths(workdir / "units" / unit.key, split)[1].is_file()
             for split in unit.fuse_splits
+        ) and all(
+            volume_sequence_paths(workdir / "units" / unit.key, split)[1].is_file()
+            for split in unit.volume_splits
         )
         if len(stored) == len(unit.jobs) and fused:
             merged: dict[str, dict[str, float]] = {}
@@ -266,6 +274,7 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
                     unit_dir,
                     tracking=live,
                     fuse_splits=unit.fuse_splits,
+                    volume_splits=unit.volume_splits,
                 ),
             )
         )
@@ -366,7 +375,8 @@ def _with_shared_encoders(
             if config.tracker != "null":
                 live = logbook.unit_tracking(unit, log_model=config.log_models)
             task = UnitTask(unit.key, unit.cfg, unit.eval_splits, workdir / "units" / unit.key,
-                            tracking=live, fuse_splits=unit.fuse_splits)  # fmt: skip
+                            tracking=live, fuse_splits=unit.fuse_splits,
+                            volume_splits=unit.volume_splits)  # fmt: skip
             shared.append((unit, task))
     return shared + todo
 

@@ -81,6 +81,8 @@ class TrainEvalResult:
     predictions: dict[str, Path] = field(default_factory=dict)  # eval_key -> CSV
     # split -> (summary, CSV) of the flight fusion (``eval/<split>.sequence.*``, issue 39)
     sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
+    # split -> (summary, CSV) of the pose volume's fusion (``eval/<split>__volume_sequence.*``)
+    volume_sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
 
     @property
     def history(self) -> list[dict[str, float]]:
@@ -98,6 +100,7 @@ def train_and_evaluate(
     eval_batch: int = EVAL_BATCH,
     placement: Placement | None = None,
     fuse_splits: list[str] | tuple[str, ...] = (),
+    volume_splits: list[str] | tuple[str, ...] = (),
 ) -> TrainEvalResult:
     """Train ``cfg`` into ``out_dir/train`` (resuming), then evaluate each split of
     ``cfg.data.root`` in ``eval_splits`` with the true and the swapped satellite image (files
@@ -105,7 +108,9 @@ def train_and_evaluate(
     ``cfg.precision`` resolved and checked once by the caller; None: here). See the module doc
     for the layout. ``fuse_splits`` (each also in ``eval_splits``) are fused along their flights
     afterwards (:func:`benchmark.evaluation.sequence_eval.evaluate_sequence`), calibrated on
-    ``cfg.data.val_split``, which is then evaluated first."""
+    ``cfg.data.val_split``, which is then evaluated first. ``volume_splits`` (each also in
+    ``eval_splits``) are fused with the pair encoder's own pose volume as the belief
+    (:func:`benchmark.evaluation.sequence_eval.fuse_volume`; a pass over the images)."""
     if fuse_splits and cfg.data.val_split is None:
         raise ValueError(
             f"fuse_splits {list(fuse_splits)} need a validation split to calibrate the beliefs "
@@ -143,7 +148,64 @@ def train_and_evaluate(
         result.sequences[split] = _sequence_split(
             cfg, model, out_dir, split, eval_batch, progress, placement
         )
+    for split in volume_splits:
+        result.volume_sequences[split] = _volume_split(
+            cfg, model, out_dir, split, eval_batch, progress, placement
+        )
     return result
+
+
+def volume_sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
+    """``(csv, json)`` of one split's fusion of the pose volume under ``out_dir/eval``."""
+    stem = Path(out_dir) / "eval" / f"{split_filename(split)}__volume_sequence"
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def _volume_split(
+    cfg: TrainConfig,
+    model: torch.nn.Module,
+    out_dir: Path,
+    split: str,
+    batch_size: int,
+    progress: bool,
+    placement: Placement,
+) -> tuple[dict[str, float], Path]:
+    """Fuse the pose volume of one split along its flights, or read what a previous run
+    wrote: the encoder's pass over the split's images, the heads' pitch and roll from the true
+    image's evaluation table."""
+    import pandas as pd
+
+    from benchmark.data import PairDataset, odometry_noise
+    from benchmark.evaluation.sequence_eval import STRESS_SCALE, fuse_volume
+    from benchmark.evaluation.volume_beliefs import volume_marginals
+
+    csv_path, json_path = volume_sequence_paths(out_dir, split)
+    if json_path.is_file() and csv_path.is_file():
+        return json.loads(json_path.read_text()), csv_path
+    base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
+    marginals = volume_marginals(
+        model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,
+        precision=placement.precision, num_workers=loader_workers(cfg, placement.device),
+        progress=progress, desc=f"volume {split}",
+    )  # fmt: skip
+    true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
+    summary, table = fuse_volume(
+        pd.read_csv(true_csv), marginals, base.poses, base.sat_table,
+        odometry_noise(base.manifest["profile"]), split=split, seed=int(base.manifest["seed"]),
+        stress_scale=STRESS_SCALE if split.startswith("long/") else None,
+    )  # fmt: skip
+    _write_fusion(table, summary, csv_path, json_path)
+    return summary, csv_path
+
+
+def _write_fusion(table: Any, summary: dict[str, float], csv_path: Path, json_path: Path) -> None:
+    """A fused split's table, then its summary: the JSON written last (atomically) means done."""
+    from benchmark.evaluation.metrics import write_predictions_csv
+
+    write_predictions_csv(table, csv_path)
+    tmp = json_path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(summary, indent=2))
+    tmp.replace(json_path)
 
 
 def sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
@@ -189,7 +251,6 @@ def _sequence_split(
 
     from benchmark.data import PairDataset, odometry_noise
     from benchmark.evaluation.evaluate import load_beliefs
-    from benchmark.evaluation.metrics import write_predictions_csv
     from benchmark.evaluation.sequence_eval import (
         STRESS_SCALE,
         evaluate_sequence,
@@ -241,10 +302,7 @@ def _sequence_split(
             num_workers=loader_workers(cfg, placement.device),
             **common,
         )
-    write_predictions_csv(table, csv_path)
-    tmp = json_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(json_path)  # written last: its presence means the split is done
+    _write_fusion(table, summary, csv_path, json_path)
     stored.unlink(missing_ok=True)  # an intermediate: the fusion table holds what it gave
     return summary, csv_path
 

@@ -19,6 +19,7 @@ from benchmark.evaluation.beliefs import (
     AttitudeCalibration,
     PositionCalibration,
     calibrate_from_predictions,
+    calibrated_yaw_beliefs,
     check_validation_split,
     gives_density,
     isotropic_fisher_log_normaliser,
@@ -425,6 +426,23 @@ class TestLogProbMany:
                                 for b in range(3)])  # fmt: skip
         assert many.shape == (3, 5)
         torch.testing.assert_close(many, rows, atol=1e-9, rtol=1e-9)
+
+
+class TestCalibratedYawBeliefs:
+    def test_against_scipy_geodesic_angles(self):
+        # R(psi) = Rz(psi) Rx(pitch) Ry(roll) (paper Eq. 1) against the estimate at yaw_hat with
+        # the same pitch and roll: the density at scipy's angle between the two rotations
+        grid, cal = CircularGrid(36), AttitudeCalibration(40.0, 0.2, "standard/val")
+        yaw_hat, pitch, roll = np.array([-3.0, -0.4, 0.0, 1.2, 3.1]), -0.7, 0.2
+        psi = grid.centres().numpy()
+
+        def rot(yaw):
+            return Rotation.from_euler("ZXY", [yaw, pitch, roll])
+
+        angle = np.array([[(rot(y).inv() * rot(p)).magnitude() for p in psi] for y in yaw_hat])
+        ours = calibrated_yaw_beliefs(torch.tensor(yaw_hat), grid, cal)
+        assert ours.shape == (5, 36) and ours.dtype == F64
+        torch.testing.assert_close(ours, cal.log_density(torch.tensor(angle)), rtol=0, atol=1e-9)
 
 
 class TestYawBeliefs:

@@ -26,6 +26,12 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return np.angle(np.exp(1j * a))
 
 
+def around(hats: np.ndarray):
+    """A position belief function: a 20 m Gaussian around each row's ``hats (N, 2)``."""
+    hats = torch.as_tensor(hats, dtype=torch.float64)
+    return lambda rows, grid: gaussian_belief(grid, hats[rows.clamp_min(0)], 20.0)
+
+
 def synthetic_split(
     n_flights: int = 6,
     samples: int = 32,
@@ -71,7 +77,7 @@ def synthetic_split(
         flight=cat["flight"], time_s=cat["time_s"], yaw_beliefs=beliefs,
         yaw_hat=cat["yaw_hat"], pitch_hat=zeros - 0.3, roll_hat=zeros,
         position_hat=cat["pos_hat"],
-        position_log_belief=lambda hat, grid: gaussian_belief(grid, hat, 20.0),
+        position_log_belief=around(cat["pos_hat"]),
         odo_dyaw=cat["dyaw"], odo_dxy=cat["dxy"], footprint_m=np.tile([2000.0, 1000.0], (n, 1)),
         yaw=cat["yaw"], pitch=zeros - 0.3, roll=zeros, position=cat["pos"],
         index=np.arange(n),
@@ -119,7 +125,8 @@ class TestFuseSplit:
         exact = SplitFrames(**{**frames.__dict__, "yaw_hat": frames.yaw,
                                "yaw_beliefs": 400.0 * (torch.cos(GRID.centres()[None]
                                                       - torch.as_tensor(frames.yaw)[:, None]) - 1),
-                               "position_hat": frames.position})  # fmt: skip
+                               "position_hat": frames.position,
+                               "position_log_belief": around(frames.position)})  # fmt: skip
         tiny = OdometryNoise(1e-4, 1e-4, 1e-4, 0.2)  # the filters need a blur of some width
         table = fuse_split(exact, tiny)
         for mode in ("filter", "smooth"):
@@ -142,7 +149,7 @@ class TestFuseSplit:
         odo = frames.odo_dyaw.copy()
         odo[last] += 0.5
         later = SplitFrames(**{**frames.__dict__, "yaw_beliefs": changed, "position_hat": hat,
-                               "odo_dyaw": odo})  # fmt: skip
+                               "position_log_belief": around(hat), "odo_dyaw": odo})  # fmt: skip
         a = fuse_split(frames, NOISE)
         b = fuse_split(later, NOISE)
         earlier = (a["mode"] == "filter") & (a["index"] != last)

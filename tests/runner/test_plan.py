@@ -56,12 +56,21 @@ class TestPlanUnits:
         units = plan_units(load_specs(), PROFILES["quick"], [0], Path("/d"), SPLITS + confirm, "h")
         fused = [u for u in units if u.fuse_splits]
         sequence = load_specs(only=["sequence"])[0]
-        assert len(fused) == len({r.label for r in sequence.rows})
+        heads = [r for r in sequence.rows if r.beliefs == "head"]
+        assert len(fused) == len({r.label for r in heads})
         for unit in fused:
             assert set(sequence.eval_splits) <= set(unit.fuse_splits) <= set(unit.eval_splits)
             assert set(confirm) <= set(unit.fuse_splits)  # the claims are decided there too
             assert unit.val_split == "standard/val"
         assert not any(u.fuse_splits for u in plan(only=others))
+        # the pose-volume rows: the same units as the two Pd/Re-Net rows (vision-only and
+        # gravity-aided), which fuse their volume too
+        volume = [u for u in units if u.volume_splits]
+        assert len(volume) == 2 and all(u.fuse_splits for u in volume)
+        labels = {j.label for u in volume for j in u.jobs if j.table == "sequence"}
+        assert {"Pd/Re-Net", "Pd/Re-Net · matching, gravity-aided"} <= labels
+        for unit in volume:
+            assert unit.volume_splits == unit.fuse_splits
 
     def test_control_is_its_own_unit(self):
         units = plan()

@@ -71,7 +71,11 @@ class TestSpecField:
             ("[geometry_oracle, sift_magic]", "table", r"references\[1\] 'sift_magic' is not a"),
             ("geometry_oracle", "table", "references must be a list"),
             ("[geometry_oracle, geometry_oracle]", "table", "lists a name twice"),
-            ("[geometry_oracle]", "sweep", "references are rows of a table; kind 'sweep'"),
+            (
+                "[geometry_oracle]",
+                "sweep",
+                "references are rows of a table or a sequence; kind 'sweep'",
+            ),
         ],
     )
     def test_bad_values_name_the_file_and_field(self, tmp_path, value, kind, message):
@@ -111,6 +115,55 @@ def counted(monkeypatch):
 
     monkeypatch.setattr(references_module, "evaluate_reference", counting)
     return calls
+
+
+class TestSequenceReferences:
+    """A sequence spec's references: its splits and its training split's validation split (where
+    the fusion density is calibrated), the true image only; then fused beside the heads."""
+
+    def spec(self, tmp_path: Path):
+        text = (
+            SPEC_HEAD.format(kind="sequence").replace(
+                "eval_splits: [standard/test]", "eval_splits: [long/standard]"
+            )
+            + "references: [geometry_oracle]\n"
+        )
+        path = tmp_path / "seq" / "refs.yaml"
+        path.parent.mkdir(exist_ok=True)
+        path.write_text(text)
+        return load_spec(path)
+
+    def test_splits_and_modes(self, tmp_path):
+        wanted = rr._wanted([self.spec(tmp_path)], ["standard/val", "long/standard"])
+        assert wanted == [("geometry_oracle", "long/standard", ("true",)),
+                          ("geometry_oracle", "standard/val", ("true",))]  # fmt: skip
+        # no validation split in the dataset: the test split alone
+        assert rr._wanted([self.spec(tmp_path)], ["long/standard"]) == [wanted[0]]
+
+    def test_a_table_on_the_same_split_adds_the_swap(self, tmp_path):
+        table = load_spec(write_spec(tmp_path, "[geometry_oracle]"))
+        wanted = rr._wanted([self.spec(tmp_path), table], ["standard/val", "standard/test"])
+        assert ("geometry_oracle", STD, ("true", "swap")) in wanted
+
+    @pytest.mark.slow
+    def test_fused_beside_the_heads(self, tmp_path, smoke_dataset, counted):
+        from benchmark.runner.report.sequence import non_learned_sequences, sequence_rows
+        from benchmark.runner.report.tables import CONSTANT_LABEL
+
+        spec = self.spec(tmp_path)
+        refs = rr.evaluate_references([spec], smoke_dataset, tmp_path / "w", "smoke", quiet=True)
+        assert sorted(counted) == [("geometry_oracle", "true")] * 2  # long/standard, standard/val
+        items = non_learned_sequences(spec, refs, smoke_dataset)
+        labels = [i.label for i in items]
+        assert labels == [CONSTANT_LABEL, get_reference_class("geometry_oracle").label]
+        assert not any(i.learned for i in items)
+        assert [i.position_given for i in items] == [False, True]
+        rows = sequence_rows(items)
+        assert set(rows["mode"]) == {"frame", "filter", "smooth"}
+        # per frame, the fused tables score what the reference tables score
+        frame = refs.table_frame("geometry_oracle", "long/standard", "true", spec.train_split)
+        oracle = rows[(rows["label"] == labels[1]) & (rows["mode"] == "frame")].iloc[0]
+        assert oracle["mean_dpsi_deg"] == pytest.approx(frame["dpsi_deg"].mean(), abs=1e-6)
 
 
 class TestEvaluateAndCache:

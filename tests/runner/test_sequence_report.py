@@ -20,7 +20,7 @@ from benchmark.runner.claims.fusion import (
     fusion_gain_claim,
     uncertainty_gain_claim,
 )
-from benchmark.runner.report.sequence import SequenceErrors, sequence_rows
+from benchmark.runner.report.sequence import SequenceErrors, oracle_distance, sequence_rows
 
 N_FLIGHTS, PER_FLIGHT = 20, 8
 FLIGHT = np.repeat(np.arange(N_FLIGHTS), PER_FLIGHT)
@@ -51,6 +51,33 @@ class TestSequenceRows:
         assert (rows.loc["filter", "gain_dphi_deg_lo"], rows.loc["filter", "gain_dphi_deg_hi"]) == (
             pytest.approx(lo), pytest.approx(hi))  # fmt: skip
         assert np.isnan(rows.loc["frame"].get("gain_dphi_deg", np.nan))
+
+
+class TestOracleDistance:
+    def rows(self, learned_best: float, oracle: float):
+        import pandas as pd
+
+        return pd.DataFrame(
+            [
+                {"label": "A", "mode": "smooth", "learned": True, "mean_dpsi_deg": learned_best},
+                {"label": "B", "mode": "smooth", "learned": True, "mean_dpsi_deg": 40.0},
+                {"label": "Constant (train mean)", "mode": "smooth", "learned": False,
+                 "mean_dpsi_deg": 1.0},  # a control never counts as the best head
+                {"label": "Geometry oracle (not learned; given true position, pitch, roll)",
+                 "mode": "smooth", "learned": False, "mean_dpsi_deg": oracle},
+                {"label": "A", "mode": "frame", "learned": True, "mean_dpsi_deg": 0.5},
+            ]
+        )  # fmt: skip
+
+    def test_above_the_oracle(self):
+        text = oracle_distance(self.rows(12.0, 9.5))
+        assert "A, 12.0° against the oracle's 9.5°, +2.5° (above it)" in text
+
+    def test_at_or_below(self):
+        assert "-1.0° (at or below it)" in oracle_distance(self.rows(8.0, 9.0))
+
+    def test_nothing_without_an_oracle_row(self):
+        assert oracle_distance(self.rows(8.0, 9.0).iloc[[0, 1, 2]]) == ""
 
 
 class FakeStore:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 import torch
 
@@ -189,3 +190,56 @@ class TestJoinedTrainingSplits:
         labels = translation_labels(train_set)
         assert labels.shape == (len(a) + len(b), 3)
         torch.testing.assert_close(labels[len(a)], b[0]["T"].double())
+
+
+class TestPoseVolumeFusion:
+    """The frozen matcher's own pose volume fused along long flights (issue 39): the heads are
+    trained on cached features, the volume comes from a pass over the images."""
+
+    def test_fused_and_its_frame_row_is_the_volumes_maximum(
+        self, smoke_dataset, pretrained, tmp_path
+    ):
+        import math
+
+        import pandas as pd
+
+        from benchmark.data import PairDataset
+        from benchmark.evaluation.volume_beliefs import gives_pose_volume
+        from benchmark.geometry import angle_difference
+        from benchmark.training.pipeline import sequence_paths, volume_sequence_paths
+
+        cfg = _frozen_cfg(smoke_dataset, pretrained, "model.attitude=pd_re_net")
+        split, out = "long/standard", tmp_path / "run"
+        done = train_and_evaluate(cfg, out, ["standard/val", split], volume_splits=[split])
+        model = done.trained.model.eval()
+        assert gives_pose_volume(model)
+        csv, js = volume_sequence_paths(out, split)
+        assert csv.is_file() and js.is_file() and split in done.volume_sequences
+        assert not sequence_paths(out, split)[0].exists()  # the heads' fusion was not asked for
+        table = pd.read_csv(csv)
+        assert set(table["odometry"]) == {"data", "4x"}
+        assert set(table["mode"]) == {"frame", "filter", "smooth"}
+        # the frame row's yaw: the yaw bin of the volume's largest marginal mass (independent
+        # of the fusion code: the encoder's extras through the whole model)
+        data = PairDataset(smoke_dataset, split, verify="size")
+        batch = torch.utils.data.default_collate(list(data))
+        with torch.no_grad():
+            enc = model.encode_pairs(batch["uav"], batch["sat"], None, batch["context"])
+        yaw_p = torch.logsumexp(enc.extras["log_volume"].double(), dim=(2, 3))
+        expected = model.encoder.yaws.double()[yaw_p.argmax(-1)]
+        frame = table[(table["mode"] == "frame") & (table["odometry"] == "data")]
+        frame = frame.sort_values("index")
+        got = torch.tensor(frame["yaw_hat_deg"].to_numpy()) * math.pi / 180
+        assert float(angle_difference(got, expected[frame["index"].to_numpy()]).abs().max()) < 1e-6
+        # the per-frame error column scores that estimate against the truth
+        truth = torch.tensor(data.poses["yaw"].to_numpy())[frame["index"].to_numpy()]
+        err = angle_difference(got, truth).abs() * 180 / math.pi
+        np.testing.assert_allclose(frame["dpsi_deg"].to_numpy(), err.numpy(), atol=1e-6)
+        # a second call reads the files back (nothing is written again)
+        written = csv.stat().st_mtime_ns
+        again = train_and_evaluate(cfg, out, ["standard/val", split], volume_splits=[split])
+        summary = again.volume_sequences[split][0]
+        assert (
+            summary["seq_smooth_dpsi_deg"] == done.volume_sequences[split][0]["seq_smooth_dpsi_deg"]
+        )
+        assert csv.stat().st_mtime_ns == written

@@ -26,7 +26,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.runner.execute.worker import eval_key, sequence_paths, split_filename
+from benchmark.runner.execute.worker import (
+    eval_key,
+    sequence_paths,
+    split_filename,
+    volume_sequence_paths,
+)
 from benchmark.runner.plan.specs import RowSpec
 from benchmark.runner.plan.units import Unit
 
@@ -114,15 +119,23 @@ class FrameStore:
 
     # ------------------------------------------------------------------ what was planned
     def labels(
-        self, table: str, split: str | None = None, control: bool | None = None
+        self,
+        table: str,
+        split: str | None = None,
+        control: bool | None = None,
+        volume: bool = False,
     ) -> list[str]:
         """Model labels of ``table`` in plan order (one per label, whatever ``x``), restricted to
         those evaluated on ``split`` if given; ``control=True`` keeps only the UAV-only controls
-        (``satellite_input == "blank"``), ``False`` drops them, None keeps all."""
+        (``satellite_input == "blank"``), ``False`` drops them, None keeps all. A sequence row
+        that fuses the encoder's pose volume (``beliefs: volume``) is no head: only with
+        ``volume``."""
         out: dict[str, None] = {}
         for (t, label, _), by_seed in self._models.items():
             job = next(iter(by_seed.values()))[1]
             if t != table or (split is not None and split not in job.eval_splits):
+                continue
+            if getattr(job, "beliefs", "head") == "volume" and not volume:
                 continue
             blank = job.row.get("satellite_input") == "blank"
             if control is None or control == blank:
@@ -252,9 +265,11 @@ class FrameStore:
             trained_from=tuple(trained_from),
         )
 
-    def sequence_path(self, unit_key: str, split: str) -> Path:
-        """The unit's flight-fusion file of ``split`` (``sequence_paths``, issue 39)."""
-        return sequence_paths(self.workdir / "units" / unit_key, split)[0]
+    def sequence_path(self, unit_key: str, split: str, beliefs: str = "head") -> Path:
+        """The unit's flight-fusion file of ``split`` (``sequence_paths``, issue 39; the pose
+        volume's, ``volume_sequence_paths``, for ``beliefs="volume"``)."""
+        paths = volume_sequence_paths if beliefs == "volume" else sequence_paths
+        return paths(self.workdir / "units" / unit_key, split)[0]
 
     def has_sequence(self, table: str, label: str, split: str) -> bool:
         """Whether every seed of the model fused ``split`` along its flights."""
@@ -262,7 +277,8 @@ class FrameStore:
         if not by_seed or not self.has(table, label, split):
             return False
         where = self.evaluated(split)
-        return all(self.sequence_path(key, where).is_file() for key, _ in by_seed.values())
+        return all(self.sequence_path(key, where, getattr(job, "beliefs", "head")).is_file()
+                   for key, job in by_seed.values())  # fmt: skip
 
     def sequence_errors(
         self, table: str, label: str, split: str, metric: str, mode: str, odometry: str = "data"
@@ -272,8 +288,11 @@ class FrameStore:
         dataset's odometry by default: the :meth:`errors` of the fused estimates (same frames,
         same seeds). Raises ``FileNotFoundError`` naming a missing sequence file."""
 
+        jobs = self._jobs(table, label, None)
+        beliefs = {key: getattr(job, "beliefs", "head") for _, (key, job) in jobs}
+
         def part_of(key: str) -> tuple[pd.DataFrame, Path]:
-            path = self.sequence_path(key, self.evaluated(split))
+            path = self.sequence_path(key, self.evaluated(split), beliefs[key])
             if not path.is_file():
                 raise FileNotFoundError(f"sequence file missing: {path}")
             if path not in self._csv:
@@ -284,7 +303,7 @@ class FrameStore:
                 raise ValueError(f"{path}: no {mode!r} rows with odometry {odometry!r}")
             return part.sort_values("index", kind="stable"), path
 
-        return self._stack(self._jobs(table, label, None), split, metric, part_of)
+        return self._stack(jobs, split, metric, part_of)
 
     def evaluated(self, split: str) -> str:
         """The split whose files hold ``split``'s frames: itself here (a
@@ -381,9 +400,13 @@ class ConfirmationStore(FrameStore):
         )
 
     def labels(
-        self, table: str, split: str | None = None, control: bool | None = None
+        self,
+        table: str,
+        split: str | None = None,
+        control: bool | None = None,
+        volume: bool = False,
     ) -> list[str]:
-        labels = super().labels(table, split, control)
+        labels = super().labels(table, split, control, volume)
         if split is None:
             return labels
         return [label for label in labels if self.has(table, label, split)]

@@ -98,6 +98,7 @@ def track_unit(
     eval_batch: int,
     heartbeat: EpochCallback | None = None,
     fuse_splits: list[str] | tuple[str, ...] = (),
+    volume_splits: list[str] | tuple[str, ...] = (),
 ) -> tuple[TrainEvalResult, str]:
     """Train and evaluate the unit into ``unit_dir``, logging to ``run`` as it goes; returns the
     results and the logged model's URI (``""`` if the backend keeps none). ``run`` is ended by
@@ -122,12 +123,16 @@ def track_unit(
             on_epoch_end=on_epoch_end,
             eval_batch=eval_batch,
             fuse_splits=fuse_splits,
+            volume_splits=volume_splits,
         )
     for key, summary in done.metrics.items():
         finite = {f"{key}/{k}": v for k, v in summary.items() if _finite(v)}
         run.log_metrics(finite, step=cfg.optim.epochs)
     for split, (summary, _) in done.sequences.items():  # the flight fusion (issue 39)
         finite = {f"{split}/{k}": v for k, v in summary.items() if _finite(v)}
+        run.log_metrics(finite, step=cfg.optim.epochs)
+    for split, (summary, _) in done.volume_sequences.items():  # the pose volume, fused
+        finite = {f"{split}/volume_{k}": v for k, v in summary.items() if _finite(v)}
         run.log_metrics(finite, step=cfg.optim.epochs)
     for name in ("config.yaml", "history.json"):
         if (unit_dir / name).is_file():

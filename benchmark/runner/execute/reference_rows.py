@@ -57,12 +57,14 @@ import pandas as pd
 from benchmark.progress import Progress
 from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_filename, worker_init
 from benchmark.runner.plan.specs import TableSpec
+from benchmark.runner.plan.units import val_split_for
 
 __all__ = [
     "MAX_PROCESSES",
     "PROFILE_STRIDE",
     "ReferenceResults",
     "constant_baseline",
+    "dataset_splits",
     "describe_references",
     "evaluate_references",
     "fails_text",
@@ -344,16 +346,33 @@ class ReferenceResults:
         return self.records.get(key)
 
 
-def _wanted(specs: list[TableSpec]) -> list[tuple[str, str]]:
-    """``(reference, split)`` of every table that lists references, each once, in spec order."""
-    out: dict[tuple[str, str], None] = {}
+def _wanted(specs: list[TableSpec], available: list[str]) -> list[tuple[str, str, tuple[str, ...]]]:
+    """``(reference, split, satellite modes)`` of every spec that lists references, each pair
+    once, in spec order: a table's test splits with the true and the swapped image; a
+    sequence's test splits and its training split's validation split (``available`` names the
+    dataset's splits), where the fusion density is calibrated, with the true image only."""
+    out: dict[tuple[str, str], set[str]] = {}
     for spec in specs:
-        if spec.kind != "table":
+        if spec.kind == "table":
+            splits, modes = list(spec.all_eval_splits()), set(SATELLITE_MODES)
+        elif spec.kind == "sequence":
+            val = val_split_for(spec.train_split, available)
+            splits, modes = [*spec.all_eval_splits(), *([val] if val else [])], {"true"}
+        else:
             continue
         for name in spec.references:
-            for split in spec.all_eval_splits():
-                out[name, split] = None
-    return list(out)
+            for split in splits:
+                out.setdefault((name, split), set()).update(modes)
+    return [(n, s, tuple(m for m in SATELLITE_MODES if m in modes))
+            for (n, s), modes in out.items()]  # fmt: skip
+
+
+def dataset_splits(root: Path) -> list[str]:
+    """The split names of the dataset at ``root`` (its manifest's), [] when it has none yet."""
+    try:
+        return list(json.loads((root / "manifest.json").read_text()).get("splits", {}))
+    except (OSError, ValueError):
+        return []
 
 
 def _record(task: ReferenceTask, summary: dict, frames: int, manifest: str, code: str) -> dict:
@@ -430,18 +449,18 @@ def evaluate_references(
     rows are left out; the others go on."""
     from benchmark.tracking import manifest_sha256
 
-    wanted = _wanted(specs)
+    root = Path(data_root)
+    wanted = _wanted(specs, dataset_splits(root))
     out = ReferenceResults(
         workdir=Path(workdir) if workdir is not None else None, data_root=Path(data_root)
     )
     if not wanted:
         return out
-    root = Path(data_root)
     stride = PROFILE_STRIDE.get(profile, 1)
     manifest, code = manifest_sha256(root), _code_digest()
     tasks: dict[tuple[str, str, str], ReferenceTask] = {}
-    for name, split in wanted:
-        for satellite in SATELLITE_MODES:
+    for name, split, satellites in wanted:
+        for satellite in satellites:
             csv = reference_paths(workdir, name, split, satellite)[0] if workdir else None
             task = ReferenceTask(name, str(root), split, satellite, stride,
                                  str(csv) if csv else None)  # fmt: skip

@@ -37,6 +37,7 @@ from benchmark.training.pipeline import (
     sequence_paths,
     split_filename,
     train_and_evaluate,
+    volume_sequence_paths,
 )
 
 __all__ = [
@@ -50,6 +51,7 @@ __all__ = [
     "run_unit",
     "sequence_paths",
     "split_filename",
+    "volume_sequence_paths",
     "worker_init",
 ]
 
@@ -63,6 +65,7 @@ class UnitTask:
     eval_batch: int = EVAL_BATCH
     tracking: UnitTracking | None = None  # None: nothing is logged from the worker
     fuse_splits: list[str] = field(default_factory=list)  # fused along their flights (issue 39)
+    volume_splits: list[str] = field(default_factory=list)  # the pose volume fused along them
 
 
 @dataclass
@@ -73,6 +76,7 @@ class UnitResult:
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)  # eval_key -> summary
     predictions: dict[str, str] = field(default_factory=dict)  # eval_key -> CSV path
     sequences: dict[str, str] = field(default_factory=dict)  # fused split -> sequence CSV path
+    volume_sequences: dict[str, str] = field(default_factory=dict)  # the pose volume's, the same
     seconds: float = 0.0
     error: str = ""
     run_id: str = ""  # the unit's training run ("" without tracking)
@@ -129,6 +133,7 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
+            volume_splits=task.volume_splits,
         )  # fmt: skip
         return _result(task, done, start)
     run, reused = open_unit_run(task.tracking)
@@ -136,6 +141,7 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
+            volume_splits=task.volume_splits,
         )  # fmt: skip
         result = _result(task, done, start)
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
@@ -144,7 +150,8 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
     with run:  # FINISHED, FAILED on an exception, KILLED on KeyboardInterrupt (one worker: inline)
         done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
                                      task.eval_batch, heartbeat=beat,
-                                     fuse_splits=task.fuse_splits)  # fmt: skip
+                                     fuse_splits=task.fuse_splits,
+                                     volume_splits=task.volume_splits)  # fmt: skip
     result = _result(task, done, start)
     result.run_id, result.model_uri = run.run_id, model_uri
     result.started_ms, result.ended_ms = run.start_time_ms, run.end_time_ms
@@ -159,5 +166,6 @@ def _result(task: UnitTask, done, start: float) -> UnitResult:
         metrics=done.metrics,
         predictions={k: str(v) for k, v in done.predictions.items()},
         sequences={k: str(path) for k, (_, path) in done.sequences.items()},
+        volume_sequences={k: str(path) for k, (_, path) in done.volume_sequences.items()},
         seconds=time.perf_counter() - start,
     )

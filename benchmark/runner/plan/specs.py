@@ -39,11 +39,13 @@ the dataset the input size), or say where the row trains:
 image swapped for another place's (the satellite-swap probe, ``benchmark.data.swap``), beside the
 true ones. Every trained model is evaluated both ways whatever the spec says.
 
-``references`` (table level, ``kind: table`` only): non-learned rows shown beside the models, by
-registry name (``benchmark.references.list_references()``: ``geometry_oracle``,
-``gravity_template``, ``feature_pnp``), each evaluated once per test split of the table with the
-true and the swapped satellite image (``benchmark.runner.execute.reference_rows``). They take part
-in no claim about heads.
+``references`` (table level, ``kind: table`` and ``kind: sequence``): non-learned rows shown
+beside the models, by registry name (``benchmark.references.list_references()``:
+``geometry_oracle``, ``gravity_template``, ``feature_pnp``), each evaluated once per test split of
+the table (``benchmark.runner.execute.reference_rows``): a table's with the true and the swapped
+satellite image; a sequence's with the true one, and also on the training split's validation
+split, where their fusion density is calibrated as a regression head's is. They take part in no
+claim about heads.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ import yaml
 from benchmark.models.model_config import SATELLITE_INPUTS, ModelConfig, parse_scalar
 
 KINDS = ("table", "sweep", "cost", "sequence")
+# What a ``kind: sequence`` row fuses (``RowSpec.beliefs``).
+BELIEF_SOURCES = ("head", "volume")
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
 
@@ -97,6 +101,10 @@ class RowSpec:
     model: dict[str, Any]
     train_split: str | None = None  # None: the table's
     eval_splits: tuple[str, ...] | None = None  # None: the table's
+    # What a sequence row fuses: "head" (the heads' beliefs) or "volume" (the pair encoder's own
+    # pose volume; its heads give only pitch and roll). Not part of the model: a volume row and
+    # a head row of the same model share their unit.
+    beliefs: str = "head"
 
     def __hash__(self) -> int:  # the model dict is not hashable; its repr is
         return hash(repr(self))
@@ -157,6 +165,7 @@ class Job:
     train_split: str
     eval_splits: tuple[str, ...]
     fuse: bool = False  # a ``kind: sequence`` job: its splits are fused along their flights
+    beliefs: str = "head"  # what it fuses (``RowSpec.beliefs``)
 
 
 @dataclass(frozen=True)
@@ -202,6 +211,7 @@ class TableSpec:
                             )
                         ),
                         fuse=self.kind == "sequence",
+                        beliefs=row.beliefs,
                     )
                 )
         return out
@@ -283,6 +293,8 @@ def _row_from(raw: Any, source: Path, index: int) -> RowSpec:
     for required in ("label", "paper_model", "attitude"):
         if required not in raw:
             raise SpecError(f"{where}: missing field {required!r}")
+    if raw.get("beliefs", "head") not in BELIEF_SOURCES:
+        raise SpecError(f"{where}: beliefs must be one of {BELIEF_SOURCES}, got {raw['beliefs']!r}")
     if raw.get("satellite_input", "image") not in SATELLITE_INPUTS:
         raise SpecError(
             f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, "
@@ -329,14 +341,17 @@ def _check_models(spec: TableSpec) -> None:
 
 def _references_from(raw: Any, kind: str, path: Path) -> tuple[str, ...]:
     """The table-level ``references`` field checked: a list of distinct registered reference
-    names, on a ``kind: table`` spec; SpecError naming the file, the field and the known names."""
+    names, on a ``kind: table`` or ``kind: sequence`` spec; SpecError naming the file, the field
+    and the known names."""
     from benchmark.references import list_references
 
     known = list_references()
     if not isinstance(raw, list):
         raise SpecError(f"{path}: references must be a list of {known}, got {raw!r}")
-    if kind != "table":
-        raise SpecError(f"{path}: references are rows of a table; kind {kind!r} has none")
+    if kind not in ("table", "sequence"):
+        raise SpecError(
+            f"{path}: references are rows of a table or a sequence; kind {kind!r} has none"
+        )
     for index, name in enumerate(raw):
         if name not in known:
             raise SpecError(
@@ -381,6 +396,12 @@ def load_spec(path: str | Path) -> TableSpec:
     if not isinstance(raw["rows"], list) or not raw["rows"]:
         raise SpecError(f"{path}: rows must be a non-empty list")
     rows = tuple(_row_from(r, path, i) for i, r in enumerate(raw["rows"]))
+    for index, row in enumerate(rows):
+        if row.beliefs != "head" and raw["kind"] != "sequence":
+            raise SpecError(
+                f"{path}: rows[{index}] ({row.label!r}): beliefs: {row.beliefs} is for a "
+                f"kind: sequence spec (what its rows fuse); kind {raw['kind']!r} fuses nothing"
+            )
     tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values", "swap_metrics")
     values = {
         k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "rows"

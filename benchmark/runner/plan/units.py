@@ -78,9 +78,18 @@ class Unit:
         """The splits of its ``kind: sequence`` jobs and their confirmation splits: fused along
         their flights after the evaluation (``benchmark.evaluation.sequence_eval``), calibrated
         on ``val_split``."""
+        return self._fused("head")
+
+    @property
+    def volume_splits(self) -> list[str]:
+        """The splits of its ``beliefs: volume`` sequence jobs and their confirmation splits:
+        the pair encoder's own pose volume fused along their flights."""
+        return self._fused("volume")
+
+    def _fused(self, beliefs: str) -> list[str]:
         seen: dict[str, None] = {}
         for job in self.jobs:
-            if job.fuse:
+            if job.fuse and job.beliefs == beliefs:
                 seen.update(dict.fromkeys(job.eval_splits))
         # and their confirmation splits, so the fusion claims are decided again there
         for split in list(seen):

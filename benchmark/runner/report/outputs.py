@@ -257,7 +257,9 @@ def write_reports(
                 text += reference_note(spec, references)
                 text += extra_metrics_table(spec, summary, EXTRA_METRICS, shown)
             elif spec.kind == "sequence":  # every head fused along its flights (issue 39)
-                text, figures, _ = sequence_report(spec, planned, workdir, out)
+                text, figures, _ = sequence_report(
+                    spec, planned, workdir, out, references, data_root
+                )
                 paths += figures
             elif spec.kind == "sweep":
                 text = sweep_table(spec, summary, show_val)

@@ -24,9 +24,11 @@ import numpy as np
 import pandas as pd
 
 from benchmark.evaluation.paired import median_bootstrap, pooled_bootstrap
-from benchmark.runner.execute.worker import sequence_paths
+from benchmark.runner.execute.reference_rows import ReferenceResults, dataset_splits
+from benchmark.runner.execute.worker import sequence_paths, volume_sequence_paths
 from benchmark.runner.plan.specs import TableSpec
-from benchmark.runner.plan.units import Unit
+from benchmark.runner.plan.units import Unit, val_split_for
+from benchmark.runner.report.tables import CONSTANT_LABEL
 
 MODES = ("frame", "filter", "smooth")
 MODE_NAMES = {"frame": "per frame", "filter": "filtered", "smooth": "smoothed"}
@@ -43,6 +45,8 @@ class SequenceErrors:
     errors: dict[str, dict[str, dict[str, np.ndarray]]]
     flight: np.ndarray
     t_s: np.ndarray
+    learned: bool = True  # False: the constant predictor or a non-learned reference
+    position_given: bool = False  # a reference given the true position: no horizontal error
 
 
 def _read(path: Path) -> pd.DataFrame:
@@ -58,32 +62,79 @@ def load_sequences(spec: TableSpec, units: list[Unit], workdir: Path) -> list[Se
                                      for j in u.jobs)),
             key=lambda u: u.cfg.seed,
         )  # fmt: skip
+        where = volume_sequence_paths if job.beliefs == "volume" else sequence_paths
         for split in job.eval_splits:
-            paths = [sequence_paths(workdir / "units" / u.key, split)[0] for u in mine]
+            paths = [where(workdir / "units" / u.key, split)[0] for u in mine]
             frames = [_read(p) for p in paths if p.is_file()]
-            if not frames:
+            if frames:
+                out.append(_stacked(job.label, split, frames))
+    return out
+
+
+def _stacked(label: str, split: str, frames: list[pd.DataFrame], **flags: bool) -> SequenceErrors:
+    """The fusion tables of one row on one split (one per seed, rows sorted by
+    :func:`_read`) stacked into a :class:`SequenceErrors`."""
+    errors: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    first = frames[0]
+    for odo, mode in first[["odometry", "mode"]].drop_duplicates().itertuples(index=False):
+        cols = {}
+        for col in ("dpsi_deg", "dphi_deg", "horizontal_m"):
+            stack = []
+            for f in frames:
+                sel = f[(f["odometry"] == odo) & (f["mode"] == mode)]
+                stack.append(sel[col].to_numpy(np.float64))
+            cols[col] = np.stack(stack)
+        errors.setdefault(str(odo), {})[str(mode)] = cols
+    base = first[(first["odometry"] == "data") & (first["mode"] == "frame")]
+    return SequenceErrors(
+        label, split, errors, base["flight"].to_numpy(), base["t_s"].to_numpy(np.float64),
+        **flags,
+    )  # fmt: skip
+
+
+def non_learned_sequences(
+    spec: TableSpec, references: ReferenceResults, data_root: Path
+) -> list[SequenceErrors]:
+    """The constant predictor and every reference of ``spec`` fused along the flights of each of
+    its splits exactly as a regression head is (``fuse_estimates``: the calibrated density
+    around each frame's estimate, fitted on the same estimator's frames of the training split's
+    validation split). A reference's failed frames carry the constant predictor's pose, as in
+    every table. One "seed" each (they are deterministic); a row whose validation or split
+    frames were not evaluated is left out."""
+    from benchmark.data import PairDataset, odometry_noise
+    from benchmark.evaluation.sequence_eval import STRESS_SCALE, fuse_estimates
+    from benchmark.references import get_reference_class
+
+    val = val_split_for(spec.train_split, dataset_splits(data_root))
+    if val is None:
+        return []
+    rows: list[tuple[str, str | None, bool]] = [(CONSTANT_LABEL, None, False)]
+    for name in spec.references:
+        cls = get_reference_class(name)
+        given = any("E" in v.columns for v in getattr(cls, "given_values", ()))
+        rows.append((cls.label, name, given))
+
+    def frames_of(name: str | None, split: str) -> pd.DataFrame | None:
+        if name is None:
+            return references.constant(spec.train_split, split)
+        return references.table_frame(name, split, "true", spec.train_split)
+
+    out = []
+    for split in spec.all_eval_splits():
+        data = PairDataset(data_root, split)
+        profile = data.manifest["profile"]
+        area = float(np.prod(np.asarray(profile["sat_footprint_m"], np.float64)))
+        for label, name, given in rows:
+            frame, val_frame = frames_of(name, split), frames_of(name, val)
+            if frame is None or val_frame is None:
                 continue
-            errors: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-            first = frames[0]
-            for odo, mode in first[["odometry", "mode"]].drop_duplicates().itertuples(index=False):
-                cols = {}
-                for col in ("dpsi_deg", "dphi_deg", "horizontal_m"):
-                    stack = []
-                    for f in frames:
-                        sel = f[(f["odometry"] == odo) & (f["mode"] == mode)]
-                        stack.append(sel[col].to_numpy(np.float64))
-                    cols[col] = np.stack(stack)
-                errors.setdefault(str(odo), {})[str(mode)] = cols
-            base = first[(first["odometry"] == "data") & (first["mode"] == "frame")]
-            out.append(
-                SequenceErrors(
-                    job.label,
-                    split,
-                    errors,
-                    base["flight"].to_numpy(),
-                    base["t_s"].to_numpy(np.float64),
-                )
-            )
+            _, table = fuse_estimates(
+                frame, val_frame, data.poses, data.sat_table, odometry_noise(profile),
+                split=split, val_split=val, seed=int(data.manifest["seed"]), area_m2=area,
+                stress_scale=STRESS_SCALE if split.startswith("long/") else None,
+            )  # fmt: skip
+            table = table.sort_values(["odometry", "mode", "index"], kind="stable")
+            out.append(_stacked(label, split, [table], learned=False, position_given=given))
     return out
 
 
@@ -108,6 +159,8 @@ def sequence_rows(items: list[SequenceErrors], seed: int = 0) -> pd.DataFrame:
             row = {
                 "split": item.split,
                 "label": item.label,
+                "learned": item.learned,
+                "position_given": item.position_given,
                 "mode": mode,
                 "seeds": e["dpsi_deg"].shape[0],
                 "flights": len(np.unique(item.flight)),
@@ -149,15 +202,42 @@ def sequence_markdown(spec: TableSpec, table: pd.DataFrame, figure: str | None) 
             )
             horizontal = (f"{_fmt(r['median_horizontal_m'])} [{_fmt(r['median_horizontal_lo'])}, "
                           f"{_fmt(r['median_horizontal_hi'])}]")  # fmt: skip
+            if bool(r.get("position_given", False)):
+                horizontal = "given (true position)"
             lines.append(
                 f"| {r['label']} | {MODE_NAMES[r['mode']]} | {_fmt(r['mean_dpsi_deg'])} | "
                 f"{_fmt(r['median_dpsi_deg'])} | {_fmt(r['mean_dphi_deg'])} | "
                 f"{100 * r['acc10']:.0f} % | {horizontal} | {gain} |"
             )
         lines.append("")
+        distance = oracle_distance(part)
+        if distance:
+            lines += [distance, ""]
     if figure:
         lines += [f"![{spec.name}]({figure})", ""]
     return "\n".join(lines)
+
+
+ORACLE_PREFIX = "Geometry oracle"
+
+
+def oracle_distance(part: pd.DataFrame, mode: str = "smooth") -> str:
+    """One sentence per split: how far the best fused head (mean δψ, ``mode``) is from the fused
+    geometry oracle (given the true position, pitch and roll: what the pixels allow at this
+    heading search), "" without either."""
+    fused = part[part["mode"] == mode]
+    learned = fused[fused["learned"].astype(bool)] if "learned" in fused else fused.iloc[:0]
+    oracle = fused[fused["label"].str.startswith(ORACLE_PREFIX)]
+    if not len(learned) or not len(oracle):
+        return ""
+    best = learned.loc[learned["mean_dpsi_deg"].idxmin()]
+    ref = float(oracle["mean_dpsi_deg"].iloc[0])
+    gap = float(best["mean_dpsi_deg"]) - ref
+    return (
+        f"Distance to the fused geometry oracle ({MODE_NAMES[mode]}, mean δψ): the best head, "
+        f"{best['label']}, {_fmt(float(best['mean_dpsi_deg']))}° against the oracle's "
+        f"{_fmt(ref)}°, {gap:+.1f}° ({'above' if gap > 0 else 'at or below'} it)."
+    )
 
 
 def sequence_figure(items: list[SequenceErrors], path: Path) -> bool:
@@ -202,12 +282,22 @@ def sequence_figure(items: list[SequenceErrors], path: Path) -> bool:
 
 
 def sequence_report(
-    spec: TableSpec, units: list[Unit], workdir: Path | None, out: Path
+    spec: TableSpec,
+    units: list[Unit],
+    workdir: Path | None,
+    out: Path,
+    references: ReferenceResults | None = None,
+    data_root: Path | None = None,
 ) -> tuple[str, list[Path], pd.DataFrame]:
-    """``(markdown, [figure path], table rows)`` of a ``kind: sequence`` spec."""
+    """``(markdown, [figure path], table rows)`` of a ``kind: sequence`` spec; with
+    ``references`` and ``data_root``, the constant predictor and the spec's references fused
+    beside the heads (:func:`non_learned_sequences`), in the table and not in the figure."""
     items = load_sequences(spec, units, workdir) if workdir is not None else []
+    if items and references is not None and data_root is not None:
+        items += non_learned_sequences(spec, references, data_root)
     table = sequence_rows(items)
     png = out / f"{spec.name}.png"
-    drawn = sequence_figure(items, png) if items else False
+    learned = [i for i in items if i.learned]
+    drawn = sequence_figure(learned, png) if learned else False
     text = sequence_markdown(spec, table, png.name if drawn else None)
     return text, [png] if drawn else [], table

@@ -1,0 +1,191 @@
+"""A pair encoder's own pose volume as the belief the flight fusion carries (issue 39, item 2).
+
+The matching encoder scores every (yaw, north, east) cell of its search square and normalises
+them into ``log p`` (``extras["log_volume"] (B, K, P, Q)``; axes in
+:class:`~benchmark.models.pair_encoder.PoseVolumeAxes`). Its marginals are the encoder's own
+beliefs, before any head:
+
+- **yaw**: the mass ``p_k`` of each of the ``K`` bins (width ``w = 2 pi / K``) as a density
+  ``p_k / w`` at the bin centre, interpolated linearly (periodically) to the fusion's circular
+  grid. The interpolant integrates to ``sum_k p_k = 1`` exactly (trapezoid rule of a periodic
+  piecewise-linear function), and its maximum is a bin centre.
+- **position**: the mass of each cell (``cell_m`` square) as a density per m^2 at the cell
+  centre, interpolated bilinearly to the fusion grid's cell centres (the outer cells' value out
+  to their edges, so the interpolant holds the volume's mass), zero outside the searched
+  square (the fusion's robust likelihood gives every cell a uniform share: a UAV outside the
+  square is not impossible, only unseen by this frame).
+
+Per-frame estimates for the "frame" rows: the yaw of the interpolated belief's maximum (a bin
+centre) and the position cell of the marginal's maximum; pitch and roll stay the head's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from benchmark.evaluation.evaluate import forward_batch, make_loader
+from benchmark.evaluation.fusion_grid import CircularGrid, PlanarGrid
+from benchmark.models.device import autocast, to_device
+from benchmark.progress import Progress
+
+
+@dataclass(frozen=True)
+class VolumeMarginals:
+    """Per-frame marginals of a pose volume, float64 on the CPU, rows in dataset order:
+    ``index (N,)`` int64 the items' indices, ``yaw_log_p (N, K)`` log-mass of each yaw bin,
+    ``position_log_p (N, P, Q)`` log-mass of each (north row, east column) cell, and the axes
+    ``yaw (K,)`` rad, ``north (P,)``, ``east (Q,)`` m, ``cell_m``."""
+
+    index: Tensor
+    yaw_log_p: Tensor
+    position_log_p: Tensor
+    yaw: Tensor
+    north: Tensor
+    east: Tensor
+    cell_m: float
+
+    def __post_init__(self) -> None:
+        n, k = self.yaw_log_p.shape
+        if self.position_log_p.shape != (n, len(self.north), len(self.east)):
+            raise ValueError(
+                f"position_log_p must be (N, P, Q) = {(n, len(self.north), len(self.east))}, "
+                f"got {tuple(self.position_log_p.shape)}"
+            )
+        if k != len(self.yaw) or self.index.shape != (n,):
+            raise ValueError("VolumeMarginals: yaw_log_p (N, K), yaw (K,) and index (N,) disagree")
+
+
+def gives_pose_volume(model: torch.nn.Module) -> bool:
+    """Whether ``model``'s encoder describes a pose volume (``PairEncoder.pose_volume_axes``)."""
+    axes = getattr(getattr(model, "encoder", None), "pose_volume_axes", None)
+    return axes is not None and axes() is not None
+
+
+@torch.no_grad()
+def volume_marginals(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    *,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    precision: str = "fp32",
+    num_workers: int = 0,
+    progress: bool = False,
+    desc: str = "volume",
+) -> VolumeMarginals:
+    """Run ``model`` over the images of ``dataset`` (a ``PairDataset``: the encoder must see the
+    pairs, not cached features) and keep its pose volume's marginals. Eval mode, restored after;
+    the forward under autocast for ``precision``, the marginals in float64."""
+    axes = model.encoder.pose_volume_axes() if gives_pose_volume(model) else None
+    if axes is None:
+        raise ValueError(
+            f"{type(getattr(model, 'encoder', model)).__name__} has no pose volume "
+            f"(PairEncoder.pose_volume_axes is None): fuse its heads' beliefs instead"
+        )
+    weight = next(iter(model.parameters()))
+    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
+    was_training = model.training
+    model.eval()
+    index, yaw, position = [], [], []
+    try:
+        with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
+            for batch in loader:
+                if "uav" not in batch:
+                    raise ValueError("volume_marginals needs the images: got cached features")
+                batch = to_device(batch, weight.device)
+                with autocast(weight.device, precision):
+                    out = forward_batch(model, batch, shared_satellite)
+                log_volume = out.encoder["log_volume"].double()  # (B, K, P, Q)
+                yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
+                position.append(torch.logsumexp(log_volume, dim=1).cpu())
+                index.append(batch["index"].cpu())
+                bar.update(1)
+    finally:
+        model.train(was_training)
+    return VolumeMarginals(
+        torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
+        axes.yaw.double().cpu(), axes.north.double().cpu(), axes.east.double().cpu(),
+        float(axes.cell_m),
+    )  # fmt: skip
+
+
+def volume_yaw_beliefs(marginals: VolumeMarginals, grid: CircularGrid) -> Tensor:
+    """``(N, n_bins)`` float64 log-density per radian of the UAV yaw on ``grid`` (module
+    docstring: the bins' densities interpolated linearly around the circle)."""
+    yaw = marginals.yaw
+    k = len(yaw)
+    width = 2 * math.pi / k
+    start = float(yaw[0])
+    # the fusion grid's centres as fractional positions along the (sorted, equally spaced) bins
+    order = torch.argsort(torch.remainder(yaw - start, 2 * math.pi))
+    density = marginals.yaw_log_p[:, order].exp() / width  # (N, K) per radian
+    t = torch.remainder(grid.centres(torch.float64) - start, 2 * math.pi) / width  # (n,)
+    low = torch.floor(t).long() % k
+    frac = t - torch.floor(t)
+    value = density[:, low] * (1 - frac) + density[:, (low + 1) % k] * frac
+    return torch.log(value.clamp_min(torch.finfo(torch.float64).tiny))
+
+
+def volume_position_beliefs(marginals: VolumeMarginals, rows: Tensor, grid: PlanarGrid) -> Tensor:
+    """``(M, n_east, n_north)`` float64 log-density per m^2 on ``grid`` of the frames ``rows
+    (M,)`` (positions in the marginals; a negative row, a flight's padding, gets frame 0's):
+    bilinear between the volume's cell centres, the edge cells' value to their outer edges,
+    zero (``log tiny``) beyond the searched square (:func:`_linear_weights`)."""
+    east, north = grid.centres(torch.float64)
+    we, ie = _linear_weights(marginals.east, east)  # (n_east, 2) each
+    wn, in_ = _linear_weights(marginals.north, north)  # (n_north, 2)
+    density = marginals.position_log_p[rows.clamp_min(0)].exp() / marginals.cell_m**2
+    out = torch.zeros(len(rows), len(east), len(north), dtype=torch.float64)
+    for a in range(2):  # the four neighbours: north index a, east index b
+        rows_n = density[:, in_[:, a], :]  # (M, n_north, Q)
+        for b in range(2):
+            part = rows_n[:, :, ie[:, b]]  # (M, n_north, n_east)
+            out += (wn[:, a][:, None] * we[:, b][None, :] * part).transpose(1, 2)
+    return torch.log(out.clamp_min(torch.finfo(torch.float64).tiny))
+
+
+def _linear_weights(axis: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
+    """Linear interpolation from the cell centres ``axis (A,)`` (equally spaced, ascending or
+    descending) to ``points (n,)``: weights and indices ``(n, 2)``. The outer cells reach half
+    a cell beyond their centres, where the value stays the edge's (so the interpolant's
+    integral is the cells' total: the trapezoid rule plus the two half-cell strips); weight 0
+    beyond."""
+    ascending = bool(axis[-1] > axis[0])
+    x = axis if ascending else axis.flip(0)
+    step = float(x[1] - x[0])
+    t = (points - float(x[0])) / step
+    inside = (t >= -0.5) & (t <= len(x) - 0.5)
+    t = t.clamp(0, len(x) - 1)
+    low = torch.floor(t).clamp(0, len(x) - 2).long()
+    frac = (t - low).clamp(0, 1)
+    weights = torch.stack([1 - frac, frac], dim=1) * inside[:, None]
+    index = torch.stack([low, low + 1], dim=1)
+    if not ascending:
+        index = len(x) - 1 - index
+    return weights.to(torch.float64), index
+
+
+def volume_estimates(marginals: VolumeMarginals, grid: CircularGrid) -> tuple[Tensor, Tensor]:
+    """The volume's own per-frame estimates: ``yaw (N,)`` rad, the maximum of
+    :func:`volume_yaw_beliefs` on ``grid``, and ``(N, 2)`` (E, N) metres, the centre of the
+    position marginal's most probable cell."""
+    yaw = grid.centres(torch.float64)[volume_yaw_beliefs(marginals, grid).argmax(-1)]
+    flat = marginals.position_log_p.flatten(1).argmax(-1)
+    q = len(marginals.east)
+    en = torch.stack([marginals.east[flat % q], marginals.north[flat // q]], dim=-1)
+    return yaw, en
+
+
+__all__ = [
+    "VolumeMarginals",
+    "gives_pose_volume",
+    "volume_estimates",
+    "volume_marginals",
+    "volume_position_beliefs",
+    "volume_yaw_beliefs",
+]
