@@ -27,7 +27,10 @@ with the exact kink, 5.9 m at ``eps = 0.003``, 4.1 m at 0.01, 3.2 m at 0.03). ``
 ``|x| - eps`` beyond a few ``eps`` (the median property holds for errors well above ``eps``,
 ~5 m horizontally at a std of 150 m, against test errors of tens of metres) and ``x^2 / (2 eps)``
 within it. So the loss is the Laplace NLL only up to ``eps / b`` and is not a normalised density
-for ``b`` near ``eps``; no ``log_prob`` is reported for translation heads.
+for ``b`` near ``eps``; no ``log_prob`` is reported for translation heads. The model itself is the
+exact Laplace: :meth:`TranslationLaplace.position_log_prob` gives its horizontal density (E and N
+independent, in metres: location ``mean + std mu``, scale ``std b``), the head's own position
+belief in the flight fusion.
 Discontinuities: none in the decoding (an affine map of ``mu``).
 """
 
@@ -80,3 +83,12 @@ class TranslationLaplace(TranslationHead):
 
     def loss(self, raw: dict[str, Tensor], T_gt: Tensor) -> Tensor:
         return self.nll(raw, T_gt).mean()
+
+    def position_log_prob(self, raw: dict[str, Tensor], en: Tensor) -> Tensor:
+        """``(B, M)`` log-density per m^2 of the horizontal positions ``en (B, M, 2)`` (dE, dN
+        metres): the product of the E and N Laplace densities (the marginal over dU), in metres,
+        ``-|x - loc| / b - log(2 b)`` per axis with ``loc = mean + std mu``, ``b = std e^s``."""
+        loc = self.unstandardize(raw["loc"])[:, None, :2]  # (B, 1, 2) metres
+        scale = (self.std[:2].to(raw["log_scale"].dtype) * raw["log_scale"][:, :2].exp())[:, None]
+        x = en.to(loc.dtype)
+        return (-(x - loc).abs() / scale - torch.log(2 * scale)).sum(-1)

@@ -36,9 +36,16 @@ from benchmark.evaluation.beliefs import (
     calibrate_from_predictions,
     calibrated_yaw_beliefs,
     position_beliefs,
+    take_raw,
     yaw_beliefs,
 )
-from benchmark.evaluation.evaluate import BeliefFn, predict, predictions_to_frame
+from benchmark.evaluation.evaluate import (
+    BeliefFn,
+    forward_batch,
+    make_loader,
+    predict,
+    predictions_to_frame,
+)
 from benchmark.evaluation.fusion import CircularGrid, OdometryNoise
 from benchmark.evaluation.sequence import (
     FusionSettings,
@@ -52,8 +59,12 @@ from benchmark.evaluation.volume_beliefs import (
     volume_position_beliefs,
     volume_yaw_beliefs,
 )
+from benchmark.models.device import autocast, to_device
 
 STRESS_SCALE = 4.0
+# Summary key: 1.0 when the translation head's own density was the position belief (a head with
+# ``position_log_prob``), 0.0 for the calibrated Gaussian + uniform density around its estimate.
+POSITION_FROM_HEAD = "position_from_head"
 # (frame rows (M,) int64, -1 for padding; the position grid) -> (M, n_east, n_north) log-density
 PositionBeliefFn = Callable[[torch.Tensor, Any], torch.Tensor]
 
@@ -159,7 +170,9 @@ def evaluate_sequence(
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse ``model``'s beliefs over the flights of ``dataset`` (items indexing ``poses``, the
     split's pair table with the ``odo_*`` columns): one pass of the model recording every
-    frame's belief, then :func:`fuse_predictions` (see there for the result)."""
+    frame's belief, then :func:`fuse_predictions` (see there for the result). The position
+    belief is the translation head's own density when it gives one (:func:`head_position_belief`,
+    ``summary[POSITION_FROM_HEAD] = 1``), else the calibrated one."""
     pred = predict(
         model,
         dataset,
@@ -172,18 +185,20 @@ def evaluate_sequence(
         beliefs=sequence_belief_fn(calibration[0], settings),
     )
     assert pred.beliefs is not None
-    return fuse_predictions(
-        predictions_to_frame(pred),
-        pred.beliefs,
-        poses,
-        sat_table,
-        calibration,
-        noise,
-        split=split,
-        seed=seed,
-        settings=settings,
-        stress_scale=stress_scale,
-    )
+    frame = predictions_to_frame(pred)
+    own_density = gives_position_density(model.translation_head)
+    position = (
+        head_position_belief(model, dataset, frame, batch_size=batch_size,
+                             shared_satellite=shared_satellite, precision=precision,
+                             num_workers=num_workers)
+        if own_density else None
+    )  # fmt: skip
+    summary, table = fuse_predictions(
+        frame, pred.beliefs, poses, sat_table, calibration, noise, split=split, seed=seed,
+        settings=settings, stress_scale=stress_scale, position_belief=position,
+    )  # fmt: skip
+    summary[POSITION_FROM_HEAD] = float(own_density)
+    return summary, table
 
 
 def fuse_predictions(
@@ -316,3 +331,69 @@ def fuse_volume(
         split=split, seed=seed, settings=settings, stress_scale=stress_scale,
         position_belief=partial(volume_position_beliefs, aligned),
     )  # fmt: skip
+
+
+def gives_position_density(head: torch.nn.Module) -> bool:
+    """Whether a translation head gives its own horizontal density (``position_log_prob``)."""
+    return callable(getattr(head, "position_log_prob", None))
+
+
+@torch.no_grad()
+def head_position_belief(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    frame: pd.DataFrame,
+    *,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    precision: str = "fp32",
+    num_workers: int = 0,
+) -> PositionBeliefFn:
+    """The translation head's own position belief (``position_log_prob``) of the frames of
+    ``frame`` (rows matched on ``index``), for :func:`fuse_predictions`: one pass of the model's
+    heads over ``dataset`` (a frozen encoder's cached features cost no encoder pass) keeps the
+    head's raw output of every frame; the belief function evaluates its density at the grid's
+    cell centres."""
+    head = model.translation_head
+    if not gives_position_density(head):
+        raise ValueError(f"{type(head).__name__} gives no position_log_prob")
+    weight = next(iter(model.parameters()))
+    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
+    was_training = model.training
+    model.eval()
+    index, raws = [], []
+    try:
+        for batch in loader:
+            batch = to_device(batch, weight.device)
+            with autocast(weight.device, precision):
+                out = forward_batch(model, batch, shared_satellite)
+            index.append(batch["index"].cpu())
+            raws.append(_to_cpu64(out.translation))
+    finally:
+        model.train(was_training)
+    row_of = {int(i): k for k, i in enumerate(torch.cat(index).tolist())}
+    order = torch.as_tensor([row_of[int(i)] for i in frame["index"]], dtype=torch.long)
+    raw = take_raw(_cat_raw(raws), order)
+    return partial(_head_position, head=head, raw=raw)
+
+
+def _head_position(rows: torch.Tensor, grid: Any, head: torch.nn.Module, raw: Any) -> torch.Tensor:
+    """``(M, n_east, n_north)``: the head's density at the grid's cell centres for the frames
+    ``rows`` (padding, -1: frame 0's), evaluated in float64 (the raw outputs are)."""
+    east, north = grid.centres(torch.float64)
+    cells = torch.stack(torch.meshgrid(east, north, indexing="ij"), -1).reshape(-1, 2)
+    part = take_raw(raw, rows.clamp_min(0))
+    log_p = head.position_log_prob(part, cells[None].expand(len(rows), -1, -1))
+    return log_p.to(torch.float64).reshape(len(rows), *grid.shape)
+
+
+def _to_cpu64(raw: Any) -> Any:
+    if isinstance(raw, torch.Tensor):
+        return raw.detach().to("cpu", torch.float64)
+    return {k: _to_cpu64(v) for k, v in raw.items()}
+
+
+def _cat_raw(parts: list[Any]) -> Any:
+    if isinstance(parts[0], torch.Tensor):
+        return torch.cat(parts)
+    return {k: _cat_raw([p[k] for p in parts]) for k in parts[0]}

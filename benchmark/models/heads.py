@@ -242,3 +242,9 @@ class TranslationHead(Head):
 
     def loss(self, raw: Raw, T_gt: Tensor) -> Tensor:  # -> () scalar
         raise NotImplementedError
+
+    # Optional: ``position_log_prob(raw, en (B, M, 2)) -> (B, M)``, the head's own log-density
+    # per m^2 of M horizontal positions (dE, dN metres; marginal over dU) per sample. The flight
+    # fusion uses it as the head's position belief when present (benchmark.evaluation
+    # .sequence_eval), else a Gaussian + uniform density around ``decode`` calibrated on the
+    # validation split.

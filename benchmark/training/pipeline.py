@@ -252,27 +252,44 @@ def _sequence_split(
     from benchmark.data import PairDataset, odometry_noise
     from benchmark.evaluation.evaluate import load_beliefs
     from benchmark.evaluation.sequence_eval import (
+        POSITION_FROM_HEAD,
         STRESS_SCALE,
         evaluate_sequence,
         fuse_predictions,
+        gives_position_density,
+        head_position_belief,
     )
 
     csv_path, json_path = sequence_paths(out_dir, split)
+    own_density = gives_position_density(model.translation_head)
     if json_path.is_file() and csv_path.is_file():
-        return json.loads(json_path.read_text()), csv_path
+        summary = json.loads(json_path.read_text())
+        # a fusion written before a head's own position density was used is done again
+        if not own_density or summary.get(POSITION_FROM_HEAD) == 1.0:
+            return summary, csv_path
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     profile = base.manifest["profile"]
     calibration = _calibration(cfg, out_dir, base.manifest)
+    passes: dict[str, Any] = {
+        "batch_size": batch_size,
+        "shared_satellite": cfg.model.shared_satellite,
+        "precision": placement.precision,
+        "num_workers": loader_workers(cfg, placement.device),
+    }
     common: dict[str, Any] = {
         "split": split,
         "seed": int(base.manifest["seed"]),
         # the stress odometry (4x its noise) only where the figure draws it: the long flights
         "stress_scale": STRESS_SCALE if split.startswith("long/") else None,
     }
+    dataset = (
+        encode_for_heads(model, cfg, base, progress=progress) if cfg.pretrained.enabled else base
+    )
     stored = beliefs_path(out_dir, split)
     true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
     if stored.is_file() and true_csv.is_file():
         frame = pd.read_csv(true_csv)
+        position = head_position_belief(model, dataset, frame, **passes) if own_density else None
         summary, table = fuse_predictions(
             frame,
             load_beliefs(stored, len(frame)),
@@ -280,28 +297,15 @@ def _sequence_split(
             base.sat_table,
             calibration,
             odometry_noise(profile),
+            position_belief=position,
             **common,
         )
+        summary[POSITION_FROM_HEAD] = float(own_density)
     else:
-        dataset = (
-            encode_for_heads(model, cfg, base, progress=progress)
-            if cfg.pretrained.enabled
-            else base
-        )
         summary, table = evaluate_sequence(
-            model,
-            dataset,
-            base.poses,
-            base.sat_table,
-            calibration,
-            odometry_noise(profile),
-            batch_size=batch_size,
-            shared_satellite=cfg.model.shared_satellite,
-            progress=progress,
-            precision=placement.precision,
-            num_workers=loader_workers(cfg, placement.device),
-            **common,
-        )
+            model, dataset, base.poses, base.sat_table, calibration, odometry_noise(profile),
+            progress=progress, **passes, **common,
+        )  # fmt: skip
     _write_fusion(table, summary, csv_path, json_path)
     stored.unlink(missing_ok=True)  # an intermediate: the fusion table holds what it gave
     return summary, csv_path

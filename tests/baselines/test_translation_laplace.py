@@ -46,6 +46,32 @@ class TestNll:
         assert got == pytest.approx(want, abs=3 * KINK_EPS)  # smoothing ~ -eps per axis
 
 
+class TestPositionLogProb:
+    def test_is_scipys_laplace_in_metres_for_east_and_north(self):
+        head = _head()
+        rng = np.random.default_rng(1)
+        loc = torch.from_numpy(rng.normal(0, 1, (3, 3)))
+        log_scale = torch.from_numpy(rng.uniform(-2, 1, (3, 3)))
+        en = torch.from_numpy(rng.normal([10, -20], [300, 200], (3, 5, 2)))
+        got = head.position_log_prob({"loc": loc, "log_scale": log_scale}, en).numpy()
+        mu = head.mean.numpy()[:2] + head.std.numpy()[:2] * loc.numpy()[:, :2]
+        b = head.std.numpy()[:2] * np.exp(log_scale.numpy()[:, :2])
+        ref = stats.laplace.logpdf(en.numpy(), loc=mu[:, None], scale=b[:, None]).sum(-1)
+        assert got.shape == (3, 5)
+        np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-12)
+
+    def test_integrates_to_one_over_the_plane(self):
+        head = _head(mean=(0.0, 0.0, 0.0), std=(100.0, 50.0, 10.0))
+        raw = {"loc": torch.tensor([[0.3, -0.2, 0.0]], dtype=torch.float64),
+               "log_scale": torch.tensor([[-0.5, 0.2, 0.0]], dtype=torch.float64)}  # fmt: skip
+        h = 2.0
+        axis = torch.arange(-3000, 3000 + h, h, dtype=torch.float64)
+        e, n = torch.meshgrid(axis, axis, indexing="ij")
+        en = torch.stack([e, n], -1).reshape(1, -1, 2)
+        mass = float(head.position_log_prob(raw, en).exp().sum() * h * h)
+        assert mass == pytest.approx(1.0, rel=1e-3)
+
+
 class TestLoss:
     def test_minimiser_is_the_median_not_the_mean(self):
         """For a fixed scale, the location minimising the mean loss over a sample is the sample's

@@ -24,7 +24,7 @@ class TestKeys:
             eval_key("standard/test", "grey")
 
 
-def _tiny_config(root):
+def _tiny_config(root, *extra):
     """One epoch of Re-Net-R at width 0.25 on 8 smoke pairs: a unit in seconds."""
     return load_train_config(
         None,
@@ -32,7 +32,7 @@ def _tiny_config(root):
             f"data.root={root}", "data.limit_train=8", "data.limit_val=4",
             "model.width=0.25", "model.variant=/", "model.attitude=re_net_r",
             "model.attitude_options.hidden=32", "optim.name=adam", "optim.batch_size=4",
-            "optim.epochs=1", "threads=1",
+            "optim.epochs=1", "threads=1", *extra,
         ],
     )  # fmt: skip
 
@@ -110,3 +110,35 @@ class TestFusionFromTheEvaluationPass:
         summary, _ = done.sequences[split]
         assert again.sequences[split][0] == pytest.approx(summary, rel=1e-7, nan_ok=True)
         assert {"seq_filter_dpsi_deg", "seq4x_smooth_dpsi_deg"} <= set(summary)
+
+
+@pytest.mark.slow
+class TestHeadPositionDensity:
+    def test_the_laplace_heads_own_density_and_an_older_fusion_redone(self, smoke_dataset,
+                                                                     tmp_path):  # fmt: skip
+        """A translation head with ``position_log_prob`` (Laplace) fuses its own density, not
+        the calibrated Gaussian; a fusion written before that (no flag) is done again."""
+        import json
+
+        from benchmark.evaluation.sequence_eval import POSITION_FROM_HEAD
+        from benchmark.training.pipeline import sequence_paths
+
+        split, out = "long/standard", tmp_path / "laplace"
+        cfg = _tiny_config(smoke_dataset, "model.translation=laplace")
+        done = train_and_evaluate(cfg, out, ["standard/test", split], fuse_splits=[split])
+        assert done.sequences[split][0][POSITION_FROM_HEAD] == 1.0
+        csv, js = sequence_paths(out, split)
+        own = pd.read_csv(csv)
+        # a translation head without a density of its own: the calibrated one
+        regression = _tiny_config(smoke_dataset)
+        other = train_and_evaluate(regression, tmp_path / "regression", ["standard/test", split],
+                                   fuse_splits=[split])  # fmt: skip
+        assert other.sequences[split][0][POSITION_FROM_HEAD] == 0.0
+        # an older fusion of the Laplace unit (no flag): read, found stale, fused again
+        stale = json.loads(js.read_text())
+        del stale[POSITION_FROM_HEAD]
+        js.write_text(json.dumps(stale))
+        csv.write_text(csv.read_text())  # still there: only the flag says it is stale
+        again = train_and_evaluate(cfg, out, ["standard/test", split], fuse_splits=[split])
+        assert again.sequences[split][0][POSITION_FROM_HEAD] == 1.0
+        pd.testing.assert_frame_equal(pd.read_csv(csv), own, check_exact=False, rtol=1e-7)
