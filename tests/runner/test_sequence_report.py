@@ -62,7 +62,9 @@ class TestOracleDistance:
                 {"label": "A", "mode": "smooth", "learned": True, "mean_dpsi_deg": learned_best},
                 {"label": "B", "mode": "smooth", "learned": True, "mean_dpsi_deg": 40.0},
                 {"label": "Constant (train mean)", "mode": "smooth", "learned": False,
-                 "mean_dpsi_deg": 1.0},  # a control never counts as the best head
+                 "mean_dpsi_deg": 1.0},  # not learned: never the best row
+                {"label": "UAV-only control", "mode": "smooth", "learned": True, "control": True,
+                 "mean_dpsi_deg": 2.0},  # the control is no candidate either
                 {"label": "Geometry oracle (not learned; given true position, pitch, roll)",
                  "mode": "smooth", "learned": False, "mean_dpsi_deg": oracle},
                 {"label": "A", "mode": "frame", "learned": True, "mean_dpsi_deg": 0.5},

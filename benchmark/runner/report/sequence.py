@@ -46,6 +46,7 @@ class SequenceErrors:
     flight: np.ndarray
     t_s: np.ndarray
     learned: bool = True  # False: the constant predictor or a non-learned reference
+    control: bool = False  # the UAV-only control (no satellite image)
     position_given: bool = False  # a reference given the true position: no horizontal error
 
 
@@ -67,7 +68,8 @@ def load_sequences(spec: TableSpec, units: list[Unit], workdir: Path) -> list[Se
             paths = [where(workdir / "units" / u.key, split)[0] for u in mine]
             frames = [_read(p) for p in paths if p.is_file()]
             if frames:
-                out.append(_stacked(job.label, split, frames))
+                blank = job.row.get("satellite_input") == "blank"
+                out.append(_stacked(job.label, split, frames, control=blank))
     return out
 
 
@@ -160,6 +162,7 @@ def sequence_rows(items: list[SequenceErrors], seed: int = 0) -> pd.DataFrame:
                 "split": item.split,
                 "label": item.label,
                 "learned": item.learned,
+                "control": item.control,
                 "position_given": item.position_given,
                 "mode": mode,
                 "seeds": e["dpsi_deg"].shape[0],
@@ -222,11 +225,15 @@ ORACLE_PREFIX = "Geometry oracle"
 
 
 def oracle_distance(part: pd.DataFrame, mode: str = "smooth") -> str:
-    """One sentence per split: how far the best fused head (mean δψ, ``mode``) is from the fused
-    geometry oracle (given the true position, pitch and roll: what the pixels allow at this
-    heading search), "" without either."""
+    """One sentence per split: how far the best fused learned row (mean δψ, ``mode``; a head's
+    or the pose volume's, the UAV-only control left out) is from the fused geometry oracle
+    (given the true position, pitch and roll: what the pixels allow at this heading search), ""
+    without either."""
     fused = part[part["mode"] == mode]
-    learned = fused[fused["learned"].astype(bool)] if "learned" in fused else fused.iloc[:0]
+    keep = fused["learned"].astype(bool) if "learned" in fused else fused["label"].isna()
+    if "control" in fused:
+        keep &= ~fused["control"].astype("boolean").fillna(False).astype(bool)
+    learned = fused[keep]
     oracle = fused[fused["label"].str.startswith(ORACLE_PREFIX)]
     if not len(learned) or not len(oracle):
         return ""
@@ -234,8 +241,8 @@ def oracle_distance(part: pd.DataFrame, mode: str = "smooth") -> str:
     ref = float(oracle["mean_dpsi_deg"].iloc[0])
     gap = float(best["mean_dpsi_deg"]) - ref
     return (
-        f"Distance to the fused geometry oracle ({MODE_NAMES[mode]}, mean δψ): the best head, "
-        f"{best['label']}, {_fmt(float(best['mean_dpsi_deg']))}° against the oracle's "
+        f"Distance to the fused geometry oracle ({MODE_NAMES[mode]}, mean δψ): the best learned "
+        f"row, {best['label']}, {_fmt(float(best['mean_dpsi_deg']))}° against the oracle's "
         f"{_fmt(ref)}°, {gap:+.1f}° ({'above' if gap > 0 else 'at or below'} it)."
     )
 
