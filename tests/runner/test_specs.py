@@ -172,6 +172,17 @@ class TestLoadSpec:
                 "field 'encoder_variant' is now 'variant': write variant: '/'",
             ),
             ("rows:", "variants:", "field 'variants' is now 'rows'"),
+            # what a sequence row fuses (issue 39): a head's belief or the encoder's pose volume
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, beliefs: pixels}",
+                r"beliefs must be one of \('head', 'volume'\), got 'pixels'",
+            ),
+            (
+                "attitude: pd_re_net}",
+                "attitude: pd_re_net, encoder: matching, beliefs: volume}",
+                "beliefs: volume is for a kind: sequence spec",
+            ),
         ],
     )
     def test_errors_name_file_and_field(self, tmp_path, old, new, message):
@@ -179,6 +190,15 @@ class TestLoadSpec:
         with pytest.raises(SpecError, match=message) as info:
             load_spec(path)
         assert str(path) in str(info.value)
+
+    def test_a_volume_row_names_its_encoder(self, tmp_path):
+        text = GOOD.replace("kind: table", "kind: sequence").replace(
+            "attitude: pd_re_net}", "attitude: pd_re_net, beliefs: volume}"
+        )
+        with pytest.raises(SpecError, match="names the pair encoder whose pose volume it fuses"):
+            load_spec(write(tmp_path, "t1", text))
+        named = text.replace("beliefs: volume}", "encoder: matching, beliefs: volume}")
+        assert load_spec(write(tmp_path, "t1", named)).rows[0].beliefs == "volume"
 
     def test_placeholder_outside_sweep(self, tmp_path):
         path = write(

@@ -402,6 +402,12 @@ def load_spec(path: str | Path) -> TableSpec:
                 f"{path}: rows[{index}] ({row.label!r}): beliefs: {row.beliefs} is for a "
                 f"kind: sequence spec (what its rows fuse); kind {raw['kind']!r} fuses nothing"
             )
+        if row.beliefs == "volume" and row.model.get("encoder") is None:
+            raise SpecError(
+                f"{path}: rows[{index}] ({row.label!r}): a beliefs: volume row names the pair "
+                f"encoder whose pose volume it fuses (encoder: matching); the profile's encoder "
+                f"may have none"
+            )
     tuples = ("paper_splits", "eval_splits", "metrics", "sweep_values", "swap_metrics")
     values = {
         k: tuple(str(x) for x in raw[k]) if k in tuples else raw[k] for k in raw if k != "rows"
