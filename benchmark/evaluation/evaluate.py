@@ -14,7 +14,7 @@ Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -81,6 +81,38 @@ def forward_batch(model: torch.nn.Module, batch: dict[str, Any], shared_satellit
     sat_ids = batch["sat_id"] if shared_satellite else None
     context = {"context": batch["context"]} if "context" in batch else {}  # pair encoders
     return model(batch["uav"], batch["sat"], sat_ids, **context)
+
+
+@torch.no_grad()
+def model_outputs(
+    model: torch.nn.Module,
+    dataset: Dataset,
+    *,
+    batch_size: int = 64,
+    shared_satellite: bool = True,
+    precision: str = "fp32",
+    num_workers: int = 0,
+    progress: bool = False,
+    desc: str = "pass",
+) -> Iterator[tuple[dict[str, Any], Any]]:
+    """``(batch, output)`` of every batch of ``dataset`` in order: eval mode (restored when the
+    iteration ends or stops), no autograd, the batch on the model's device, the forward under
+    autocast for ``precision``. For a pass that keeps something other than :func:`predict`'s
+    predictions (a pose volume's marginals, a head's raw outputs)."""
+    weight = next(iter(model.parameters()))
+    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
+    was_training = model.training
+    model.eval()
+    try:
+        with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
+            for batch in loader:
+                batch = to_device(batch, weight.device)
+                with autocast(weight.device, precision):
+                    out = forward_batch(model, batch, shared_satellite)
+                yield batch, out
+                bar.update(1)
+    finally:
+        model.train(was_training)
 
 
 @torch.no_grad()

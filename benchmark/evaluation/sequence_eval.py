@@ -41,8 +41,7 @@ from benchmark.evaluation.beliefs import (
 )
 from benchmark.evaluation.evaluate import (
     BeliefFn,
-    forward_batch,
-    make_loader,
+    model_outputs,
     predict,
     predictions_to_frame,
 )
@@ -59,7 +58,6 @@ from benchmark.evaluation.volume_beliefs import (
     volume_position_beliefs,
     volume_yaw_beliefs,
 )
-from benchmark.models.device import autocast, to_device
 
 STRESS_SCALE = 4.0
 # Summary key: 1.0 when the translation head's own density was the position belief (a head with
@@ -357,20 +355,14 @@ def head_position_belief(
     head = model.translation_head
     if not gives_position_density(head):
         raise ValueError(f"{type(head).__name__} gives no position_log_prob")
-    weight = next(iter(model.parameters()))
-    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
-    was_training = model.training
-    model.eval()
     index, raws = [], []
-    try:
-        for batch in loader:
-            batch = to_device(batch, weight.device)
-            with autocast(weight.device, precision):
-                out = forward_batch(model, batch, shared_satellite)
-            index.append(batch["index"].cpu())
-            raws.append(_to_cpu64(out.translation))
-    finally:
-        model.train(was_training)
+    passes = model_outputs(
+        model, dataset, batch_size=batch_size, shared_satellite=shared_satellite,
+        precision=precision, num_workers=num_workers, desc="position",
+    )  # fmt: skip
+    for batch, out in passes:
+        index.append(batch["index"].cpu())
+        raws.append(_to_cpu64(out.translation))
     row_of = {int(i): k for k, i in enumerate(torch.cat(index).tolist())}
     order = torch.as_tensor([row_of[int(i)] for i in frame["index"]], dtype=torch.long)
     raw = take_raw(_cat_raw(raws), order)

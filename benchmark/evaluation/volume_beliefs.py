@@ -28,10 +28,8 @@ import torch
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from benchmark.evaluation.evaluate import forward_batch, make_loader
+from benchmark.evaluation.evaluate import model_outputs
 from benchmark.evaluation.fusion_grid import CircularGrid, PlanarGrid
-from benchmark.models.device import autocast, to_device
-from benchmark.progress import Progress
 
 
 @dataclass(frozen=True)
@@ -87,26 +85,18 @@ def volume_marginals(
             f"{type(getattr(model, 'encoder', model)).__name__} has no pose volume "
             f"(PairEncoder.pose_volume_axes is None): fuse its heads' beliefs instead"
         )
-    weight = next(iter(model.parameters()))
-    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
-    was_training = model.training
-    model.eval()
     index, yaw, position = [], [], []
-    try:
-        with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
-            for batch in loader:
-                if "uav" not in batch:
-                    raise ValueError("volume_marginals needs the images: got cached features")
-                batch = to_device(batch, weight.device)
-                with autocast(weight.device, precision):
-                    out = forward_batch(model, batch, shared_satellite)
-                log_volume = out.encoder["log_volume"].double()  # (B, K, P, Q)
-                yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
-                position.append(torch.logsumexp(log_volume, dim=1).cpu())
-                index.append(batch["index"].cpu())
-                bar.update(1)
-    finally:
-        model.train(was_training)
+    passes = model_outputs(
+        model, dataset, batch_size=batch_size, shared_satellite=shared_satellite,
+        precision=precision, num_workers=num_workers, progress=progress, desc=desc,
+    )  # fmt: skip
+    for batch, out in passes:
+        if "uav" not in batch:
+            raise ValueError("volume_marginals needs the images: got cached features")
+        log_volume = out.encoder["log_volume"].double()  # (B, K, P, Q)
+        yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
+        position.append(torch.logsumexp(log_volume, dim=1).cpu())
+        index.append(batch["index"].cpu())
     return VolumeMarginals(
         torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
         axes.yaw.double().cpu(), axes.north.double().cpu(), axes.east.double().cpu(),
