@@ -86,7 +86,7 @@ def forward_batch(model: torch.nn.Module, batch: dict[str, Any], shared_satellit
 @torch.no_grad()
 def model_outputs(
     model: torch.nn.Module,
-    dataset: Dataset,
+    dataset: Dataset | DataLoader,
     *,
     batch_size: int = 64,
     shared_satellite: bool = True,
@@ -95,20 +95,28 @@ def model_outputs(
     progress: bool = False,
     desc: str = "pass",
 ) -> Iterator[tuple[dict[str, Any], Any]]:
-    """``(batch, output)`` of every batch of ``dataset`` in order: eval mode (restored when the
-    iteration ends or stops), no autograd, the batch on the model's device, the forward under
-    autocast for ``precision``. For a pass that keeps something other than :func:`predict`'s
-    predictions (a pose volume's marginals, a head's raw outputs)."""
-    weight = next(iter(model.parameters()))
-    loader = make_loader(dataset, batch_size, num_workers, weight.device.type == "cuda")
+    """``(batch, output)`` of every batch of ``dataset`` (or of a ready ``DataLoader``) in
+    order: eval mode (restored when the iteration ends or stops), no autograd, the batch on the
+    model's device (the CPU for a parameter-free model), the forward under autocast for
+    ``precision`` and its outputs back in float32. :func:`predict` runs on it, and so does any
+    pass that keeps something else (a pose volume's marginals, a head's raw outputs)."""
+    weight = next(iter(model.parameters()), None)
+    device = weight.device if weight is not None else torch.device("cpu")
+    loader = (
+        dataset
+        if isinstance(dataset, DataLoader)
+        else make_loader(dataset, batch_size, num_workers, device.type == "cuda")
+    )
     was_training = model.training
     model.eval()
     try:
         with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
             for batch in loader:
-                batch = to_device(batch, weight.device)
-                with autocast(weight.device, precision):
+                batch = to_device(batch, device)  # the same dict on the CPU
+                with autocast(device, precision):
                     out = forward_batch(model, batch, shared_satellite)
+                if precision != "fp32":
+                    out = outputs_to_float(out)
                 yield batch, out
                 bar.update(1)
     finally:
@@ -137,13 +145,6 @@ def predict(
     head, its float32 raw output and ``R_hat``; its outputs are concatenated in
     ``Predictions.beliefs`` (float64, CPU).
     """
-    weight = next(iter(model.parameters()), None)  # a parameter-free model runs on the CPU
-    device = weight.device if weight is not None else torch.device("cpu")
-    if not isinstance(dataset, DataLoader):
-        dataset = make_loader(dataset, batch_size, num_workers, device.type == "cuda")
-    loader = dataset
-    was_training = model.training
-    model.eval()
     head = model.attitude_head
     probabilistic = bool(getattr(head, "is_probabilistic", False))
     with_log_prob = probabilistic or bool(getattr(head, "gives_log_prob", False))
@@ -163,35 +164,28 @@ def predict(
     }
     loss_sums: dict[str, float] = {}
     count = 0
-    try:
-        with Progress(len(loader), desc, unit="batch", enabled=progress) as bar:
-            for batch in loader:
-                batch = to_device(batch, device)  # the same dict on the CPU
-                R_gt, T_gt = batch["R"], batch["T"]
-                with autocast(device, precision):
-                    out = forward_batch(model, batch, shared_satellite)
-                if precision != "fp32":
-                    out = outputs_to_float(out)
-                R_hat, T_hat = model.decode(out)
-                n = R_gt.shape[0]
-                for key, value in model.loss(out, R_gt, T_gt).items():
-                    loss_sums[key] = loss_sums.get(key, 0.0) + float(value) * n
-                count += n
-                parts["index"].append(batch["index"].cpu())
-                parts["R_hat"].append(R_hat.double().cpu())
-                parts["R_gt"].append(R_gt.double().cpu())
-                parts["T_hat"].append(T_hat.double().cpu())
-                parts["T_gt"].append(T_gt.double().cpu())
-                if with_log_prob:
-                    ll = head.log_prob(out.attitude, R_gt)
-                    parts["log_likelihood"].append(ll.double().cpu())
-                if with_uncertainty:
-                    parts["uncertainty"].append(head.uncertainty(out.attitude).double().cpu())
-                if beliefs is not None:
-                    parts["beliefs"].append(beliefs(head, out.attitude, R_hat).double().cpu())
-                bar.update(1)
-    finally:
-        model.train(was_training)
+    passes = model_outputs(
+        model, dataset, batch_size=batch_size, shared_satellite=shared_satellite,
+        precision=precision, num_workers=num_workers, progress=progress, desc=desc,
+    )  # fmt: skip
+    for batch, out in passes:
+        R_gt, T_gt = batch["R"], batch["T"]
+        R_hat, T_hat = model.decode(out)
+        n = R_gt.shape[0]
+        for key, value in model.loss(out, R_gt, T_gt).items():
+            loss_sums[key] = loss_sums.get(key, 0.0) + float(value) * n
+        count += n
+        parts["index"].append(batch["index"].cpu())
+        parts["R_hat"].append(R_hat.double().cpu())
+        parts["R_gt"].append(R_gt.double().cpu())
+        parts["T_hat"].append(T_hat.double().cpu())
+        parts["T_gt"].append(T_gt.double().cpu())
+        if with_log_prob:
+            parts["log_likelihood"].append(head.log_prob(out.attitude, R_gt).double().cpu())
+        if with_uncertainty:
+            parts["uncertainty"].append(head.uncertainty(out.attitude).double().cpu())
+        if beliefs is not None:
+            parts["beliefs"].append(beliefs(head, out.attitude, R_hat).double().cpu())
     if count == 0:
         raise ValueError("predict: the dataset is empty")
     cat = {k: torch.cat(v) if v else None for k, v in parts.items()}
