@@ -1,10 +1,10 @@
-"""The README's "Adding a head in one file" guide, executed exactly as written in a scratch copy.
+"""The guide ``docs/adding-a-head.md``, executed exactly as written in a scratch copy.
 
 The copy holds the working tree's files (tracked and not ignored) as a fresh git repository with
-one commit. The test then follows the guide: saves the README's Python block under the path the
-README names, runs the README's shell commands as they are (``uavbench`` is the installed console
+one commit. The test then follows the guide: saves the guide's Python block under the path the
+guide names, runs the guide's shell commands as they are (``uavbench`` is the installed console
 script; ``PYTHONPATH`` points it at the copy, as ``pip install -e .`` in a clone would), inserts
-the README's YAML line under ``rows:`` of the spec it names, and runs the smoke reproduction
+the guide's YAML line under ``rows:`` of the spec it names, and runs the smoke reproduction
 of that table. It asserts the acceptance of issue 13: a head with a new option, trained with that
 option and swept in a table, touches one new Python file and one YAML line, nothing else
 (``git status`` / ``git diff`` of the copy); the new head's rows are in the rendered table.
@@ -31,13 +31,14 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[1]
-SECTION = "## Adding a head in one file"
+GUIDE = REPO / "docs" / "adding-a-head.md"
+TITLE = "# Adding a head in one file"
 
 
 def guide() -> str:
-    text = (REPO / "README.md").read_text(encoding="utf-8")
-    assert SECTION in text, f"README.md has no section {SECTION!r}"
-    return text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+    text = GUIDE.read_text(encoding="utf-8")
+    assert text.startswith(TITLE), f"{GUIDE} does not start with {TITLE!r}"
+    return text[len(TITLE) :]
 
 
 def blocks(section: str, language: str) -> list[str]:
@@ -101,13 +102,13 @@ def test_guide_runs_and_touches_one_file_and_one_line(tmp_path, cue_datasets):
     probe = run('python -c "import benchmark, baselines; print(benchmark.__file__)"', repo)
     assert probe.strip() == str(repo / "benchmark" / "__init__.py")
 
-    # 1. the head: the README's code block, saved where the README says
+    # 1. the head: the guide's code block, saved where the guide says
     saved = re.search(r"Save this as `(baselines/\w+\.py)`", section)
     assert saved is not None, "the guide must say where to save the head"
     head_file = saved.group(1)
     (repo / head_file).write_text(blocks(section, "python")[0])
 
-    # 2-4. the README's commands and its one YAML line, in the README's order
+    # 2-4. the guide's commands and its one YAML line, in the guide's order
     spec_path = re.search(r"one line under `rows:` in `(reports/configs/\w+\.yaml)`", section)
     assert spec_path is not None, "the guide must name the spec the YAML line goes into"
     (yaml_line,) = [line for b in blocks(section, "yaml") for line in b.splitlines() if line]
@@ -175,7 +176,7 @@ def _fusion_free(cls: type) -> bool:
 
 
 class TestYawBeliefsOfANewHead:
-    """The README's guide says fusion needs nothing from a new head: ``yaw_beliefs`` reads its
+    """The guide says fusion needs nothing from a new head: ``yaw_beliefs`` reads its
     ``log_prob`` if it gives one, else the density calibrated on the validation split. Both kinds,
     registered as the guide registers a head, get their beliefs with no fusion code of their own."""
 

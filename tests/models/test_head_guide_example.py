@@ -1,4 +1,4 @@
-"""The README's worked example "Adding a head in one file" is a correct head (checked against
+"""The worked example of docs/adding-a-head.md is a correct head (checked against
 scipy and the Cayley transform's closed form). ``tests/test_add_head_guide.py`` runs the whole
 guide (file, training, table) in a scratch copy of the repository."""
 
@@ -16,15 +16,15 @@ from scipy.spatial.transform import Rotation
 from benchmark.models import create_head, create_model, list_heads
 from benchmark.models import registry as registry_module
 
-README = Path(__file__).resolve().parents[2] / "README.md"
-SECTION = "## Adding a head in one file"
+GUIDE = Path(__file__).resolve().parents[2] / "docs" / "adding-a-head.md"
+TITLE = "# Adding a head in one file"
 NAME = "re_net_cayley"
 
 
 def readme_section() -> str:
-    text = README.read_text(encoding="utf-8")
-    assert SECTION in text, f"README.md has no section {SECTION!r}"
-    return text.split(SECTION, 1)[1].split("\n## ", 1)[0]
+    text = GUIDE.read_text(encoding="utf-8")
+    assert text.startswith(TITLE), f"{GUIDE} does not start with {TITLE!r}"
+    return text[len(TITLE) :]
 
 
 def readme_example() -> str:
@@ -38,10 +38,10 @@ def example_head(monkeypatch):
     list_heads()
     monkeypatch.setattr(registry_module, "_HEADS", dict(registry_module._HEADS))
     assert NAME not in registry_module._HEADS, (
-        f"{NAME!r} is a real head now: pick another example for the README's guide"
+        f"{NAME!r} is a real head now: pick another example for the guide"
     )
     module = types.ModuleType("readme_example_head")
-    exec(compile(readme_example(), str(README), "exec"), module.__dict__)
+    exec(compile(readme_example(), str(GUIDE), "exec"), module.__dict__)
     return module
 
 
