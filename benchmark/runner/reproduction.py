@@ -25,6 +25,7 @@ from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import format_duration
 from benchmark.runner.claims.data_audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
+from benchmark.runner.execute.ray_executor import is_local_address
 from benchmark.runner.execute.worker import (
     UnitResult,
     UnitTask,
@@ -139,14 +140,36 @@ def _check_data(root: Path, profile: ReproProfile, config: ReproduceConfig) -> s
         raise _data_error(root, profile, config.dataset_seed, err) from None
 
 
-def _with_device(profile: ReproProfile, device: str, precision: str) -> ReproProfile:
+def _with_device(
+    profile: ReproProfile, device: str, precision: str, executor: ExecutorConfig
+) -> ReproProfile:
     """``profile`` training on ``device`` in ``precision``, checked before any work: a bad name,
-    a device this machine lacks or bf16 on a CPU without native bf16 is one line (exit 2)."""
-    from benchmark.models.device import check_precision_name, resolve_placement
+    a device this machine lacks or bf16 on a CPU without native bf16 is one line (exit 2).
+
+    The units' keys are computed here, on the driver, and name their precision; ``"auto"`` is
+    resolved into the units' configs by the plan (``plan.units.resolved_precision``). With a
+    remote Ray cluster the driver is not where the units compute (a CPU driver, GPU workers),
+    so ``"auto"`` is refused there and the device is only checked by name: each worker resolves
+    the device itself, checks that it runs the precision, and tags the runs with both."""
+    from benchmark.models.device import (
+        check_device_name,
+        check_precision_name,
+        resolve_placement,
+    )
 
     try:
+        check_device_name(device)
         check_precision_name(precision)
-        resolve_placement(device, precision)  # each worker resolves its own placement once
+        if executor.kind == "ray" and not is_local_address(executor.ray_address):
+            if precision == "auto":
+                raise ValueError(
+                    f"precision 'auto' with the remote Ray cluster {executor.ray_address}: the "
+                    "units' keys are computed on this machine, which is not where they train, "
+                    "so 'auto' could name one precision here and train in another there; "
+                    "choose the precision explicitly (fp32, bf16 or fp16)"
+                )
+        else:
+            resolve_placement(device, precision)  # each worker resolves its own placement once
     except ValueError as err:
         raise UsageError(f"reproduce: {err}") from None
     return dataclasses.replace(profile, device=device, precision=precision)
@@ -160,7 +183,7 @@ def reproduce(config: ReproduceConfig) -> int:
         repro = get_repro_profile(config.profile)
     except ValueError as err:
         raise UsageError(str(err)) from None
-    profile = _with_device(repro, config.device, config.precision)
+    profile = _with_device(repro, config.device, config.precision, config.executor)
     if config.seeds is not None and config.seeds < 1:
         raise UsageError(f"--seeds must be >= 1, got {config.seeds}")
     if config.executor.workers < 1:

@@ -18,8 +18,10 @@ from benchmark.training.config import (
     load_train_config,
 )
 from benchmark.training.identity import (
+    DEVICE_TAGS,
     MODEL_KEY_TAG,
     device_tags,
+    model_tags,
     numbers_hash,
     portable_config,
     run_key,
@@ -46,6 +48,7 @@ from benchmark.training.pipeline import (
 
 __all__ = [
     "CHECKPOINT",
+    "DEVICE_TAGS",
     "MODEL_KEY_TAG",
     "CheckpointMismatchError",
     "DataConfig",
@@ -66,6 +69,7 @@ __all__ = [
     "load_trained_model",
     "make_optimizer",
     "model_factory",
+    "model_tags",
     "numbers_hash",
     "open_datasets",
     "portable_config",

@@ -199,10 +199,11 @@ def _write_cache(
     identity: dict[str, str],
     name: str,
     progress: bool,
+    precision: str = "fp32",
 ) -> dict[str, Any]:
     from benchmark.data import atomic_write_bytes
 
-    features = _encode(model, dataset, f"encode {name}", progress)
+    features = _encode(model, dataset, f"encode {name}", progress, precision)
     # Labels from the split's table (the items' own float32 values), not from the images.
     R = torch.from_numpy(poses[R_COLUMNS].to_numpy(np.float32).reshape(-1, 3, 3).copy())
     T = torch.from_numpy(poses[["dE", "dN", "dU"]].to_numpy(np.float32).copy())
@@ -216,7 +217,13 @@ def _write_cache(
 
 
 @torch.no_grad()
-def _encode(model: torch.nn.Module, dataset: Dataset, desc: str, progress: bool) -> torch.Tensor:
+def _encode(
+    model: torch.nn.Module, dataset: Dataset, desc: str, progress: bool, precision: str = "fp32"
+) -> torch.Tensor:
+    """``(N, F)`` float32 features of ``dataset`` in eval mode, computed under ``precision``'s
+    autocast (a bf16 unit's frozen encoder computes in bf16, as its training did)."""
+    from benchmark.models.device import autocast
+
     weight = next(iter(model.parameters()))
     loader = DataLoader(dataset, batch_size=ENCODE_BATCH, shuffle=False)
     was_training = model.training
@@ -228,12 +235,13 @@ def _encode(model: torch.nn.Module, dataset: Dataset, desc: str, progress: bool)
                 ctx = batch.get("context")
                 if ctx is not None:
                     ctx = {k: v.to(weight.device) for k, v in ctx.items()}
-                enc = model.encode_pairs(
-                    batch["uav"].to(weight.device),
-                    batch["sat"].to(weight.device),
-                    batch["sat_id"].to(weight.device) if model.shared_satellite else None,
-                    ctx,
-                )
+                with autocast(weight.device, precision):
+                    enc = model.encode_pairs(
+                        batch["uav"].to(weight.device),
+                        batch["sat"].to(weight.device),
+                        batch["sat_id"].to(weight.device) if model.shared_satellite else None,
+                        ctx,
+                    )
                 parts.append(enc.features.float().cpu())
                 bar.update(1)
     finally:
@@ -248,6 +256,7 @@ def encode_dataset(
     identity: dict[str, str],
     *,
     progress: bool = False,
+    precision: str = "fp32",
 ) -> EncodedPairs:
     """``dataset`` (a ``PairDataset`` or its first N items) through ``model``'s frozen encoder,
     read from ``cache_dir`` when a file with the same ``identity`` (checkpoint and dataset
@@ -265,7 +274,9 @@ def encode_dataset(
         with work_lock(path.with_suffix(".lock"), what=f"encode {name}", wait=True):
             cached = _read_cache(path, identity, len(dataset))
             if cached is None:
-                cached = _write_cache(model, dataset, poses, path, identity, name, progress)
+                cached = _write_cache(
+                    model, dataset, poses, path, identity, name, progress, precision
+                )
     served = getattr(base, "served_sat_index", None)
     if served is not None and rows is not None:
         served = served[rows]
@@ -274,12 +285,17 @@ def encode_dataset(
 
 
 def encode_for_heads(
-    model: torch.nn.Module, cfg: TrainConfig, dataset: Dataset, *, progress: bool = False
+    model: torch.nn.Module,
+    cfg: TrainConfig,
+    dataset: Dataset,
+    *,
+    progress: bool = False,
+    precision: str = "fp32",
 ) -> EncodedPairs:
     """``dataset`` as the heads of ``model`` see it when ``cfg.pretrained`` freezes its encoder
     (already loaded by :func:`load_pretrained_encoder`): cached under
     ``<checkpoint dir>/encodings``, keyed by the checkpoint's and the dataset manifest's
-    sha256."""
+    sha256 and, other than fp32, the ``precision`` (resolved) the encoder computes in."""
     checkpoint = _checkpoint_path(cfg)
     base, _ = _base(dataset)
     # The encoder's options (the matching protocol) change the features of the same weights.
@@ -289,6 +305,10 @@ def encode_for_heads(
         "manifest_sha256": file_sha256(Path(base.root) / "manifest.json"),
         "encoder_options": options,
     }
+    if precision != "fp32":  # fp32 caches keep the identity they had before precisions
+        identity["precision"] = precision
     tag = hashlib.sha256(options.encode()).hexdigest()[:8]
+    if precision != "fp32":  # beside the fp32 cache, not overwriting it
+        tag += f"-{precision}"
     return encode_dataset(model, dataset, checkpoint.parent / "encodings" / tag, identity,
-                          progress=progress)  # fmt: skip
+                          progress=progress, precision=precision)  # fmt: skip

@@ -31,9 +31,14 @@ MODEL_KEY_TAG = "model_key"  # the tag holding run_key(cfg, manifest) on every t
 
 
 def effective_precision(cfg: TrainConfig) -> str:
-    """``cfg.precision`` resolved on ``cfg.device`` of this machine: fp32, bf16 or fp16."""
-    from benchmark.models.device import resolve_device, resolve_precision
+    """``cfg.precision`` resolved on ``cfg.device`` of this machine: fp32, bf16 or fp16. An
+    explicit precision is itself, whatever this machine has (a reproduction's units arrive
+    resolved: ``benchmark.runner.plan.units.resolved_precision``)."""
+    from benchmark.models.device import check_precision_name, resolve_device, resolve_precision
 
+    if cfg.precision != "auto":
+        check_precision_name(cfg.precision)
+        return cfg.precision
     try:
         device = resolve_device(cfg.device)
     except ValueError:  # a device this machine lacks: its precision as asked ("auto" -> fp32)
@@ -88,19 +93,19 @@ def run_key(cfg: TrainConfig, dataset_manifest: str, precision: str | None = Non
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def run_tags(
-    cfg: TrainConfig, dataset_manifest: str, placement: Placement | None = None
+DEVICE_TAGS = ("device", "precision", "accelerator")  # where a run computed: see device_tags
+
+
+def model_tags(
+    cfg: TrainConfig, dataset_manifest: str, precision: str | None = None
 ) -> dict[str, str]:
-    """The tags describing the trained model of ``cfg`` (strings; the same for a ``train`` run
-    and a reproduce unit): model key, heads and their options and versions, encoder, seed,
-    dataset, and where it ran (:func:`device_tags`). ``placement``: ``cfg``'s device and
-    precision resolved once by the caller (None: resolved here)."""
+    """The tags naming the trained model of ``cfg`` (strings; the same for a ``train`` run and
+    a reproduce unit): model key, heads and their options and versions, encoder, seed, dataset.
+    Nothing about the machine: those tags (:func:`device_tags`) are written where the model
+    computes. ``precision``: resolved, as in :func:`numbers_hash` (None: resolved here)."""
     from benchmark.models.registry import head_versions
 
     m = cfg.model
-    if placement is None:
-        placement = placement_of(cfg)
-    precision = placement.precision
     return {
         MODEL_KEY_TAG: run_key(cfg, dataset_manifest, precision),
         "config_hash": numbers_hash(portable_config(cfg), precision),
@@ -116,6 +121,19 @@ def run_tags(
         "train_split": cfg.data.train_split,
         "seed": str(cfg.seed),
         "dataset_manifest_sha256": dataset_manifest,
+    }
+
+
+def run_tags(
+    cfg: TrainConfig, dataset_manifest: str, placement: Placement | None = None
+) -> dict[str, str]:
+    """:func:`model_tags` and where it ran (:func:`device_tags`), for a run that computes in
+    this process. ``placement``: ``cfg``'s device and precision resolved once by the caller
+    (None: resolved here)."""
+    if placement is None:
+        placement = placement_of(cfg)
+    return {
+        **model_tags(cfg, dataset_manifest, placement.precision),
         **device_tags(cfg, placement),
     }
 

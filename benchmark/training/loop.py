@@ -248,9 +248,9 @@ def train(
     model.translation_head.fit_statistics(translation_labels(train_set))
     model.to(device)  # the same module, in place (a no-op on the CPU)
     if cfg.pretrained.enabled:
-        train_set = encode_for_heads(model, cfg, train_set, progress=progress)
+        train_set = encode_for_heads(model, cfg, train_set, progress=progress, precision=precision)
         if val_set is not None:
-            val_set = encode_for_heads(model, cfg, val_set, progress=progress)
+            val_set = encode_for_heads(model, cfg, val_set, progress=progress, precision=precision)
     optimizer = make_optimizer(cfg, model)
     scaler = grad_scaler(device, precision)  # fp16 only; disabled otherwise
     history: list[dict[str, float]] = []

@@ -283,7 +283,9 @@ def _sequence_split(
         "stress_scale": STRESS_SCALE if split.startswith("long/") else None,
     }
     dataset = (
-        encode_for_heads(model, cfg, base, progress=progress) if cfg.pretrained.enabled else base
+        encode_for_heads(model, cfg, base, progress=progress, precision=placement.precision)
+        if cfg.pretrained.enabled
+        else base
     )
     stored = beliefs_path(out_dir, split)
     true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
@@ -344,7 +346,9 @@ def _evaluate_split(
             "out_beliefs": beliefs_path(out_dir, split),
         }
     if cfg.pretrained.enabled:  # the heads on the frozen encoder's cached features
-        dataset = encode_for_heads(model, cfg, dataset, progress=progress)
+        dataset = encode_for_heads(
+            model, cfg, dataset, progress=progress, precision=placement.precision
+        )
     summary, _ = evaluate(
         model,
         dataset,

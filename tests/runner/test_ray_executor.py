@@ -376,8 +376,8 @@ class TestTrackingGuard:
     def test_cli_exits_2_before_any_work(self, tmp_path, capsys):
         code = main([
             "reproduce", "--profile", "smoke", "--executor", "ray", "--ray-address",
-            "10.0.0.5:6379", "--tracking-uri", "sqlite:///mlflow.db", "--data",
-            str(tmp_path / "never-rendered"), "--workdir", str(tmp_path / "runs"),
+            "10.0.0.5:6379", "--precision", "fp32", "--tracking-uri", "sqlite:///mlflow.db",
+            "--data", str(tmp_path / "never-rendered"), "--workdir", str(tmp_path / "runs"),
         ])  # fmt: skip
         assert code == 2
         assert "--tracking-uri http://" in capsys.readouterr().err

@@ -74,12 +74,15 @@ class TestTags:
         assert expected["model_key"] == unit.key
         assert json.loads(expected["head_options"]) == {"attitude": {}, "translation": {}}
 
-        # What the reproduce logbook writes on the job's tracked run carries the same tags.
-        from benchmark.runner.execute.worker import UnitResult
+        # What the reproduce logbook writes on the job's tracked run carries the same tags: the
+        # model's from the plan, where it computed from the worker's own resolution.
+        from benchmark.runner.execute.worker import UnitResult, unit_placement
+        from benchmark.training import device_tags
 
         tracker = create_tracker("local", workdir=tmp_path)
         logbook = Logbook(tracker, "smoke", {"git_commit": "abc", "dataset_manifest": "m"})
-        logbook.log_job(unit.jobs[0], unit, UnitResult(unit.key, True))
+        where = device_tags(unit.cfg, unit_placement(unit.cfg))
+        logbook.log_job(unit.jobs[0], unit, UnitResult(unit.key, True, placement_tags=where))
         logbook.close(RunStatus.FINISHED)
         runs = [
             json.loads(p.read_text())

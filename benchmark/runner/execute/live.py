@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmark.models.device import Placement
 from benchmark.runner.plan.invocations import OWNER_TAGS, owner_lives
 from benchmark.tracking import (
     RUN_KEY_TAG,
@@ -38,6 +39,7 @@ from benchmark.tracking import (
     tracker_from_spec,
 )
 from benchmark.training.config import TrainConfig
+from benchmark.training.identity import device_tags, placement_of
 from benchmark.training.loop import EpochCallback
 from benchmark.training.pipeline import TrainEvalResult, train_and_evaluate
 
@@ -99,11 +101,17 @@ def track_unit(
     heartbeat: EpochCallback | None = None,
     fuse_splits: list[str] | tuple[str, ...] = (),
     volume_splits: list[str] | tuple[str, ...] = (),
+    placement: Placement | None = None,
 ) -> tuple[TrainEvalResult, str]:
     """Train and evaluate the unit into ``unit_dir``, logging to ``run`` as it goes; returns the
     results and the logged model's URI (``""`` if the backend keeps none). ``run`` is ended by
     the caller. ``heartbeat(epoch, record)`` is called at every epoch end too (replayed ones
-    included)."""
+    included). ``placement``: ``cfg``'s device and precision as this worker resolved them (None:
+    resolved here); the run's ``device``/``precision``/``accelerator`` tags are written from it,
+    here, where the model computes."""
+    if placement is None:
+        placement = placement_of(cfg)
+    run.set_tags(device_tags(cfg, placement))
     logged = int(run.tags.pop("_logged_epochs", "0"))
 
     def on_epoch_end(epoch: int, record: dict[str, float]) -> None:
@@ -124,6 +132,7 @@ def track_unit(
             eval_batch=eval_batch,
             fuse_splits=fuse_splits,
             volume_splits=volume_splits,
+            placement=placement,
         )
     for key, summary in done.metrics.items():
         finite = {f"{key}/{k}": v for k, v in summary.items() if _finite(v)}

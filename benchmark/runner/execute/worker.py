@@ -26,9 +26,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.data.swap import SATELLITE_MODES
+from benchmark.models.device import Placement, resolve_placement
 from benchmark.runner.execute.heartbeat import write_heartbeat
 from benchmark.runner.execute.live import UnitTracking, open_unit_run, track_unit
 from benchmark.training.config import TrainConfig
+from benchmark.training.identity import device_tags
 from benchmark.training.pipeline import (
     EVAL_BATCH,
     SWAP_SUFFIX,
@@ -51,6 +53,7 @@ __all__ = [
     "run_unit",
     "sequence_paths",
     "split_filename",
+    "unit_placement",
     "volume_sequence_paths",
     "worker_init",
 ]
@@ -79,6 +82,9 @@ class UnitResult:
     volume_sequences: dict[str, str] = field(default_factory=dict)  # the pose volume's, the same
     seconds: float = 0.0
     error: str = ""
+    # where the worker computed (benchmark.training.identity.device_tags of its own placement):
+    # the table runs' device/precision/accelerator tags, written from what the worker resolved
+    placement_tags: dict[str, str] = field(default_factory=dict)
     run_id: str = ""  # the unit's training run ("" without tracking)
     started_ms: int | None = None  # when its training started / evaluation ended (epoch ms);
     ended_ms: int | None = None  # a reused run gives its own times
@@ -122,8 +128,23 @@ def run_unit(task: UnitTask) -> UnitResult:
         return UnitResult(task.key, False, seconds=time.perf_counter() - start, error=detail)
 
 
+def unit_placement(cfg: TrainConfig) -> Placement:
+    """``cfg``'s device and precision resolved on this worker, once per unit, and checked (bf16
+    where this machine cannot run it is a ``PrecisionUnsupportedError``). The precision must
+    arrive resolved: the plan computed the unit's key, which names it, on the driver, and
+    ``"auto"`` resolved here could name another precision (a CPU driver, a GPU worker)."""
+    if cfg.precision == "auto":
+        raise ValueError(
+            "a unit's precision must be resolved by the plan (fp32, bf16 or fp16), not 'auto': "
+            "its key, computed on the driver, names the precision it trains in"
+        )
+    return resolve_placement(cfg.device, cfg.precision)
+
+
 def _run_unit(task: UnitTask, start: float) -> UnitResult:
     epochs = task.cfg.optim.epochs
+    placement = unit_placement(task.cfg)
+    where = device_tags(task.cfg, placement)
     write_heartbeat(task.unit_dir, 0, epochs)  # the driver's progress line: this unit started
 
     def beat(epoch: int, _record: dict[str, float]) -> None:
@@ -133,17 +154,17 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
-            volume_splits=task.volume_splits,
+            volume_splits=task.volume_splits, placement=placement,
         )  # fmt: skip
-        return _result(task, done, start)
+        return _result(task, done, start, where)
     run, reused = open_unit_run(task.tracking)
     if reused is not None:  # a FINISHED run of this unit: compute (or read) the numbers only
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
-            volume_splits=task.volume_splits,
+            volume_splits=task.volume_splits, placement=placement,
         )  # fmt: skip
-        result = _result(task, done, start)
+        result = _result(task, done, start, where)
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
         result.started_ms, result.ended_ms = reused.start_time_ms, reused.end_time_ms
         return result
@@ -151,14 +172,15 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done, model_uri = track_unit(run, task.tracking, task.cfg, task.unit_dir, task.eval_splits,
                                      task.eval_batch, heartbeat=beat,
                                      fuse_splits=task.fuse_splits,
-                                     volume_splits=task.volume_splits)  # fmt: skip
-    result = _result(task, done, start)
+                                     volume_splits=task.volume_splits,
+                                     placement=placement)  # fmt: skip
+    result = _result(task, done, start, where)
     result.run_id, result.model_uri = run.run_id, model_uri
     result.started_ms, result.ended_ms = run.start_time_ms, run.end_time_ms
     return result
 
 
-def _result(task: UnitTask, done, start: float) -> UnitResult:
+def _result(task: UnitTask, done, start: float, where: dict[str, str]) -> UnitResult:
     return UnitResult(
         task.key,
         True,
@@ -168,4 +190,5 @@ def _result(task: UnitTask, done, start: float) -> UnitResult:
         sequences={k: str(path) for k, (_, path) in done.sequences.items()},
         volume_sequences={k: str(path) for k, (_, path) in done.volume_sequences.items()},
         seconds=time.perf_counter() - start,
+        placement_tags=where,
     )

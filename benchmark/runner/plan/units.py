@@ -18,6 +18,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from benchmark.models.device import resolve_placement
 from benchmark.models.model_config import ModelConfig
 from benchmark.runner.plan.repro_profiles import ReproProfile
 from benchmark.runner.plan.specs import Job, TableSpec
@@ -201,6 +202,18 @@ def job_key(job: Job, unit: str) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
+def resolved_precision(profile: ReproProfile) -> ReproProfile:
+    """``profile`` with ``precision="auto"`` resolved on this machine (bf16 on a CUDA device with
+    bf16 support, fp32 on every CPU; ``benchmark.models.device.resolve_precision``); an explicit
+    precision is kept. The keys of fp32 units do not change (``run_key`` leaves fp32 out). A
+    driver that is not where the units compute (a remote Ray cluster) must be given an explicit
+    precision instead (``benchmark.runner.reproduction``)."""
+    if profile.precision != "auto":
+        return profile
+    placement = resolve_placement(profile.device, profile.precision, check=False)
+    return dataclasses.replace(profile, precision=placement.precision)
+
+
 def plan_units(
     specs: list[TableSpec],
     profile: ReproProfile,
@@ -214,7 +227,10 @@ def plan_units(
     the profile's shared encoders (one per seed,
     :class:`~benchmark.runner.plan.repro_profiles.SharedEncoder`)
     before all; ``workdir`` is where the units' checkpoints live (``<workdir>/units/<key>``):
-    a unit on a shared encoder loads it from there."""
+    a unit on a shared encoder loads it from there. The profile's precision is resolved here,
+    once, into every unit's config (:func:`resolved_precision`): a unit's key names it, and each
+    worker trains in exactly that precision."""
+    profile = resolved_precision(profile)
     wanted = {
         s for spec in specs for job in spec.jobs() for s in (job.train_split, *job.eval_splits)
     }

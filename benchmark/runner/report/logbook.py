@@ -12,7 +12,8 @@ Two kinds of runs, so the heavy data is stored once:
   start and end of its unit's training, the flattened train config as params, the headline
   metrics (``test_*`` on the row's first test split, ``val_*`` on the validation split) beside
   every split's numbers (``<split>/<metric>``), the dataset input of the test split, the model's
-  tags (``benchmark.training.identity.run_tags``, as ``uavbench train`` sets them) and
+  tags (``benchmark.training.identity.model_tags``, as ``uavbench train`` sets them, and the
+  ``device``/``precision``/``accelerator`` its worker resolved) and
   ``training_run_id`` / ``model_uri`` pointing at the training run.
 
 Every experiment is tagged ``mlflow.experimentKind = custom_model_development`` and described
@@ -39,7 +40,7 @@ from benchmark.runner.plan.specs import Job, TableSpec
 from benchmark.runner.plan.units import Unit, job_key
 from benchmark.runner.report import descriptions
 from benchmark.tracking import RUN_KEY_TAG, DatasetRef, Run, RunInfo, RunStatus, Tracker
-from benchmark.training.identity import run_tags
+from benchmark.training.identity import model_tags
 
 END_REASON_TAG = "uavbench.end_reason"  # why a run was ended by another invocation
 SECONDS_METRIC = "unit_seconds"  # wall time of the unit's training + evaluation in its worker
@@ -163,7 +164,9 @@ class Logbook:
             for job in unit.jobs
         ]
         tags = {
-            **run_tags(unit.cfg, self.provenance.get("dataset_manifest", "")),
+            # the model's tags; where it computes (device, precision, accelerator) is tagged by
+            # the worker that trains it (benchmark.runner.execute.live.track_unit)
+            **model_tags(unit.cfg, self.provenance.get("dataset_manifest", "")),
             "tables": ",".join(dict.fromkeys(job.table for job in unit.jobs)),
             "unit": unit.key,
             **self.provenance,
@@ -248,8 +251,10 @@ class Logbook:
         """The table row ``job`` of ``unit``, from its worker's ``result`` (see module doc)."""
         cfg = unit.cfg
         tags: dict[str, Any] = {
-            # The trained model's tags, as ``uavbench train`` sets them (one identity for both).
-            **run_tags(cfg, self.provenance.get("dataset_manifest", "")),
+            # The trained model's tags, as ``uavbench train`` sets them (one identity for both),
+            # and where its worker computed, as that worker resolved it (none if it never ran).
+            **model_tags(cfg, self.provenance.get("dataset_manifest", "")),
+            **result.placement_tags,
             "table": job.table,
             "label": job.label,
             "unit": unit.key,
