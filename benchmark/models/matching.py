@@ -81,13 +81,13 @@ from torch import Tensor, nn
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
 from benchmark.models.encoder import parse_variant
 from benchmark.models.matching_ops import (
-    CORRELATIONS,
     bev_templates,
     bev_templates_planes,
     correlate,
     sat_grid,
     unit_channels,
 )
+from benchmark.models.matching_options import PROTOCOLS, MatchingOptions
 from benchmark.models.matching_pixels import (
     denormalize,
     grey_gradient,
@@ -97,9 +97,8 @@ from benchmark.models.matching_pixels import (
 from benchmark.models.pair_encoder import PairEncoder, PairEncoding, PoseVolumeAxes
 from benchmark.models.registry import register_encoder
 
-__all__ = ["PROTOCOLS", "MatchingEncoder", "matching"]
+__all__ = ["PROTOCOLS", "MatchingEncoder", "MatchingOptions", "matching"]
 
-PROTOCOLS = ("vision_only", "gravity_aided")
 GRAVITY_SCALE = (math.radians(2.0), math.radians(2.0), 5.0)  # loss units: 2 deg, 2 deg, 5 m
 MASKED = -1.0e4  # log-score of excluded positions (finite: 0 * MASKED stays 0 in the loss)
 TEMPERATURE_GAIN = 10.0  # learning-rate multiplier of the log-temperature
@@ -145,92 +144,36 @@ def _context_value(context: Mapping[str, Tensor], key: str, shape: tuple, ref: T
 class MatchingEncoder(PairEncoder):
     """See the module docstring; options are those of :func:`matching`."""
 
-    def __init__(
-        self,
-        input_size: int,
-        protocol: str = "vision_only",
-        volume_nll_weight: float = 1.0,
-        gravity_weight: float = 1.0,
-        n_yaw: int = 36,
-        cell_m: float = 20.8,
-        search_m: float = 400.0,
-        template_m: float = 250.0,
-        channels: int = 16,
-        out_channels: int = 8,
-        gravity_dim: int = 32,
-        smoothing: float = 0.5,
-        temperature: float = 50.0,
-        correlation: str = "xdft",
-        default_fov_deg: float = 60.0,
-        default_footprint_m: tuple[float, float] = (2000.0, 1000.0),
-        default_sat_height_m: float = 1000.0,
-        grey_gradient: bool = False,
-        photometric: float = 0.0,
-        height_planes: int = 0,
-        plane_spacing_m: float = 10.0,
-        altitude_offsets_m: tuple[float, ...] = (),
-        train_view_noise_deg: float = 0.0,
-        train_view_noise_m: float = 0.0,
-    ) -> None:
+    def __init__(self, input_size: int, options: MatchingOptions | None = None) -> None:
+        """``input_size`` (even, >= 16) px of the images; ``options`` by group
+        (:class:`~benchmark.models.matching_options.MatchingOptions`, each group checked when
+        built; None: every default). The registered factory ``matching`` takes them flat."""
         super().__init__()
-        if protocol not in PROTOCOLS:
-            raise ValueError(f"matching encoder: protocol must be one of {PROTOCOLS}, got "
-                             f"{protocol!r}")  # fmt: skip
-        for name, value in (("volume_nll_weight", volume_nll_weight),
-                            ("gravity_weight", gravity_weight),
-                            ("photometric", photometric),
-                            ("train_view_noise_deg", train_view_noise_deg),
-                            ("train_view_noise_m", train_view_noise_m)):  # fmt: skip
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"matching encoder: {name} must be >= 0, got {value!r}")
-        for name, value in (("cell_m", cell_m), ("search_m", search_m),
-                            ("template_m", template_m), ("smoothing", smoothing),
-                            ("temperature", temperature)):  # fmt: skip
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"matching encoder: {name} must be > 0, got {value!r}")
-        if n_yaw < 4 or channels < 1 or out_channels < 1 or gravity_dim < 1:
-            raise ValueError("matching encoder: need n_yaw >= 4 and channels, out_channels, "
-                             f"gravity_dim >= 1; got {n_yaw}, {channels}, {out_channels}, "
-                             f"{gravity_dim}")  # fmt: skip
-        if height_planes < 0 or height_planes == 1:
-            raise ValueError(f"matching encoder: height_planes must be 0 (the ground plane only) "
-                             f"or >= 2, got {height_planes!r}")  # fmt: skip
-        if not (math.isfinite(plane_spacing_m) and plane_spacing_m > 0):
-            raise ValueError(f"matching encoder: plane_spacing_m must be > 0, got "
-                             f"{plane_spacing_m!r}")  # fmt: skip
-        alt_offsets = tuple(float(d) for d in altitude_offsets_m)
-        if alt_offsets and (
-            len(alt_offsets) < 2
-            or not all(math.isfinite(d) for d in alt_offsets)
-            or any(b <= a for a, b in itertools.pairwise(alt_offsets))
-        ):
-            raise ValueError(f"matching encoder: altitude_offsets_m must be empty (one altitude) "
-                             f"or at least 2 finite, strictly increasing offsets in metres, got "
-                             f"{altitude_offsets_m!r}")  # fmt: skip
-        if alt_offsets and height_planes:
-            raise ValueError("matching encoder: altitude_offsets_m and height_planes cannot be "
-                             "combined (the height-aware view has no altitude search)")  # fmt: skip
-        if correlation not in CORRELATIONS:
-            raise ValueError(f"matching encoder: correlation must be one of {CORRELATIONS}, got "
-                             f"{correlation!r}")  # fmt: skip
+        options = MatchingOptions() if options is None else options
         if input_size < 16 or input_size % 2:
             raise ValueError(f"matching encoder: input_size must be even and >= 16, got "
                              f"{input_size}")  # fmt: skip
+        self.options = options
+        loss, geo, cam, net, aug = (options.loss, options.geometry, options.camera,
+                                    options.network, options.augmentation)  # fmt: skip
+        protocol, channels, out_channels = loss.protocol, net.channels, net.out_channels
+        gravity_dim, temperature = net.gravity_dim, net.temperature
+        alt_offsets = geo.altitude_offsets_m
         self.min_input_size = input_size
         self.input_size = input_size
         self.protocol = protocol
-        self.volume_nll_weight = float(volume_nll_weight)
-        self.gravity_weight = float(gravity_weight)
-        self.n_yaw = int(n_yaw)
-        self.cell_m = float(cell_m)
-        self.search_cells = max(1, round(search_m / cell_m))
-        self.template_cells = max(1, round(template_m / cell_m))
-        self.smoothing = float(smoothing)
-        self.correlation = correlation
+        self.volume_nll_weight = float(loss.volume_nll_weight)
+        self.gravity_weight = float(loss.gravity_weight)
+        self.n_yaw = int(geo.n_yaw)
+        self.cell_m = float(geo.cell_m)
+        self.search_cells = geo.search_cells
+        self.template_cells = geo.template_cells
+        self.smoothing = float(loss.smoothing)
+        self.correlation = net.correlation
         self.defaults = {
-            "fov": math.radians(default_fov_deg),
-            "sat_footprint_m": tuple(float(x) for x in default_footprint_m),
-            "sat_height_m": float(default_sat_height_m),
+            "fov": math.radians(cam.default_fov_deg),
+            "sat_footprint_m": cam.default_footprint_m,
+            "sat_height_m": float(cam.default_sat_height_m),
         }
         self.uav_stride, self.sat_stride = (2, 2), (1, 2)
         self.uav_trunk = _trunk(channels, out_channels, self.uav_stride)
@@ -265,15 +208,15 @@ class MatchingEncoder(PairEncoder):
             "yaw_argmax_sin_w", "E_argmax_w", "N_argmax_w",
         ]  # fmt: skip
         self.feature_dim = len(self.feature_names)
-        self.photometric = float(photometric)
-        self.grey_gradient = bool(grey_gradient)
+        self.photometric = float(aug.photometric)
+        self.grey_gradient = bool(net.grey_gradient)
         if self.grey_gradient:
             # log-gain of the fixed grey and gradient channels against the learned ones (created
             # last, so that the default encoder's parameters and their seeded values stay as they
             # were before the option existed)
             self.grey_gradient_log_gain = nn.Parameter(torch.zeros(2))
-        self.height_planes = int(height_planes)
-        self.plane_spacing_m = float(plane_spacing_m)
+        self.height_planes = int(geo.height_planes)
+        self.plane_spacing_m = float(geo.plane_spacing_m)
         # The bird's-eye view clamps the altitude here: less than 5 m above the top plane would
         # put the horizon at the image centre and nothing on the ground. A float, not read from
         # the plane_heights buffer, so the forward pass needs no host read.
@@ -283,9 +226,9 @@ class MatchingEncoder(PairEncoder):
         # the sensor priors': vision-only evaluation builds the view from the gravity branch,
         # whose errors are larger than the IMU's and the altimeter's.
         self.train_view_sigma = (
-            math.radians(train_view_noise_deg),
-            math.radians(train_view_noise_deg),
-            float(train_view_noise_m),
+            math.radians(aug.train_view_noise_deg),
+            math.radians(aug.train_view_noise_deg),
+            float(aug.train_view_noise_m),
         )
         # The training jitter's width and the height target's scale (twice its sigma).
         self.altitude_spacing_m = min(
@@ -659,68 +602,41 @@ class MatchingEncoder(PairEncoder):
 _FACTORY_ARGS = ("variant", "width", "input_size")
 
 
-def _class_options(cls: type) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Publish ``cls``'s constructor options (names, defaults, annotations; all but
-    ``input_size``) as the signature of a factory written with ``**options``, so that they are
-    declared once, in the class. ``ModelConfig`` reads options from the factory's signature
+def _published_options(factory: Callable[..., Any]) -> Callable[..., Any]:
+    """Publish :class:`MatchingOptions`' flat options (names, defaults, annotations) as the
+    signature of a factory written with ``**options``, so that they are declared once, in the
+    option groups. ``ModelConfig`` reads options from the factory's signature
     (``model_config.option_parameters``: unknown names refused, values typed by annotation), and
     ``inspect.signature`` honours ``__signature__``."""
-    skip = ("self", "input_size")
-
-    def decorate(factory: Callable[..., Any]) -> Callable[..., Any]:
-        own = inspect.signature(factory)
-        fixed = [p for n, p in own.parameters.items() if n in _FACTORY_ARGS]
-        options = [
-            p.replace(kind=inspect.Parameter.KEYWORD_ONLY)
-            for n, p in inspect.signature(cls.__init__).parameters.items()
-            if n not in skip
-        ]
-        factory.__signature__ = own.replace(parameters=[*fixed, *options])  # type: ignore[attr-defined]
-        hints = typing.get_type_hints(cls.__init__)
-        factory.__annotations__ = {
-            **{n: hints[n] for n in (p.name for p in options) if n in hints},
-            **{n: v for n, v in typing.get_type_hints(factory).items() if n != "options"},
-        }
-        return factory
-
-    return decorate
+    own = inspect.signature(factory)
+    fixed = [p for n, p in own.parameters.items() if n in _FACTORY_ARGS]
+    options = MatchingOptions.parameters()
+    factory.__signature__ = own.replace(parameters=[*fixed, *options])  # type: ignore[attr-defined]
+    factory.__annotations__ = {
+        **{p.name: p.annotation for p in options},
+        **{n: v for n, v in typing.get_type_hints(factory).items() if n != "options"},
+    }
+    return factory
 
 
 @register_encoder("matching")
-@_class_options(MatchingEncoder)
+@_published_options
 def matching(
     variant: str = "/", width: float = 1.0, input_size: int = 96, **options: Any
 ) -> MatchingEncoder:
     """The matching encoder (module docstring). ``variant`` must be ``"/"``: the encoder has one
     level (no SE branches, no auxiliary fusion levels). ``width`` is accepted and ignored: the
     profiles' GoogLeNet width multiplier does not apply; ``channels`` / ``out_channels`` size
-    the CNNs. ``options`` are :class:`MatchingEncoder`'s keyword arguments, with its defaults
-    (the factory's published signature lists them): ``protocol`` (``"vision_only"`` the
-    paper's, ``"gravity_aided"``), ``volume_nll_weight`` (0: heads' loss only),
-    ``gravity_weight``, ``n_yaw`` yaw bins, ``cell_m`` grid cell (m), ``search_m`` half-side of
-    the searched square (m), ``template_m`` bird's-eye radius (m), ``smoothing`` of the NLL
-    target (cells/bins), ``temperature`` (initial), ``correlation`` (``"xdft"``: a real DFT
-    along the columns and one batched GEMM along the rows, the fastest here; ``"dft"``: the
-    2-D DFT by complex matrix products, the default before issue 40 and ``bench train``'s base
-    row; ``"fft"``, ``"conv"``: all the same numbers to float32 rounding), ``default_*`` (the
-    geometry assumed without a ``context``),
-    ``grey_gradient`` (fixed grey-level and gradient channels beside the learned ones),
-    ``photometric`` (strength of the training images' colour jitter, 0: none), and
-    ``height_planes`` / ``plane_spacing_m`` (the height-aware view: 0 planes = the flat
-    ground), and ``altitude_offsets_m`` (metres around the view's altitude: the volume's scale
-    dimension; empty: one altitude), ``train_view_noise_deg`` and ``train_view_noise_m``
-    (extra noise on the training view's pitch and roll, degrees, and height, metres)."""
+    the CNNs. ``options``: the flat names of :class:`MatchingOptions`' groups, with their
+    defaults (the factory's published signature lists them): the protocol and loss
+    (:class:`MatchingLoss`), the bird's-eye view and volume (:class:`MatchingGeometry`), the
+    geometry assumed without a context (:class:`MatchingCamera`), the networks and the
+    correlation (:class:`MatchingNetwork`) and the training augmentation
+    (:class:`MatchingAugmentation`)."""
     spec = parse_variant(variant)
     if spec.fusion or spec.attention:
         raise ValueError(
             f"matching encoder: variant {variant!r} is a GoogLeNet variant (SE / fusion levels); "
             "the matching encoder has one level: set variant to '/'"
         )
-    accepted = [n for n in inspect.signature(matching).parameters if n not in _FACTORY_ARGS]
-    unknown = sorted(set(options) - set(accepted))
-    if unknown:
-        raise ValueError(
-            f"matching encoder: no option {', '.join(map(repr, unknown))}; it takes: "
-            f"{', '.join(accepted)}"
-        )
-    return MatchingEncoder(input_size, **options)
+    return MatchingEncoder(input_size, MatchingOptions.from_flat(options))

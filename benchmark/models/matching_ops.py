@@ -23,6 +23,7 @@ from benchmark.models.matching_geometry import (
     rotate_to_level,
     sat_pixel_of_offset,
 )
+from benchmark.models.matching_options import CORRELATIONS
 
 __all__ = [
     "CORRELATIONS",
@@ -480,9 +481,6 @@ def _xdft_inverse(prod: Tensor, n: int, k: int, m: int, inv: Tensor) -> Tensor:
     half = inv.shape[0] // 4
     prod = prod.view(n, half, 2, k, m, 2).permute(0, 3, 4, 1, 2, 5)  # (n, k, y, v, a_t, a_s)
     return (prod.reshape(n * k * m, 4 * half) @ inv).view(n, k, m, m)
-
-
-CORRELATIONS = ("xdft", "dft", "fft", "conv")
 
 
 def correlate(sat: Tensor, templates: Tensor, method: str = "xdft") -> Tensor:

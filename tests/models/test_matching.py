@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from benchmark.models import PairEncoder, create_model, list_heads
-from benchmark.models.matching import MatchingEncoder
+from benchmark.models.matching import matching
 from benchmark.models.matching_ops import (
     bev_templates,
     correlate_conv,
@@ -250,7 +250,9 @@ class TestVolumeOnRenderedPair:
         yaw_deg, de, dn, pitch_deg = pose
         yaw, pitch, roll, alt = math.radians(yaw_deg), math.radians(pitch_deg), 0.05, 80.0
         img = render_uav(city, np.array([de, dn, alt]), yaw, pitch, roll, Camera.square(96, 60.0))
-        enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0).double()
+        enc = matching(
+            input_size=96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0
+        ).double()
         t64 = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
         with torch.no_grad():
             fov, fp = t64(math.radians(60.0)), t64([480.0, 480.0])
@@ -281,8 +283,8 @@ class TestVolumeOnRenderedPair:
         volumes = {}
         for dtype in (torch.float64, torch.float32):
             for method in ("xdft", "conv", "dft"):
-                enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0,
-                                      correlation=method).to(dtype)  # fmt: skip
+                enc = matching(input_size=96, n_yaw=36, cell_m=10.0, search_m=80.0,
+                               template_m=120.0, correlation=method).to(dtype)  # fmt: skip
                 t = lambda *v, d=dtype: torch.tensor(v, dtype=d)  # noqa: E731
                 with torch.no_grad():
                     volumes[method, dtype] = enc.match(
@@ -301,7 +303,7 @@ class TestVolumeOnRenderedPair:
 
 class TestVolumeNll:
     def test_delta_volume_and_smoothing(self):
-        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
+        enc = matching(input_size=32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
         lv = torch.full((1, 8, 5, 5), -30.0)
         lv[0, 2, 1, 3] = 0.0  # nearly all mass at yaw 90 deg, N = +10 m, E = +10 m
         lv = torch.log_softmax(lv.flatten(1), 1).view_as(lv)
@@ -507,8 +509,8 @@ class TestMatchAltitudes:
         yaw_deg, de, dn, pitch_deg = pose
         yaw, pitch, roll, alt = math.radians(yaw_deg), math.radians(pitch_deg), 0.05, 80.0
         img = render_uav(city, np.array([de, dn, alt]), yaw, pitch, roll, Camera.square(96, 60.0))
-        enc = MatchingEncoder(96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0,
-                              altitude_offsets_m=(-24.0, 0.0, 24.0)).double()  # fmt: skip
+        enc = matching(input_size=96, n_yaw=36, cell_m=10.0, search_m=80.0, template_m=120.0,
+                       altitude_offsets_m=(-24.0, 0.0, 24.0)).double()  # fmt: skip
         t64 = lambda *v: torch.tensor(v, dtype=torch.float64)  # noqa: E731
         altitudes = t64([56.0, 80.0, 104.0])  # (1, 3)
         with torch.no_grad():
@@ -531,8 +533,8 @@ class TestMatchAltitudes:
         # Two identical hypotheses split each cell's mass in half: the joint is match() - log 2
         # and its marginal is match() itself (an independent path: no altitude code in match).
         g = torch.Generator().manual_seed(3)
-        enc = MatchingEncoder(32, n_yaw=8, cell_m=20.0, search_m=60.0, template_m=60.0,
-                              altitude_offsets_m=(-5.0, 5.0)).double()  # fmt: skip
+        enc = matching(input_size=32, n_yaw=8, cell_m=20.0, search_m=60.0, template_m=60.0,
+                       altitude_offsets_m=(-5.0, 5.0)).double()  # fmt: skip
         uav = torch.randn(2, 4, 16, 16, generator=g, dtype=torch.float64)
         sat = torch.randn(2, 4, 16, 32, generator=g, dtype=torch.float64)
         pitch = torch.tensor([-0.6, -0.5], dtype=torch.float64)
@@ -547,8 +549,8 @@ class TestMatchAltitudes:
 
     def test_gradcheck_float64(self):
         g = torch.Generator().manual_seed(4)
-        enc = MatchingEncoder(24, n_yaw=4, cell_m=30.0, search_m=30.0, template_m=30.0,
-                              correlation="fft", altitude_offsets_m=(-8.0, 8.0))  # fmt: skip
+        enc = matching(input_size=24, n_yaw=4, cell_m=30.0, search_m=30.0, template_m=30.0,
+                       correlation="fft", altitude_offsets_m=(-8.0, 8.0))  # fmt: skip
         enc = enc.double()
         uav = torch.randn(1, 2, 12, 12, generator=g, dtype=torch.float64, requires_grad=True)
         sat = torch.randn(1, 2, 12, 24, generator=g, dtype=torch.float64, requires_grad=True)
@@ -566,8 +568,8 @@ class TestVolumeNllAltitudes:
     def test_against_a_direct_sum(self):
         # The target written out cell by cell (numpy, float64): exp(-dyaw^2 / 2 sy^2 - dN^2 /
         # 2 sp^2 - dE^2 / 2 sp^2 - (h_s - h)^2 / 2 sa^2), normalised over every cell.
-        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0,
-                              altitude_offsets_m=(-10.0, 0.0, 10.0)).double()  # fmt: skip
+        enc = matching(input_size=32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0,
+                       altitude_offsets_m=(-10.0, 0.0, 10.0)).double()  # fmt: skip
         g = torch.Generator().manual_seed(5)
         joint = torch.log_softmax(torch.randn(1, 3 * 8 * 25, generator=g, dtype=torch.float64), 1)
         joint = joint.view(1, 3, 8, 5, 5)
@@ -593,7 +595,7 @@ class TestVolumeNllAltitudes:
         assert got == pytest.approx(float(-(w / w.sum() * lj).sum()), rel=1e-7)
 
     def test_one_hypothesis_is_the_pose_nll(self):
-        enc = MatchingEncoder(32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
+        enc = matching(input_size=32, n_yaw=8, cell_m=10.0, search_m=20.0, template_m=20.0)
         g = torch.Generator().manual_seed(6)
         lv = torch.log_softmax(torch.randn(2, 200, generator=g), 1).view(2, 8, 5, 5)
         args = (torch.tensor([0.4, 3.0]), torch.tensor([5.0, -9.0]), torch.tensor([0.0, 14.0]))
@@ -656,9 +658,9 @@ class TestAltitudeSearchInTheEncoder:
             torch.testing.assert_close(search.state_dict()[name], value, rtol=0, atol=0)
         for bad in ([0.0], [0.0, 0.0], [5.0, -5.0], [0.0, float("nan")]):
             with pytest.raises(ValueError, match="altitude_offsets_m"):
-                MatchingEncoder(32, altitude_offsets_m=tuple(bad))
+                matching(input_size=32, altitude_offsets_m=tuple(bad))
         with pytest.raises(ValueError, match="height_planes"):
-            MatchingEncoder(32, altitude_offsets_m=(-10.0, 10.0), height_planes=4)
+            matching(input_size=32, altitude_offsets_m=(-10.0, 10.0), height_planes=4)
 
 
 class TestTrainViewNoise:
@@ -698,4 +700,4 @@ class TestTrainViewNoise:
                                    rtol=0, atol=1e-4)  # fmt: skip
         for name in ("train_view_noise_deg", "train_view_noise_m"):
             with pytest.raises(ValueError, match=name):
-                MatchingEncoder(32, **{name: -1.0})
+                matching(input_size=32, **{name: -1.0})

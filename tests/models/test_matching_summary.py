@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.models.matching import MatchingEncoder
+from benchmark.models.matching import MatchingEncoder, matching
 
 
 def _encoder() -> MatchingEncoder:
     # 12 yaw bins, P = 2 * 3 + 1 = 7 positions per axis (search 300 m of 100 m cells).
-    return MatchingEncoder(32, n_yaw=12, cell_m=100.0, search_m=300.0, template_m=200.0)
+    return matching(input_size=32, n_yaw=12, cell_m=100.0, search_m=300.0, template_m=200.0)
 
 
 def _log_volume(b: int, k: int, p: int, peaks: list[tuple[int, int, int]], seed: int):

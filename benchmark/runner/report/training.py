@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 
+from benchmark.models.matching_options import MatchingOptions
 from benchmark.models.model_config import ModelConfig
 from benchmark.runner.plan.units import Unit
 from benchmark.runner.report.sweeps import VARIANT_NAMES
@@ -76,7 +77,10 @@ def _how(unit: Unit, by_key: Mapping[str, Unit]) -> str:
         return (f"heads only, trained on `{split}`, on the frozen shared {m.encoder} encoder "
                 f"(trained once per seed end to end with its own loss{on}; the README's Profile "
                 "line)")  # fmt: skip
-    if m.encoder == "matching" and m.encoder_options.get("volume_nll_weight", 1.0) != 0:
+    if (
+        m.encoder == "matching"
+        and MatchingOptions.from_flat(m.encoder_options).loss.volume_nll_weight != 0
+    ):
         return f"end to end on `{split}` with the matching encoder's own loss beside the heads'"
     return f"end to end on `{split}` ({m.encoder}) by the heads' loss only, the paper's protocol"
 
