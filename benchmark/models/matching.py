@@ -94,6 +94,7 @@ from benchmark.models.matching_pixels import (
     normalize,
     photometric_jitter,
 )
+from benchmark.models.norm import Float32GroupNorm
 from benchmark.models.pair_encoder import PairEncoder, PairEncoding, PoseVolumeAxes
 from benchmark.models.registry import register_encoder
 
@@ -109,7 +110,7 @@ def _trunk(channels: int, out_channels: int, pool: tuple[int, int]) -> nn.Module
     def block(cin: int) -> nn.Sequential:
         return nn.Sequential(
             nn.Conv2d(cin, channels, 3, padding=1, bias=False),
-            nn.GroupNorm(min(4, channels), channels),
+            Float32GroupNorm(min(4, channels), channels),
             nn.ReLU(inplace=True),
         )
 
