@@ -56,7 +56,7 @@ def run_reproduction(config: AcceleratorBenchConfig, root: Path) -> tuple[bool, 
     data = config.data if config.data is not None else root / "data"
     argv = [
         *(sys.executable, "-m", "benchmark", "reproduce", "--profile", "smoke"),
-        *("--only", config.table, "--jobs", "1", "--quiet", "--tracker", "mlflow"),
+        *("--only", config.table, "--workers", "1", "--quiet", "--tracker", "mlflow"),
         *("--data", str(data), "--workdir", str(root / "runs"), "--out", str(root / "reports")),
         *("--tracking-uri", f"sqlite:///{root / 'mlflow.db'}"),
     ]

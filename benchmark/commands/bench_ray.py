@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from benchmark.commands.reproduce import add_workers_argument
 from benchmark.runner import bench_ray as lib
 
 HELP = "smoke reproduction through the process pool and a local Ray: wall times, ratio"
@@ -16,7 +17,7 @@ DESCRIPTION = lib.__doc__
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--profile", default="smoke")
     parser.add_argument("--only", default="table3", help="tables to reproduce (default table3)")
-    parser.add_argument("--jobs", type=int, default=2, help="units at once, for both executors")
+    add_workers_argument(parser, "worker processes (units at once), for both executors")
     parser.add_argument("--repeats", type=int, default=1, help="alternating runs of each executor")
     parser.add_argument("--tracker", choices=("mlflow", "local", "null"), default="mlflow")
     parser.add_argument(
@@ -25,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    if args.jobs < 1 or args.repeats < 1:
-        parser.error("--jobs and --repeats must be >= 1")
+    if args.workers < 1 or args.repeats < 1:
+        parser.error("--workers and --repeats must be >= 1")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         lib.BenchRayConfig(
             profile=args.profile,
             only=args.only,
-            workers=args.jobs,
+            workers=args.workers,
             repeats=args.repeats,
             tracker=args.tracker,
             dir=args.dir,

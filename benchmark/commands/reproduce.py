@@ -53,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--data", type=Path, default=None, help="dataset dir (data/<profile>)")
     parser.add_argument("--dataset-seed", type=int, default=0)
-    parser.add_argument("--jobs", type=int, default=2, help="parallel training processes")
+    add_workers_argument(parser, "parallel training processes (units at once)")
     parser.add_argument("--specs", type=Path, default=None, help="table specs dir")
     parser.add_argument(
         "--tracker", choices=("mlflow", "local", "null"), default="mlflow", help="tracking backend"
@@ -87,6 +87,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+class _RenamedJobs(argparse.Action):
+    """``--jobs`` was renamed: exit 2 with one line naming ``--workers`` (argparse alone would
+    print its generic "unrecognized arguments")."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option_string: str | None = None,
+    ) -> None:
+        parser.exit(
+            2,
+            f"{parser.prog}: error: --jobs is now --workers (worker processes; "
+            "'jobs' are a unit's table rows)\n",
+        )
+
+
+def add_workers_argument(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--workers N``: worker processes (units at once), and the old name ``--jobs`` hidden,
+    refused with a one-line error that names the new one."""
+    parser.add_argument("--workers", type=int, default=2, help=help_text)
+    parser.add_argument("--jobs", nargs="?", action=_RenamedJobs, help=argparse.SUPPRESS)
+
+
 def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
     """``--executor {pool,ray}``, ``--ray-address``, ``--cpus-per-unit``, ``--gpus-per-unit``,
     ``--max-retries``. The Ray-only flags default to None, so the library can refuse them
@@ -96,14 +121,14 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
         "--executor",
         choices=("pool", "ray"),
         default="pool",
-        help="pool: --jobs local worker processes (default); ray: one Ray task per unit, on a "
+        help="pool: --workers local worker processes (default); ray: one Ray task per unit, on a "
         f"local Ray or on --ray-address (needs {INSTALL_LINE})",
     )
     group.add_argument(
         "--ray-address",
         default=None,
         help="Ray cluster to submit to, as `ray start --head` prints it (HOST:6379 or "
-        "ray://HOST:10001); default: a local Ray with --jobs x --cpus-per-unit CPUs, "
+        "ray://HOST:10001); default: a local Ray with --workers x --cpus-per-unit CPUs, "
         "started for this run",
     )
     group.add_argument(
@@ -130,10 +155,10 @@ def add_executor_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def executor_config(args: argparse.Namespace) -> ExecutorConfig:
-    """The executor flags (and ``--jobs``, the units at once for both executors)."""
+    """The executor flags (and ``--workers``, the units at once for both executors)."""
     return ExecutorConfig(
         kind=args.executor,
-        workers=args.jobs,
+        workers=args.workers,
         ray_address=args.ray_address,
         cpus_per_unit=args.cpus_per_unit,
         gpus_per_unit=args.gpus_per_unit,

@@ -34,8 +34,8 @@ ROW_KEYS = ["table", "label", "split", "satellite", "seed"]
 @dataclass(frozen=True)
 class BenchRayConfig:
     """What ``uavbench bench ray`` times: the reproduction's profile and tables, the units at once
-    (``--jobs``, for both executors), the alternating repeats, the tracker, and where everything
-    is kept (None: a temporary directory)."""
+    (``--workers``, processes, for both executors), the alternating repeats, the tracker, and
+    where everything is kept (None: a temporary directory)."""
 
     profile: str = "smoke"
     only: str = "table3"
@@ -62,7 +62,7 @@ def reproduce_once(config: BenchRayConfig, executor: str, data: Path, where: Pat
         sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", config.profile,
         "--only", config.only, "--data", str(data), "--workdir", str(where / "runs"),
         "--out", str(where / "reports"), "--tracker", config.tracker, "--no-models", "--quiet",
-        "--jobs", str(config.workers), "--executor", executor,
+        "--workers", str(config.workers), "--executor", executor,
     ]  # fmt: skip
     checkout = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
     env = {
@@ -89,13 +89,13 @@ def bench_ray(config: BenchRayConfig) -> int:
     from benchmark.runner.reproduction import prepare_dataset
 
     if config.workers < 1 or config.repeats < 1:
-        raise UsageError("--jobs and --repeats must be >= 1")
+        raise UsageError("--workers and --repeats must be >= 1")
     import_ray()  # exit 2 with the install line before rendering anything
     with tempfile.TemporaryDirectory(prefix="bench-ray-") as tmp:
         root = config.dir if config.dir is not None else Path(tmp)
         data = root / "data"
         profile = get_repro_profile(config.profile)
-        print(f"bench ray: {config.profile} --only {config.only}, --jobs {config.workers}, "
+        print(f"bench ray: {config.profile} --only {config.only}, --workers {config.workers}, "
               f"{config.repeats} repeat(s), {os.cpu_count()} cores; rendering the datasets "
               "(untimed)", flush=True)  # fmt: skip
         prepare_dataset(profile, data, 0, config.workers, quiet=True)

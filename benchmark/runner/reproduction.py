@@ -55,7 +55,7 @@ class ReproduceConfig:
     ``only``: table/figure names or groups (``paper``, ``extras``; empty: all). ``seeds`` None:
     the profile's. ``out``/``workdir``/``data`` None: ``reports/<profile>``, ``runs/<profile>``,
     ``data/<dataset>-s<dataset_seed>``. ``wait=False`` refuses (exit 2) instead of waiting when
-    another reproduction holds ``workdir``. ``executor.workers`` (``--jobs``) also renders the
+    another reproduction holds ``workdir``. ``executor.workers`` (``--workers``) also renders the
     dataset."""
 
     profile: str = "quick"
@@ -187,7 +187,7 @@ def reproduce(config: ReproduceConfig) -> int:
     if config.seeds is not None and config.seeds < 1:
         raise UsageError(f"--seeds must be >= 1, got {config.seeds}")
     if config.executor.workers < 1:
-        raise UsageError(f"--jobs must be >= 1, got {config.executor.workers}")
+        raise UsageError(f"--workers must be >= 1, got {config.executor.workers}")
     if config.stale not in STALE_MODES:
         raise UsageError(f"--stale must be one of {STALE_MODES}, got {config.stale!r}")
     check_executor(config.executor, planned_tracking_uri(config.tracker, config.tracking_uri))

@@ -80,7 +80,7 @@ class TestOneWriterPerWorkdir:
     def test_two_concurrent_reproductions_train_each_unit_once(self, tmp_path, smoke_dataset):
         """Two ``reproduce`` started together on one work directory and one fresh MLflow store:
         one trains, the other waits (saying so once), then finds every unit in the store."""
-        cmd = [*CLI, *argv(smoke_dataset, tmp_path, "--tracker", "mlflow", "--jobs", "1",
+        cmd = [*CLI, *argv(smoke_dataset, tmp_path, "--tracker", "mlflow", "--workers", "1",
                             "--no-models")]  # fmt: skip
         # Output to files, not pipes: the waiting process must never block the working one.
         logs = [tmp_path / f"out{i}.txt" for i in range(2)]
@@ -126,7 +126,7 @@ class TestKilledInvocation:
     def test_kill_9_then_resume_true_states_and_both_invocations_listed(
         self, tmp_path, smoke_dataset
     ):
-        cmd = [*CLI, *argv(smoke_dataset, tmp_path, "--tracker", "local", "--jobs", "1")]
+        cmd = [*CLI, *argv(smoke_dataset, tmp_path, "--tracker", "local", "--workers", "1")]
         proc = subprocess.Popen(cmd, cwd=tmp_path, env=ENV, stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL)  # fmt: skip
         journal = tmp_path / "runs" / inv.JOURNAL
@@ -358,7 +358,7 @@ class TestFailedUnitsInReports:
 
         monkeypatch.setattr(pool, "run_unit", fails)
         monkeypatch.chdir(tmp_path)
-        assert main(argv(smoke_dataset, tmp_path, "--tracker", "local", "--jobs", "1")) == 1
+        assert main(argv(smoke_dataset, tmp_path, "--tracker", "local", "--workers", "1")) == 1
         out = capsys.readouterr().out
         assert out.count("FAILED ") == 4 and "4 training run(s) failed" in out
         table3 = (tmp_path / "reports" / "table3.md").read_text()

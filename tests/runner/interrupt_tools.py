@@ -19,12 +19,12 @@ def ctrl_c_while_training(
     open_timeout_s: float,
     exit_timeout_s: float,
 ) -> tuple[subprocess.Popen, str]:
-    """Start ``uavbench reproduce --profile smoke --jobs 2 --tracker local`` (plus ``extra``) in
+    """Start ``uavbench reproduce --profile smoke --workers 2 --tracker local`` (plus ``extra``) in
     ``tmp_path``, wait until a training run is RUNNING, send SIGINT to its whole process group and
     wait for it to end. Returns the ended process and its output (stdout and stderr)."""
     argv = [
         sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", "smoke", *extra,
-        "--jobs", "2", "--tracker", "local", "--quiet", "--data", str(dataset),
+        "--workers", "2", "--tracker", "local", "--quiet", "--data", str(dataset),
         "--workdir", str(tmp_path / "runs"), "--out", str(tmp_path / "reports"),
     ]  # fmt: skip
     root = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy

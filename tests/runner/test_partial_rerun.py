@@ -89,7 +89,7 @@ def reproduce(tmp_path, dataset, *extra: str) -> int:
     return main([
         "reproduce", "--profile", "smoke", "--data", str(dataset), "--out",
         str(tmp_path / "reports"), "--workdir", str(tmp_path / "runs"), "--tracker", "null",
-        "--quiet", "--jobs", "1", "--only", "table1", *extra,
+        "--quiet", "--workers", "1", "--only", "table1", *extra,
     ])  # fmt: skip
 
 

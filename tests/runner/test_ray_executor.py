@@ -56,7 +56,7 @@ def reproduce(tmp: Path, dataset: Path, *extra: str) -> int:
     return main([
         "reproduce", "--profile", "smoke", "--only", TABLE, "--data", str(dataset),
         "--out", str(tmp / "reports"), "--workdir", str(tmp / "runs"), "--tracker", "local",
-        "--quiet", "--no-models", "--jobs", "2", *extra,
+        "--quiet", "--no-models", "--workers", "2", *extra,
     ])  # fmt: skip
 
 
@@ -325,7 +325,7 @@ class TestTrackingGuard:
         parser = argparse.ArgumentParser()
         reproduce_command.add_executor_arguments(parser)
         args = parser.parse_args(["--ray-address", "10.0.0.5:6379"])
-        args.jobs = 2
+        args.workers = 2
         with pytest.raises(UsageError, match="--ray-address only apply to --executor ray"):
             check_executor(reproduce_command.executor_config(args), None)
 
@@ -351,7 +351,7 @@ class TestTrackingGuard:
             [
                 "--only",
                 "table1, fig7",
-                "--jobs",
+                "--workers",
                 "3",
                 "--no-models",
                 "--no-wait",
@@ -371,6 +371,17 @@ class TestTrackingGuard:
             wait=False,
             executor=config.executor,
         )  # every other field: the library's default is the flag's
+
+    @pytest.mark.parametrize("command", [["reproduce"], ["bench", "ray"]])
+    @pytest.mark.parametrize("old", [["--jobs", "2"], ["--jobs=2"], ["--jobs"]])
+    def test_the_old_jobs_flag_names_workers_in_one_line(self, command, old, capsys):
+        with pytest.raises(SystemExit) as exit_:
+            main([*command, *old])
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "--jobs is now --workers" in err
+        assert "processes" in err and "table rows" in err
+        assert "unrecognized" not in err
 
     @pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")
     def test_cli_exits_2_before_any_work(self, tmp_path, capsys):

@@ -39,7 +39,7 @@ def full_run(tmp_path_factory, smoke_dataset):
     os.chdir(tmp)  # the tracking store lives in the working directory
     try:
         # Logged models are checked by tests/tracking/test_reproduce_on_server.py.
-        code = reproduce(tmp, smoke_dataset, "--jobs", "1", "--no-models")
+        code = reproduce(tmp, smoke_dataset, "--workers", "1", "--no-models")
     finally:
         os.chdir(previous)
     return tmp, code
@@ -229,10 +229,10 @@ class TestReproduceSmoke:
     ):
         tmp, _ = full_run
         monkeypatch.chdir(tmp)
-        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        assert reproduce(tmp, smoke_dataset, "--workers", "1") == 0
         # The first invocation's frame, reloaded from the reports (reported per unit).
         first = pd.read_csv(tmp / "reports" / "results.csv")
-        assert reproduce(tmp, smoke_dataset, "--jobs", "1") == 0
+        assert reproduce(tmp, smoke_dataset, "--workers", "1") == 0
         again = pd.read_csv(tmp / "reports" / "results.csv")
         keys = ["table", "label", "x", "split", "satellite", "seed"]
         merged = first.merge(again, on=keys, suffixes=("", "_again"))
@@ -254,7 +254,7 @@ class TestReproduceFailures:
         broken = dataclasses.replace(smoke, optim=optim)
         monkeypatch.setitem(profiles_module.PROFILES, "smoke", broken)
         monkeypatch.chdir(tmp_path)
-        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "2") == 1
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--workers", "2") == 1
         out = capsys.readouterr().out
         assert "FAILED" in out and "non-finite" in out.lower()
         statuses = [r["status"] for r in run_statuses(tmp_path)]
@@ -295,7 +295,7 @@ class TestReproduceInterrupted:
 
         killed = {k: r for k, r in training_runs().items() if r["status"] == "KILLED"}
         monkeypatch.chdir(tmp_path)
-        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--jobs", "1") == 0
+        assert reproduce(tmp_path, smoke_dataset, "--only", "table3", "--workers", "1") == 0
         after = training_runs()
         assert len(after) == 4 and {r["status"] for r in after.values()} == {"FINISHED"}
         assert set(killed) <= set(after)

@@ -22,7 +22,7 @@ def reproduce(tmp_path, dataset, *extra: str) -> int:
     return main([
         "reproduce", "--profile", "smoke", "--data", str(dataset), "--out",
         str(tmp_path / "reports"), "--workdir", str(tmp_path / "runs"), "--tracker", "local",
-        "--quiet", "--jobs", "1", "--seeds", "1", "--no-models", "--only", "fig7", *extra,
+        "--quiet", "--workers", "1", "--seeds", "1", "--no-models", "--only", "fig7", *extra,
     ])  # fmt: skip
 
 

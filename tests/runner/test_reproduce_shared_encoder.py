@@ -36,7 +36,7 @@ def _reproduce(tmp_path, dataset) -> int:
         return main([
             "reproduce", "--profile", "smoke", "--data", str(dataset), "--only", "table1",
             "--out", str(tmp_path / "reports"), "--workdir", str(tmp_path / "runs"),
-            "--tracker", "null", "--quiet", "--jobs", "1",
+            "--tracker", "null", "--quiet", "--workers", "1",
         ])  # fmt: skip
     finally:
         os.chdir(previous)

@@ -31,7 +31,7 @@ def reproduced(mlflow_server, smoke_dataset, tmp_path_factory):
     mp.chdir(tmp)
     mp.setenv("NUMBA_NUM_THREADS", "1")
     argv = [
-        "reproduce", "--profile", "smoke", "--only", "table3", "--jobs", "2", "--quiet",
+        "reproduce", "--profile", "smoke", "--only", "table3", "--workers", "2", "--quiet",
         "--tracking-uri", mlflow_server.url, "--data", str(smoke_dataset),
         "--workdir", str(tmp / "work"), "--out", str(tmp / "reports"),
     ]  # fmt: skip

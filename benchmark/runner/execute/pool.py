@@ -35,9 +35,9 @@ OnDone = Callable[[Unit, UnitResult], None]
 class ExecutorConfig:
     """Where the units run (``uavbench reproduce --executor ...``).
 
-    ``workers`` units train at once on this machine (``--jobs``) with either executor. The
-    Ray-only fields are None when not given (defaults in ``ray_executor``), so a pool run that
-    sets one is refused rather than silently ignored."""
+    ``workers`` units train at once on this machine (``--workers``, processes) with either
+    executor. The Ray-only fields are None when not given (defaults in ``ray_executor``), so a
+    pool run that sets one is refused rather than silently ignored."""
 
     kind: str = "pool"  # one of EXECUTORS
     workers: int = 2
