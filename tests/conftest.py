@@ -46,12 +46,12 @@ def real_cpu_flags(request: pytest.FixtureRequest) -> None:
 @pytest.fixture(scope="session")
 def smoke_dataset(tmp_path_factory):
     """A ``smoke`` dataset (real worlds and renderer, tiny images), rendered once per session."""
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.writer import simulate_dataset
 
     root = tmp_path_factory.mktemp("smoke-dataset") / "ds"
     cache = tmp_path_factory.mktemp("smoke-cities")
-    simulate_dataset(root, PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
+    simulate_dataset(root, DATA_PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
     return root
 
 

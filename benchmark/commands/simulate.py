@@ -11,7 +11,7 @@ import argparse
 import os
 from pathlib import Path
 
-from benchmark.data.profiles import PROFILES, get_profile
+from benchmark.data.profiles import DATA_PROFILES, get_data_profile
 from benchmark.data.simulate import SimulateConfig, default_out, simulate
 from benchmark.errors import UsageError
 
@@ -21,7 +21,7 @@ HELP = "render the UAV/satellite pair dataset (profiles smoke/quick/paper; resum
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--profile",
-        choices=sorted(PROFILES),
+        choices=sorted(DATA_PROFILES),
         default="quick",
         help="dataset profile (default: quick)",
     )
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
     try:
-        profile = get_profile(args.profile, args.size)
+        profile = get_data_profile(args.profile, args.size)
     except ValueError as err:
         raise UsageError(str(err)) from err
     out = args.out if args.out is not None else default_out(args.profile, args.size, args.seed)

@@ -1,7 +1,8 @@
 """The dataset on disk and its PyTorch Dataset.
 
 ``PairDataset(root, split)`` reads a directory written by ``uavbench simulate`` (format in
-``benchmark.data.format``); ``PROFILES`` / ``get_profile`` are the simulate profiles. The writer
+``benchmark.data.format``); ``DATA_PROFILES`` / ``get_data_profile`` are the simulate profiles
+(``DataProfile``; the reproduction's are ``benchmark.runner.plan.repro_profiles``). The writer
 (``benchmark.data.writer``) needs the simulator and is imported only by the simulate command.
 
 Odometry (issue 39): ``ODOMETRY_COLUMNS`` and ``require_odometry(table, where) -> (n, 4)`` read
@@ -22,18 +23,18 @@ from benchmark.data.format import (
     os_error_message,
     require_odometry,
 )
-from benchmark.data.profiles import PROFILES, Profile, get_profile
+from benchmark.data.profiles import DATA_PROFILES, DataProfile, get_data_profile
 
 __all__ = [
+    "DATA_PROFILES",
     "ODOMETRY_COLUMNS",
-    "PROFILES",
+    "DataProfile",
     "DatasetError",
     "OdometryNoise",
     "PairDataset",
-    "Profile",
     "atomic_write_bytes",
     "flight_odometry",
-    "get_profile",
+    "get_data_profile",
     "list_splits",
     "odometry_noise",
     "os_error_message",

@@ -156,11 +156,11 @@ class IsaBenchConfig:
 def bench_isa(config: IsaBenchConfig) -> int:
     """Render and compare (printing a row per setting); exit code 0, or 1 with ``strict`` and a
     differing digest. UsageError: an unknown profile or setting, no workers."""
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
 
-    if config.profile not in PROFILES:
+    if config.profile not in DATA_PROFILES:
         raise UsageError(
-            f"bench isa: unknown --profile {config.profile!r}; one of {sorted(PROFILES)}"
+            f"bench isa: unknown --profile {config.profile!r}; one of {sorted(DATA_PROFILES)}"
         )
     if config.workers < 1:
         raise UsageError(f"bench isa: --workers must be >= 1, got {config.workers}")

@@ -89,7 +89,7 @@ def bench_simulate(config: SimulateBenchConfig) -> int:
     ):
         raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
     single_thread_env()
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.render_pool import RenderContext, RenderPool, render_sat_rows
     from benchmark.sim import build_city, city_seed
 
@@ -115,7 +115,7 @@ def bench_simulate(config: SimulateBenchConfig) -> int:
         failed = False
         for size in config.sizes:
             n = config.pairs or (800 if size < 150 else 240)
-            base = PROFILES["paper" if size >= 150 else "quick"]
+            base = DATA_PROFILES["paper" if size >= 150 else "quick"]
             shard = max(8, math.ceil(n / (config.workers * 6)))
             profile = dataclasses.replace(base, image_size=size, shard_size=shard)
             poses = bench_poses(city, n, config.seed)

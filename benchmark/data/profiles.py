@@ -20,10 +20,10 @@ from dataclasses import dataclass
 TRAIN_STYLES: tuple[str, ...] = ("oxford", "cambridge")
 GENERALIZED_STYLE = "london"
 FLIGHT_STYLE = "industrial"
-# Roles of the towns family, split names towns/<role>; the order of Profile.n_towns and
+# Roles of the towns family, split names towns/<role>; the order of DataProfile.n_towns and
 # n_town_pairs. Same as benchmark.sim.towns.TOWN_ROLES (tested; data does not import sim here).
 TOWN_ROLES: tuple[str, ...] = ("train", "val", "test", "london")
-# Profile's odometry noise fields, as benchmark.sim.odometry.PROFILE_FIELDS reads them (tested).
+# DataProfile's odometry noise fields, as benchmark.sim.odometry.PROFILE_FIELDS reads them (tested).
 ODOMETRY_FIELDS: tuple[str, ...] = (
     "odometry_gyro_bias_dps",
     "odometry_yaw_walk_deg",
@@ -33,7 +33,7 @@ ODOMETRY_FIELDS: tuple[str, ...] = (
 
 
 @dataclass(frozen=True)
-class Profile:
+class DataProfile:
     """Everything that determines a dataset besides the seed. Stored in the manifest.
 
     Pair counts per set, image and flight geometry, the towns family, the confirmation draw, the
@@ -114,60 +114,62 @@ class Profile:
 
     def __post_init__(self) -> None:
         if self.image_size < 8:
-            raise ValueError(f"Profile.image_size must be >= 8, got {self.image_size}")
+            raise ValueError(f"DataProfile.image_size must be >= 8, got {self.image_size}")
         if self.n_standard < 3:
             raise ValueError(
-                f"Profile.n_standard must be >= 3 (train/val/test), got {self.n_standard}"
+                f"DataProfile.n_standard must be >= 3 (train/val/test), got {self.n_standard}"
             )
         if abs(sum(self.standard_fractions) - 1.0) > 1e-9 or min(self.standard_fractions) <= 0:
             raise ValueError(
-                "Profile.standard_fractions must be positive and sum to 1, got "
+                "DataProfile.standard_fractions must be positive and sum to 1, got "
                 f"{self.standard_fractions}"
             )
         edges = self.pitch_bin_edges_deg
         if any(b >= a for a, b in itertools.pairwise(edges)):
-            raise ValueError(f"Profile.pitch_bin_edges_deg must decrease strictly, got {edges}")
+            raise ValueError(f"DataProfile.pitch_bin_edges_deg must decrease strictly, got {edges}")
         if min(self.samples_per_flight, self.shard_size, self.sat_shard_size) < 1:
-            raise ValueError("Profile.samples_per_flight, shard_size, sat_shard_size must be >= 1")
+            raise ValueError(
+                "DataProfile.samples_per_flight, shard_size, sat_shard_size must be >= 1"
+            )
         if self.eval_samples_per_flight is not None and (
             int(self.eval_samples_per_flight) != self.eval_samples_per_flight
             or self.eval_samples_per_flight < 1
         ):
             raise ValueError(
-                "Profile.eval_samples_per_flight must be None or an integer >= 1, got "
+                "DataProfile.eval_samples_per_flight must be None or an integer >= 1, got "
                 f"{self.eval_samples_per_flight!r}"
             )
         for name in ("n_towns", "n_town_pairs"):
             v = getattr(self, name)
             if len(v) != 4 or any(int(x) != x or x < 0 for x in v):
                 raise ValueError(
-                    f"Profile.{name} must be 4 non-negative integers (train, val, test, london), "
-                    f"got {v}"
+                    f"DataProfile.{name} must be 4 non-negative integers "
+                    f"(train, val, test, london), got {v}"
                 )
         if int(self.confirm_draw) != self.confirm_draw or self.confirm_draw < 0:
             raise ValueError(
-                f"Profile.confirm_draw must be an integer >= 0, got {self.confirm_draw!r}"
+                f"DataProfile.confirm_draw must be an integer >= 0, got {self.confirm_draw!r}"
             )
         for name in ODOMETRY_FIELDS:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"Profile.{name} must be a number, got {value!r}")
+                raise ValueError(f"DataProfile.{name} must be a number, got {value!r}")
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"Profile.{name} must be finite and >= 0, got {value!r}")
+                raise ValueError(f"DataProfile.{name} must be finite and >= 0, got {value!r}")
         # a long flight needs two samples for one odometry step
         for name, least in (("n_long_flights", 0), ("long_samples_per_flight", 2),
                             ("long_frame_stride", 1)):  # fmt: skip
             value = getattr(self, name)
             whole = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
             if isinstance(value, bool) or not whole or value < least:
-                raise ValueError(f"Profile.{name} must be an integer >= {least}, got {value!r}")
+                raise ValueError(f"DataProfile.{name} must be an integer >= {least}, got {value!r}")
         for role, towns, pairs in zip(TOWN_ROLES, self.n_towns, self.n_town_pairs, strict=True):
             if pairs > 0 and towns == 0:
                 raise ValueError(
-                    f"Profile: {pairs} towns/{role} pairs need n_towns[{role}] > 0, got 0"
+                    f"DataProfile: {pairs} towns/{role} pairs need n_towns[{role}] > 0, got 0"
                 )
 
-    def with_size(self, n_standard: int) -> Profile:
+    def with_size(self, n_standard: int) -> DataProfile:
         """This profile rescaled so that the standard split holds ``n_standard`` pairs.
 
         Every set scales by its number of pairs; the long test splits by their number of flights
@@ -193,7 +195,7 @@ class Profile:
             n_long_flights=scale(self.n_long_flights),
         )
 
-    def standard_only(self) -> Profile:
+    def standard_only(self) -> DataProfile:
         """This profile with only the standard splits (train, val, test): what the heading-cue
         audit renders for its extra dataset seeds. Named ``<name>-standard``."""
         return dataclasses.replace(
@@ -215,16 +217,16 @@ class Profile:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> Profile:
+    def from_dict(cls, d: dict) -> DataProfile:
         fields = {f.name: f for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - set(fields))
         if unknown:
-            raise ValueError(f"Profile: unknown fields {unknown}")
+            raise ValueError(f"DataProfile: unknown fields {unknown}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
-PROFILES: dict[str, Profile] = {
-    "smoke": Profile(
+DATA_PROFILES: dict[str, DataProfile] = {
+    "smoke": DataProfile(
         name="smoke",
         image_size=32,
         n_standard=24,
@@ -247,7 +249,7 @@ PROFILES: dict[str, Profile] = {
         long_samples_per_flight=6,
         long_frame_stride=60,
     ),
-    "quick": Profile(
+    "quick": DataProfile(
         name="quick",
         image_size=96,
         # Held-out sets are large enough for flight-bootstrap intervals (issue 10): standard
@@ -271,7 +273,7 @@ PROFILES: dict[str, Profile] = {
         # of one core to render at 96 px (6-8 ms a frame).
         n_long_flights=24,
     ),
-    "paper": Profile(
+    "paper": DataProfile(
         name="paper",
         image_size=224,
         n_standard=24000,
@@ -292,9 +294,9 @@ PROFILES: dict[str, Profile] = {
 }
 
 
-def get_profile(name: str, size: int | None = None) -> Profile:
+def get_data_profile(name: str, size: int | None = None) -> DataProfile:
     """The named profile, optionally rescaled to ``size`` standard pairs; ValueError if bad."""
-    if name not in PROFILES:
-        raise ValueError(f"unknown profile {name!r}; expected one of {sorted(PROFILES)}")
-    profile = PROFILES[name]
+    if name not in DATA_PROFILES:
+        raise ValueError(f"unknown profile {name!r}; expected one of {sorted(DATA_PROFILES)}")
+    profile = DATA_PROFILES[name]
     return profile if size is None else profile.with_size(size)

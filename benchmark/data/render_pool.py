@@ -35,7 +35,7 @@ import pandas as pd
 
 from benchmark.data.camera_effects import apply_camera_effects
 from benchmark.data.format import DatasetError, atomic_write_bytes, npy_bytes, shard_name
-from benchmark.data.profiles import Profile
+from benchmark.data.profiles import DataProfile
 
 
 @dataclass
@@ -43,7 +43,7 @@ class RenderContext:
     """What rendering needs. ``cities`` is rebuilt in each worker by ``city_factory``."""
 
     root: Path
-    profile: Profile
+    profile: DataProfile
     seed: int
     cities: dict[tuple[str, str], Any]
     uav: pd.DataFrame
@@ -71,7 +71,7 @@ def _single_thread() -> None:
 
 def _worker_init(
     root: Path,
-    profile: Profile,
+    profile: DataProfile,
     seed: int,
     city_factory: Callable[[], dict[tuple[str, str], Any]],
     uav: pd.DataFrame,
@@ -138,12 +138,12 @@ def _shard_rows(table: pd.DataFrame, k: int, size: int) -> pd.DataFrame:
     return table.iloc[k * size : (k + 1) * size]
 
 
-def shard_size(kind: str, p: Profile) -> int:
+def shard_size(kind: str, p: DataProfile) -> int:
     """Images per shard; satellite shards are small so their costly renders spread out."""
     return p.shard_size if kind == "uav" else p.sat_shard_size
 
 
-def _shard_shape(kind: str, n_rows: int, k: int, p: Profile) -> tuple[int, int, int, int]:
+def _shard_shape(kind: str, n_rows: int, k: int, p: DataProfile) -> tuple[int, int, int, int]:
     size = shard_size(kind, p)
     return (min(size, n_rows - k * size), p.image_size, p.image_size, 3)
 

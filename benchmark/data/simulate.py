@@ -21,7 +21,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from benchmark.data.profiles import Profile
+from benchmark.data.profiles import DataProfile
 from benchmark.errors import UsageError
 
 
@@ -45,7 +45,7 @@ class SimulateConfig:
     directory, rendering ``workers``, the city cache (None: the default), whether to wait for
     another process rendering into ``out`` and whether to show a progress bar."""
 
-    profile: Profile
+    profile: DataProfile
     seed: int
     out: Path
     workers: int

@@ -23,7 +23,7 @@ import numpy as np
 
 from benchmark.data.format import CONFIG, MANIFEST, DatasetError, read_json, read_manifest
 from benchmark.data.integrity import check_files
-from benchmark.data.profiles import PROFILES, Profile, get_profile
+from benchmark.data.profiles import DATA_PROFILES, DataProfile, get_data_profile
 from benchmark.errors import UsageError
 from benchmark.progress import Progress
 
@@ -45,14 +45,14 @@ def simulate_command(root: Path, manifest: dict[str, Any]) -> str:
     stored = manifest.get("profile", {})
     seed = int(manifest.get("seed", 0))
     name = stored.get("name", "?")
-    if name in PROFILES:
+    if name in DATA_PROFILES:
         size = stored.get("n_standard")
-        base = PROFILES[name]
+        base = DATA_PROFILES[name]
         try:
-            again = base if size == base.n_standard else get_profile(name, size)
+            again = base if size == base.n_standard else get_data_profile(name, size)
         except (ValueError, TypeError):
             again = None
-        if again is not None and again.to_dict() == Profile.from_dict(stored).to_dict():
+        if again is not None and again.to_dict() == DataProfile.from_dict(stored).to_dict():
             args = f"--profile {name}" + ("" if again is base else f" --size {size}")
             args += f" --seed {seed}" if seed else ""
             return f"`uavbench simulate {args} --out {root}`"

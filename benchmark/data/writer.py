@@ -37,7 +37,7 @@ from benchmark.data.format import (
 )
 from benchmark.data.integrity import check_files
 from benchmark.data.journal import JOURNAL, append_journal, read_journal, remove_journal, trusted
-from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, Profile
+from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, DataProfile
 from benchmark.data.render_pool import RenderContext, RenderPool, _shard_shape, shard_size
 from benchmark.locks import work_lock
 from benchmark.progress import Progress
@@ -109,7 +109,7 @@ def _summary(differences: tuple[str, ...]) -> str:
     return "; ".join(differences[:8])
 
 
-def dataset_config(profile: Profile, seed: int) -> dict[str, Any]:
+def dataset_config(profile: DataProfile, seed: int) -> dict[str, Any]:
     from benchmark.sim import GENERATOR_VERSION, source_digest
 
     config = {
@@ -165,7 +165,7 @@ def parquet_bytes(df: pd.DataFrame) -> bytes:
 
 
 def build_cities(
-    profile: Profile, seed: int, cache_dir: Path | None, *, progress: bool = False
+    profile: DataProfile, seed: int, cache_dir: Path | None, *, progress: bool = False
 ) -> dict[tuple[str, str], Any]:
     """All worlds of a dataset: ``{(name, "now"|"earlier"): City}`` (paper styles and towns)."""
     from benchmark.sim import build_city, build_town, changed_city, city_seed, town_list
@@ -208,7 +208,7 @@ def _remove_stale_temporaries(out: Path) -> None:
             pass
 
 
-def n_shards(kind: str, n_rows: int, p: Profile) -> int:
+def n_shards(kind: str, n_rows: int, p: DataProfile) -> int:
     return -(-n_rows // shard_size(kind, p))
 
 
@@ -244,7 +244,7 @@ def _start_repair(out: Path, problems: list[tuple[str, str]], say: Callable[[str
 
 def simulate_dataset(
     out: Path,
-    profile: Profile,
+    profile: DataProfile,
     seed: int = 0,
     *,
     workers: int = 1,
@@ -291,7 +291,7 @@ def simulate_dataset(
 
 def _render(
     out: Path,
-    profile: Profile,
+    profile: DataProfile,
     seed: int,
     config: dict[str, Any],
     workers: int,

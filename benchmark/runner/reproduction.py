@@ -79,7 +79,7 @@ class ReproduceConfig:
 
 def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, quiet: bool) -> None:
     """Simulate the dataset (resumes; a complete matching dataset costs nothing)."""
-    from benchmark.data import get_profile
+    from benchmark.data import get_data_profile
     from benchmark.data.simulate import single_thread_env
     from benchmark.data.writer import ConfigMismatchError, simulate_dataset
 
@@ -87,7 +87,7 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
     try:
         stats = simulate_dataset(
             out,
-            get_profile(profile.dataset, profile.dataset_size),
+            get_data_profile(profile.dataset, profile.dataset_size),
             seed,
             workers=workers,
             progress=not quiet,

@@ -230,12 +230,14 @@ CUE_PROFILE = dict(
 
 @pytest.fixture(scope="module")
 def cue_dataset(tmp_path_factory):
-    from benchmark.data import Profile
+    from benchmark.data import DataProfile
     from benchmark.data.writer import simulate_dataset
 
     root = tmp_path_factory.mktemp("heading-cue") / "ds"
     cache = tmp_path_factory.mktemp("heading-cue-cities")
-    simulate_dataset(root, Profile(**CUE_PROFILE), 0, workers=1, cache_dir=cache, progress=False)
+    simulate_dataset(
+        root, DataProfile(**CUE_PROFILE), 0, workers=1, cache_dir=cache, progress=False
+    )
     return root
 
 

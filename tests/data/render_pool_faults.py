@@ -38,7 +38,7 @@ class CityFactory:
 
 
 def main(mode: str) -> int:
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.render_pool import RenderContext, RenderPool, RenderWorkerError
 
     uav = pd.DataFrame(
@@ -46,7 +46,7 @@ def main(mode: str) -> int:
               visibility_m=5000.0, camera_effects=False, uav_index=i) for i in range(2)]
     )  # fmt: skip
     root = Path(tempfile.mkdtemp())
-    ctx = RenderContext(root, PROFILES["smoke"], 0, {}, uav, uav.iloc[:0])
+    ctx = RenderContext(root, DATA_PROFILES["smoke"], 0, {}, uav, uav.iloc[:0])
     try:
         with RenderPool(ctx, 2, CityFactory(mode)) as pool:
             list(pool.imap([("uav", 0)]))

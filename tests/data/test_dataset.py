@@ -24,11 +24,11 @@ from benchmark.data import (
     odometry_noise,
     require_odometry,
 )
-from benchmark.data.profiles import PROFILES
+from benchmark.data.profiles import DATA_PROFILES
 from benchmark.data.swap import swap_targets
 from benchmark.data.writer import ConfigMismatchError, simulate_dataset
 
-SMOKE = PROFILES["smoke"]
+SMOKE = DATA_PROFILES["smoke"]
 
 
 def all_files(root: Path) -> dict[str, bytes]:

@@ -10,7 +10,7 @@ import time
 from benchmark.data.format import os_error_message
 from benchmark.data.integrity import cache_file, identity
 from benchmark.data.journal import JOURNAL, append_journal, read_journal, trusted
-from benchmark.data.profiles import PROFILES, get_profile
+from benchmark.data.profiles import DATA_PROFILES, get_data_profile
 from benchmark.data.verify import simulate_command
 
 
@@ -20,15 +20,15 @@ def manifest_of(profile, seed):
 
 class TestSimulateCommand:
     def test_default_profile(self, tmp_path):
-        cmd = simulate_command(tmp_path, manifest_of(PROFILES["quick"], 0))
+        cmd = simulate_command(tmp_path, manifest_of(DATA_PROFILES["quick"], 0))
         assert cmd == f"`uavbench simulate --profile quick --out {tmp_path}`"
 
     def test_size_and_seed(self, tmp_path):
-        cmd = simulate_command(tmp_path, manifest_of(get_profile("smoke", 30), 3))
+        cmd = simulate_command(tmp_path, manifest_of(get_data_profile("smoke", 30), 3))
         assert cmd == f"`uavbench simulate --profile smoke --size 30 --seed 3 --out {tmp_path}`"
 
     def test_profile_the_command_does_not_offer(self, tmp_path):
-        cmd = simulate_command(tmp_path, manifest_of(PROFILES["quick"].standard_only(), 2))
+        cmd = simulate_command(tmp_path, manifest_of(DATA_PROFILES["quick"].standard_only(), 2))
         assert "profile quick-standard, seed 2" in cmd and "`" not in cmd
 
 

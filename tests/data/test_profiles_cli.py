@@ -8,58 +8,66 @@ import numpy as np
 import pytest
 
 from benchmark.cli import main
-from benchmark.data.profiles import PROFILES, Profile, get_profile
+from benchmark.data.profiles import DATA_PROFILES, DataProfile, get_data_profile
 
 
 class TestProfiles:
     def test_issue_sizes(self):
-        assert PROFILES["smoke"].image_size <= 48 and 10 <= PROFILES["smoke"].n_standard < 100
-        assert PROFILES["quick"].image_size == 96 and 1000 <= PROFILES["quick"].n_standard <= 9999
-        assert PROFILES["paper"].image_size == 224 and PROFILES["paper"].n_standard >= 10000
-        for p in PROFILES.values():  # paper Sec. 3.1 / 3.5 constants
+        assert (
+            DATA_PROFILES["smoke"].image_size <= 48
+            and 10 <= DATA_PROFILES["smoke"].n_standard < 100
+        )
+        assert (
+            DATA_PROFILES["quick"].image_size == 96
+            and 1000 <= DATA_PROFILES["quick"].n_standard <= 9999
+        )
+        assert (
+            DATA_PROFILES["paper"].image_size == 224 and DATA_PROFILES["paper"].n_standard >= 10000
+        )
+        for p in DATA_PROFILES.values():  # paper Sec. 3.1 / 3.5 constants
             assert p.sat_height_m == 1000.0 and p.sat_footprint_m == (2000.0, 1000.0)
             assert p.flight_pitches_deg == (0.0, -10.0, -50.0)
             assert p.flight_altitude_m == (70.0, 90.0)
 
     def test_frozen(self):
         with pytest.raises(dataclasses.FrozenInstanceError):
-            PROFILES["quick"].image_size = 1
+            DATA_PROFILES["quick"].image_size = 1
 
     def test_size_override_scales_every_set(self):
-        q = PROFILES["quick"]
-        p = get_profile("quick", q.n_standard // 10)
+        q = DATA_PROFILES["quick"]
+        p = get_data_profile("quick", q.n_standard // 10)
         assert p.n_standard == q.n_standard // 10 and p.image_size == q.image_size
         assert p.n_generalized_test == q.n_generalized_test // 10
         assert p.n_height_train == q.n_height_train // 10
 
     def test_bad_input(self):
         with pytest.raises(ValueError, match="unknown profile 'huge'"):
-            get_profile("huge")
+            get_data_profile("huge")
         for bad in (0, -3, 2):
             with pytest.raises(ValueError, match=">= 3 pairs"):
-                get_profile("quick", bad)
+                get_data_profile("quick", bad)
         with pytest.raises(ValueError, match="standard_fractions"):
-            dataclasses.replace(PROFILES["smoke"], standard_fractions=(0.5, 0.5, 0.5))
+            dataclasses.replace(DATA_PROFILES["smoke"], standard_fractions=(0.5, 0.5, 0.5))
         for bad in (0, -1, 2.5):
             with pytest.raises(ValueError, match="eval_samples_per_flight must be None or an"):
-                dataclasses.replace(PROFILES["smoke"], eval_samples_per_flight=bad)
+                dataclasses.replace(DATA_PROFILES["smoke"], eval_samples_per_flight=bad)
 
     def test_odometry_noise_and_long_flights(self):
         """Issue 39: the stated odometry figures (at least the issue's yardstick) and the long
         test flights per profile: quick's and paper's last >= 60 s."""
-        for p in PROFILES.values():
+        for p in DATA_PROFILES.values():
             assert (p.odometry_gyro_bias_dps, p.odometry_yaw_walk_deg) == (0.2, 0.2)
             assert (p.odometry_scale_sigma, p.odometry_step_sigma_m) == (0.03, 0.5)
         counts = {k: (p.n_long_flights, p.long_samples_per_flight, p.long_frame_stride)
-                  for k, p in PROFILES.items()}  # fmt: skip
+                  for k, p in DATA_PROFILES.items()}  # fmt: skip
         assert counts == {"smoke": (2, 6, 60), "quick": (24, 32, 60), "paper": (40, 32, 60)}
         for name in ("quick", "paper"):
-            p = PROFILES[name]
+            p = DATA_PROFILES[name]
             assert (p.long_samples_per_flight - 1) * p.long_frame_stride / 30.0 >= 60.0
             assert p.standard_only().n_long_flights == 0
 
     def test_size_override_scales_long_flights_not_their_length(self):
-        q = PROFILES["quick"]
+        q = DATA_PROFILES["quick"]
         small = q.with_size(q.n_standard // 10)
         assert small.n_long_flights == 3  # ceil(24 / 10): fewer flights, each as long
         assert small.long_samples_per_flight == q.long_samples_per_flight
@@ -73,8 +81,8 @@ class TestProfiles:
     )  # fmt: skip
     @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf"), "0.2", True])
     def test_bad_odometry_figure_named(self, field, bad):
-        with pytest.raises(ValueError, match=f"Profile.{field} must be"):
-            dataclasses.replace(PROFILES["smoke"], **{field: bad})
+        with pytest.raises(ValueError, match=f"DataProfile.{field} must be"):
+            dataclasses.replace(DATA_PROFILES["smoke"], **{field: bad})
 
     @pytest.mark.parametrize(
         ("field", "bad"),
@@ -82,14 +90,14 @@ class TestProfiles:
          ("long_frame_stride", 0), ("n_long_flights", float("nan")), ("n_long_flights", True)],
     )  # fmt: skip
     def test_bad_long_flights_named(self, field, bad):
-        with pytest.raises(ValueError, match=f"Profile.{field} must be an integer"):
-            dataclasses.replace(PROFILES["smoke"], **{field: bad})
+        with pytest.raises(ValueError, match=f"DataProfile.{field} must be an integer"):
+            dataclasses.replace(DATA_PROFILES["smoke"], **{field: bad})
 
     def test_dict_round_trip(self):
-        for p in PROFILES.values():
-            assert Profile.from_dict(p.to_dict()) == p
+        for p in DATA_PROFILES.values():
+            assert DataProfile.from_dict(p.to_dict()) == p
         with pytest.raises(ValueError, match="unknown fields"):
-            Profile.from_dict({**PROFILES["smoke"].to_dict(), "colour": 1})
+            DataProfile.from_dict({**DATA_PROFILES["smoke"].to_dict(), "colour": 1})
 
 
 class TestSimulateCommand:

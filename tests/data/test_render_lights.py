@@ -16,7 +16,7 @@ import pandas as pd
 import pytest
 
 from benchmark.data.preview import _sun_text, sun_azimuth_deg
-from benchmark.data.profiles import PROFILES
+from benchmark.data.profiles import DATA_PROFILES
 from benchmark.data.render_pool import RenderContext, render_sat_rows, render_uav_rows
 from benchmark.sim import Camera, build_city, render_satellite, render_uav
 
@@ -24,7 +24,7 @@ from benchmark.sim import Camera, build_city, render_satellite, render_uav
 @pytest.fixture(scope="module")
 def ctx(tmp_path_factory):
     city = build_city("oxford", 2, cache_dir=False, size_m=(512.0, 512.0))
-    profile = dataclasses.replace(PROFILES["smoke"], image_size=24)
+    profile = dataclasses.replace(DATA_PROFILES["smoke"], image_size=24)
     g = float(city.ground_height(0.0, 0.0))
     uav = pd.DataFrame(
         dict(

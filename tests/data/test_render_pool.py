@@ -54,12 +54,12 @@ class TestDeadWorker:
 def test_two_workers_write_the_bytes_of_the_in_process_render(smoke_root, city_cache, tmp_path):
     """Same profile and seed through the process pool (2 spawned workers) and in this process
     (``smoke_root``, 1 worker): every file, manifest included, byte-identical."""
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.writer import simulate_dataset
 
     out = tmp_path / "ds"
     stats = simulate_dataset(
-        out, PROFILES["smoke"], 0, workers=2, cache_dir=city_cache, progress=False
+        out, DATA_PROFILES["smoke"], 0, workers=2, cache_dir=city_cache, progress=False
     )
     assert stats["state"] == "written"
 

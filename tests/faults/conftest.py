@@ -31,12 +31,12 @@ def city_cache(tmp_path_factory) -> Path:
 @pytest.fixture(scope="session")
 def reference(tmp_path_factory, city_cache) -> Path:
     """A finished smoke dataset (seed 0), never modified: copy it with ``fresh_copy``."""
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.writer import simulate_dataset
 
     root = tmp_path_factory.mktemp("fault-ref") / "ds"
     stats = simulate_dataset(
-        root, PROFILES["smoke"], 0, workers=1, cache_dir=city_cache, progress=False
+        root, DATA_PROFILES["smoke"], 0, workers=1, cache_dir=city_cache, progress=False
     )
     assert stats["state"] == "written"
     return root

@@ -17,10 +17,10 @@ from benchmark.cli import main
 from benchmark.data import DatasetError, PairDataset
 from benchmark.data import integrity as integ
 from benchmark.data.journal import JOURNAL
-from benchmark.data.profiles import PROFILES
+from benchmark.data.profiles import DATA_PROFILES
 from benchmark.data.writer import simulate_dataset
 
-SMOKE = PROFILES["smoke"]
+SMOKE = DATA_PROFILES["smoke"]
 SHARDS = ["uav/shard_00000.npy", "sat/shard_00000.npy"]  # both read by standard/train
 
 

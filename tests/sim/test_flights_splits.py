@@ -11,7 +11,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from benchmark.data.profiles import PROFILES
+from benchmark.data.profiles import DATA_PROFILES
 from benchmark.geometry import euler_to_rotmat, relative_rotation
 from benchmark.sim.flights import FlightSpec
 from benchmark.sim.odometry import ODOMETRY_COLUMNS, OdometryNoise
@@ -50,7 +50,7 @@ class FlatCity:
 
 def small_profile(**kw):
     base = dataclasses.replace(
-        PROFILES["smoke"], n_standard=60, n_generalized_test=10, n_flight_per_pitch=5,
+        DATA_PROFILES["smoke"], n_standard=60, n_generalized_test=10, n_flight_per_pitch=5,
         n_pitch_per_bin=4, n_height_train=20, n_height_test=8, samples_per_flight=5,
         n_towns=(4, 1, 2, 2), n_town_pairs=(20, 5, 10, 10),
     )  # fmt: skip
@@ -317,7 +317,7 @@ class TestLongSplits:
             assert (uav.group == name).all() and not uav.camera_effects.any()
 
     def test_quick_flights_last_at_least_60_s(self):
-        q = PROFILES["quick"]
+        q = DATA_PROFILES["quick"]
         towns = town_list(q.n_towns, 0, confirm_draw=q.confirm_draw)
         groups = {g.name: g for g in _groups(q, ("oxford", "cambridge"), "london", "ind", towns)}
         for name in LONG_SPLITS:
@@ -327,7 +327,7 @@ class TestLongSplits:
         assert groups["long/towns"].styles == tuple(t.name for t in towns if t.role == "test")
         assert groups["long/standard"].leak_check and not groups["long/london"].leak_check
         assert long_flight_seconds(groups["standard/test"].spec) < 60.0  # what long/* adds
-        paper = PROFILES["paper"]
+        paper = DATA_PROFILES["paper"]
         spec = FlightSpec(
             samples=paper.long_samples_per_flight, frame_stride=paper.long_frame_stride
         )
@@ -376,7 +376,7 @@ class TestLongSplits:
         pd.testing.assert_frame_equal(without.pairs, plan.pairs.iloc[:n_pairs])
 
     def test_standard_only_has_none(self):
-        assert PROFILES["quick"].standard_only().n_long_flights == 0
+        assert DATA_PROFILES["quick"].standard_only().n_long_flights == 0
 
 
 class TestMakePlanOdometry:

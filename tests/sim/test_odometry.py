@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 import benchmark.data as data
 import benchmark.sim as sim
 from benchmark.data import DatasetError, require_odometry
-from benchmark.data.profiles import ODOMETRY_FIELDS, PROFILES
+from benchmark.data.profiles import DATA_PROFILES, ODOMETRY_FIELDS
 from benchmark.sim.odometry import (
     ODOMETRY_COLUMNS,
     ODOMETRY_STREAM,
@@ -96,7 +96,7 @@ class TestOdometryNoise:
 class TestOdometryNoiseFromProfile:
     def test_degrees_at_the_edge_radians_inside(self):
         p = dataclasses.replace(
-            PROFILES["smoke"], odometry_gyro_bias_dps=0.5, odometry_yaw_walk_deg=0.25,
+            DATA_PROFILES["smoke"], odometry_gyro_bias_dps=0.5, odometry_yaw_walk_deg=0.25,
             odometry_scale_sigma=0.04, odometry_step_sigma_m=0.7,
         )  # fmt: skip
         want = OdometryNoise(math.radians(0.5), math.radians(0.25), 0.04, 0.7)
@@ -104,13 +104,13 @@ class TestOdometryNoiseFromProfile:
         assert odometry_noise(p.to_dict()) == want  # a manifest's profile dict
 
     def test_profiles_state_at_least_the_yardstick(self):
-        for p in PROFILES.values():
+        for p in DATA_PROFILES.values():
             n = odometry_noise(p)
             assert n.gyro_bias_sigma >= math.radians(0.2) and n.yaw_walk_sigma >= math.radians(0.2)
             assert n.scale_sigma >= 0.03
 
     def test_old_manifest_names_the_missing_fields(self):
-        old = {k: v for k, v in PROFILES["smoke"].to_dict().items() if k not in PROFILE_FIELDS}
+        old = {k: v for k, v in DATA_PROFILES["smoke"].to_dict().items() if k not in PROFILE_FIELDS}
         with pytest.raises(ValueError, match=r"odometry_gyro_bias_dps.*re-simulate"):
             odometry_noise(old)
 
@@ -197,7 +197,7 @@ class TestPlanOdometry:
         """Over 4000 flights the draws give back the profile's stated figures: the per-flight
         gyro bias (deg/s), the heading noise per step (deg), the per-flight scale error and the
         per-step displacement noise (m), each within sampling tolerance."""
-        profile = PROFILES["quick"]
+        profile = DATA_PROFILES["quick"]
         B, K, dt = 4000, 17, 2.0
         table = random_flights(B, K, dt, seed=1)
         odo = plan_odometry(

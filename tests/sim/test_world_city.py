@@ -41,10 +41,10 @@ class TestSourceDigest:
             source_digest(("nosuchmodule",))
 
     def test_dataset_config_records_it(self):
-        from benchmark.data import get_profile
+        from benchmark.data import get_data_profile
         from benchmark.data.writer import dataset_config
 
-        assert dataset_config(get_profile("smoke"), 0)["generator_source"] == source_digest()
+        assert dataset_config(get_data_profile("smoke"), 0)["generator_source"] == source_digest()
 
 
 class TestBuildCity:

@@ -44,12 +44,12 @@ class TestImportDirection:
 
 @pytest.fixture(scope="module")
 def smoke_dataset(tmp_path_factory):
-    from benchmark.data.profiles import PROFILES
+    from benchmark.data.profiles import DATA_PROFILES
     from benchmark.data.writer import simulate_dataset
 
     root = tmp_path_factory.mktemp("smoke") / "ds"
     cache = tmp_path_factory.mktemp("cities")
-    simulate_dataset(root, PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
+    simulate_dataset(root, DATA_PROFILES["smoke"], 0, workers=1, cache_dir=cache, progress=False)
     return root
 
 

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 from benchmark.errors import UsageError
 
 if TYPE_CHECKING:
-    from benchmark.data import Profile
+    from benchmark.data import DataProfile
     from benchmark.data.writer import ConfigMismatchError
 
 # (train, val, tests): the paper's splits, then the towns family, where present in the dataset.
@@ -36,16 +36,19 @@ THRESHOLD = 0.85
 CUE_EXTRA_SEEDS = 4  # standard-only datasets pooled with the reproduction's for the verdict
 
 
-def cue_dataset_plan(data_root: Path, n_extra: int) -> list[tuple[Path, Profile, int]]:
+def cue_dataset_plan(data_root: Path, n_extra: int) -> list[tuple[Path, DataProfile, int]]:
     """``[(root, profile, seed), ...]`` of the ``n_extra`` standard-only datasets pooled with
     ``data_root`` (``<data_root>-cue-s<seed + k>``, next to it). Raises ValueError naming
     ``config.json`` when the dataset's own profile and seed cannot be read."""
-    from benchmark.data import Profile
+    from benchmark.data import DataProfile
 
     config_path = Path(data_root) / "config.json"
     try:
         config = json.loads(config_path.read_text())
-        profile, seed = Profile.from_dict(config["profile"]).standard_only(), int(config["seed"])
+        profile, seed = (
+            DataProfile.from_dict(config["profile"]).standard_only(),
+            int(config["seed"]),
+        )
     except (OSError, KeyError, ValueError, TypeError) as err:
         raise ValueError(
             f"{config_path}: cannot read the dataset's profile and seed ({err})"

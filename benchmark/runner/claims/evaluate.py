@@ -159,7 +159,7 @@ CONFIRMATION_NOTE = (
     "claim whose splits have no confirmation split (satellite heights, view differences, the "
     "flight-test analogue, `towns/london`) is decided on the main splits only. A verdict counts "
     "as settled only where the two agree. Nothing may be chosen on `confirm/*`: a draw once used "
-    "for a choice is replaced by a new one (`Profile.confirm_draw`)."
+    "for a choice is replaced by a new one (`DataProfile.confirm_draw`)."
 )
 RULE_NOTE = (
     "Each Δ is a per-frame paired difference on the same test frames, each model's error averaged "
