@@ -81,7 +81,7 @@ class HeadingCueConfig:
     as_json: bool = False
 
 
-def heading_cue_report(config: HeadingCueConfig) -> int:
+def print_heading_cue_audit(config: HeadingCueConfig) -> int:
     """Check the splits, run the pooled audit and print it; exit code 0 (UsageError: a split a
     dataset lacks)."""
     from benchmark.analysis.heading_cue import pooled_heading_cue_audit

@@ -13,14 +13,14 @@ from benchmark.runner.claims.data_audit import (
     check_cue_datasets,
     cue_dataset_plan,
     cue_dataset_roots,
-    heading_cue_report,
+    heading_cue_audit_section,
     heading_cue_summary,
 )
 
 
 @pytest.fixture(scope="module")
 def audit(smoke_dataset):
-    return heading_cue_report(smoke_dataset, n_extra=1, quiet=True)
+    return heading_cue_audit_section(smoke_dataset, n_extra=1, quiet=True)
 
 
 class TestHeadingCueReport:
@@ -58,7 +58,7 @@ class TestHeadingCueReport:
     def test_rerun_reuses_the_rendered_dataset(self, smoke_dataset, audit):
         manifest = smoke_dataset.parent / f"{smoke_dataset.name}-cue-s1" / "manifest.json"
         before = manifest.stat().st_mtime_ns
-        _, rows = heading_cue_report(smoke_dataset, n_extra=1, quiet=True)
+        _, rows = heading_cue_audit_section(smoke_dataset, n_extra=1, quiet=True)
         assert manifest.stat().st_mtime_ns == before and rows == audit[1]
 
 

@@ -78,7 +78,7 @@ def committed(tmp_path, monkeypatch):
     out = tmp_path / "reports"
     shutil.copytree(COMMITTED, out)
     monkeypatch.setattr(pool_module, "run_unit", fake_unit)
-    monkeypatch.setattr(outputs_module, "heading_cue_report", stub_audit)
+    monkeypatch.setattr(outputs_module, "heading_cue_audit_section", stub_audit)
     monkeypatch.chdir(tmp_path)
     earlier = json.loads((COMMITTED / "provenance.json").read_text())["git_commit"]
     return out, earlier
@@ -268,7 +268,7 @@ class TestReportStageFailure:
         def failing_audit(data_root):
             raise UsageError("audit dataset refused (test)")
 
-        monkeypatch.setattr(outputs_module, "heading_cue_report", failing_audit)
+        monkeypatch.setattr(outputs_module, "heading_cue_audit_section", failing_audit)
         assert reproduce(tmp_path, smoke_dataset) == 2
         assert "audit dataset refused (test)" in capsys.readouterr().err
         assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -282,7 +282,7 @@ class TestLiveTables:
         today's, so it stays live (no mark), its file rendered again from its rows says what it
         said, and the claims on it are decided again."""
         monkeypatch.setattr(pool_module, "run_unit", fake_unit)
-        monkeypatch.setattr(outputs_module, "heading_cue_report", stub_audit)
+        monkeypatch.setattr(outputs_module, "heading_cue_audit_section", stub_audit)
         monkeypatch.chdir(tmp_path)
         out = tmp_path / "reports"
         assert reproduce(tmp_path, smoke_dataset) == 0

@@ -64,7 +64,7 @@ class TestBf16SmokeReproduction:
         if onednn_bf16_level() != "native":
             monkeypatch.setenv("UAVBENCH_ALLOW_SLOW_BF16", "1")
         monkeypatch.setattr(
-            outputs_module, "heading_cue_report", lambda root: ("# Heading-cue audit\n", [])
+            outputs_module, "heading_cue_audit_section", lambda root: ("# Heading-cue audit\n", [])
         )
         monkeypatch.chdir(tmp_path)  # the local tracking store lives in the working directory
         assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "bf16") == 0

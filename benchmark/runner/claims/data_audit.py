@@ -116,7 +116,7 @@ def _row(train: str, split: str, dataset: str, summary: dict[str, Any]) -> dict[
     return {"train": train, "split": split, "dataset": dataset, **summary}
 
 
-def heading_cue_report(
+def heading_cue_audit_section(
     data_root: Path, n_extra: int = CUE_EXTRA_SEEDS, *, quiet: bool = False
 ) -> tuple[str, list[dict[str, Any]]]:
     """Markdown of the heading-cue audit on every family of splits the dataset holds, and its

@@ -23,7 +23,7 @@ import torch
 
 from benchmark.evaluation.metrics import horizontal_metrics
 from benchmark.progress import Progress
-from benchmark.runner.claims.data_audit import heading_cue_report, heading_cue_summary
+from benchmark.runner.claims.data_audit import heading_cue_audit_section, heading_cue_summary
 from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claims
 from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import Claim
@@ -217,7 +217,7 @@ def write_reports(
     )
     # The audit may render its datasets: done before the first file is written, so that its
     # failure leaves the report directory as it was.
-    audit_md, audit_rows = heading_cue_report(data_root)
+    audit_md, audit_rows = heading_cue_audit_section(data_root)
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format=RESULTS_FLOAT_FORMAT)
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
