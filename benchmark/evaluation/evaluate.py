@@ -9,6 +9,11 @@ Per-sample tables of a ``PairDataset`` (or a ``Subset`` of one) carry its ``city
 ``flight`` columns and the satellite image each pair was shown (``sat_index``, the swapped one under
 ``satellite="swap"``), so that paired comparisons can resample whole flights
 (``benchmark.evaluation.paired``).
+
+The library behind every model evaluation (training's validation, ``uavbench evaluate`` through
+``benchmark.evaluation.evaluate_checkpoint``); not the command module
+``benchmark.commands.evaluate`` nor ``benchmark.references.evaluate``, which runs a non-learned
+reference over a split.
 """
 
 from __future__ import annotations

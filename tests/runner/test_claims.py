@@ -13,7 +13,7 @@ import pytest
 from test_frames import SPLITS, Repro
 
 from benchmark.evaluation.paired import pooled_bootstrap
-from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EQUIVALENT,

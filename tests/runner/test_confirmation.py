@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_frames import SPLITS, Repro
 
-from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     NOT_RUN,

@@ -13,7 +13,7 @@ import pytest
 from scipy.stats import norm
 from test_frames import SPLITS, Repro
 
-from benchmark.runner.claims.evaluate import margins_note, render_claims
+from benchmark.runner.claims.all_claims import margins_note, render_claims
 from benchmark.runner.claims.evidence import (
     EQUIVALENCE_MARGINS,
     EQUIVALENT,

@@ -8,7 +8,7 @@ import numpy as np
 from test_claims import add_head
 from test_frames import Repro
 
-from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import (
     CONTRADICTED,
     EXCLUDED,

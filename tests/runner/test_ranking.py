@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from test_frames import SPLITS, Repro
 
-from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
+from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import NO_DIFFERENCE, NOT_RUN, SUPPORTED, UNRESOLVED, Evidence
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.ranking import (

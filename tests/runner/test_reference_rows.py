@@ -17,7 +17,7 @@ from test_frames import Repro
 import benchmark.references as references_module
 from benchmark.evaluation.paired import swap_effect
 from benchmark.references import get_reference_class, list_references
-from benchmark.runner.claims.evaluate import evaluate_claims
+from benchmark.runner.claims.all_claims import evaluate_claims
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.spread import FRAME_METRICS, read_frames
 from benchmark.runner.execute import reference_rows as rr

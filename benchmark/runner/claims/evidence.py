@@ -149,7 +149,7 @@ class Claim:
     split: str = ""
     facts: dict[str, object] = field(default_factory=dict)  # structured numbers for the prose
     # The verdict of the same claim on the confirmation draw (``confirm/*``, issue 38): set by
-    # ``benchmark.runner.claims.evaluate.evaluate_claims``; None before that or without a draw.
+    # ``benchmark.runner.claims.all_claims.evaluate_claims``; None before that or without a draw.
     confirmation: Claim | None = None
 
 

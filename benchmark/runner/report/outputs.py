@@ -23,9 +23,9 @@ import torch
 
 from benchmark.evaluation.metrics import horizontal_metrics
 from benchmark.progress import Progress
+from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
 from benchmark.runner.claims.data_audit import heading_cue_audit_section, heading_cue_summary
 from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claims
-from benchmark.runner.claims.evaluate import evaluate_claims, render_claims
 from benchmark.runner.claims.evidence import Claim
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
