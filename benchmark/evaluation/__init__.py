@@ -1,4 +1,5 @@
-"""Evaluation: the paper's metrics (``metrics``) and running a model over a split (``evaluate``)."""
+"""Evaluation: the paper's metrics (``metrics``), running a model over a split (``evaluate``) and
+the constant predictor, the floor every model must clear (``constant``)."""
 
 from benchmark.evaluation.beliefs import (
     AttitudeCalibration,
@@ -8,6 +9,7 @@ from benchmark.evaluation.beliefs import (
     position_beliefs,
     yaw_beliefs,
 )
+from benchmark.evaluation.constant import constant_predictor, dataset_labels, mean_rotation
 from benchmark.evaluation.metrics import (
     ACCURACY_THRESHOLDS_DEG,
     ERROR_COLUMNS,
@@ -21,7 +23,6 @@ from benchmark.evaluation.metrics import (
     summarize,
     write_predictions_csv,
 )
-from benchmark.evaluation.reference import constant_predictor, dataset_labels, mean_rotation
 
 __all__ = [
     "ACCURACY_THRESHOLDS_DEG",

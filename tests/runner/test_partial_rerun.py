@@ -27,8 +27,8 @@ import benchmark.runner.execute.pool as pool_module
 import benchmark.runner.report.outputs as outputs_module
 from benchmark.cli import main
 from benchmark.data.swap import SATELLITE_MODES
+from benchmark.evaluation.constant import mean_rotation
 from benchmark.evaluation.metrics import predictions_frame, summarize, write_predictions_csv
-from benchmark.evaluation.reference import mean_rotation
 from benchmark.runner.claims.evidence import NOT_RUN
 from benchmark.runner.execute.worker import UnitResult, UnitTask, eval_key, split_filename
 from benchmark.runner.plan.partial import BANNER_BEGIN, BANNER_END, EARLIER, short_commit

@@ -59,7 +59,7 @@ class TestLabelsFromPairDataset:
         import torch
 
         from benchmark.data import PairDataset
-        from benchmark.evaluation.reference import constant_predictor, dataset_labels
+        from benchmark.evaluation.constant import constant_predictor, dataset_labels
 
         ds = PairDataset(smoke_dataset, "standard/train")
         sub = torch.utils.data.Subset(ds, [3, 0, 5])

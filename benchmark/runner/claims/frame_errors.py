@@ -5,7 +5,7 @@ need every frame's error, not the per-table means. A :class:`FrameStore` reads t
 each unit wrote (``<workdir>/units/<unit.key>/eval/<split_filename(split)>[__swap].csv``, columns of
 ``benchmark.evaluation.metrics.predictions_frame``; see ``benchmark.runner.execute.worker``) and
 computes the constant (training-mean) predictor's per-frame errors from the dataset's labels
-(``pairs.parquet``) with ``benchmark.evaluation.reference.constant_predictor``, the function
+(``pairs.parquet``) with ``benchmark.evaluation.constant.constant_predictor``, the function
 behind the reported constant row.
 
 Alignment. Rows are sorted by the frame ``index`` (the row of the pair in its split); every seed
@@ -67,7 +67,7 @@ class FrameErrors:
 
 
 class _Poses:
-    """A split's label rows in the shape ``benchmark.evaluation.reference.dataset_labels`` reads
+    """A split's label rows in the shape ``benchmark.evaluation.constant.dataset_labels`` reads
     (``.poses``: ``R00..R22``, ``dE dN dU``; item i = row i, as in ``PairDataset``)."""
 
     def __init__(self, poses: pd.DataFrame):
@@ -332,7 +332,7 @@ class FrameStore:
     def _constant_frame(self, split: str, train_split: str) -> pd.DataFrame:
         split = self.evaluated(split)  # the cache is shared with a ConfirmationStore
         if (train_split, split) not in self._constant:
-            from benchmark.evaluation.reference import constant_predictor
+            from benchmark.evaluation.constant import constant_predictor
 
             test = self._split_poses(split)
             _, frame = constant_predictor(self._split_poses(train_split), test)

@@ -216,8 +216,8 @@ def constant_baseline(
     read): the summary and the per-frame table, with each frame's ``flight`` (for the flight
     bootstrap). The tables' constant row, and the pose every failed reference frame is given."""
     from benchmark.data.dataset import PairDataset
+    from benchmark.evaluation.constant import constant_predictor
     from benchmark.evaluation.evaluate import pair_columns
-    from benchmark.evaluation.reference import constant_predictor
 
     train = PairDataset(data_root, train_split)
     evaluated = PairDataset(data_root, eval_split)
