@@ -128,8 +128,10 @@ def _frames(
 def _calibrated_position(
     rows: torch.Tensor, grid: Any, hats: np.ndarray, calibration: PositionCalibration
 ) -> torch.Tensor:
-    """The calibrated belief around each row's estimate (padding rows: row 0's)."""
-    return position_beliefs(torch.as_tensor(hats)[rows.clamp_min(0)], grid, calibration)
+    """The calibrated belief around each row's estimate (padding rows: row 0's). ``hats`` may be
+    a read-only view of a frame's column: copied, since torch cannot wrap a read-only array."""
+    estimates = torch.from_numpy(np.array(hats, copy=True))
+    return position_beliefs(estimates[rows.clamp_min(0)], grid, calibration)
 
 
 def footprints(poses: pd.DataFrame, sat_table: pd.DataFrame) -> np.ndarray:

@@ -68,6 +68,17 @@ class MergedFrameStore(FrameStore):
         self._refuse(table)  # the constant predictor a model is compared with
         return super().train_split(table, label, x)
 
+    def has_sequence(self, table: str, label: str, split: str) -> bool:
+        # refused, not False: a kept sequence table's fusion claims read "from an earlier run",
+        # never "not run" (their files belong to that run's work directory)
+        self._refuse(table)
+        return super().has_sequence(table, label, split)
+
+    def sequence_errors(self, table: str, label: str, split: str, metric: str, mode: str,
+                        odometry: str = "data") -> FrameErrors:  # fmt: skip
+        self._refuse(table)
+        return super().sequence_errors(table, label, split, metric, mode, odometry)
+
 
 _EARLIER_CLAIM = re.compile(rf"^{NOT_REDECIDED}: `([^`]+)` is from an earlier run at `([^`]+)`")
 
