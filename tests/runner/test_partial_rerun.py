@@ -46,15 +46,15 @@ def fake_unit(task: UnitTask) -> UnitResult:
     no image), written where ``train_and_evaluate`` writes predictions."""
     pairs = pd.read_parquet(Path(task.cfg.data.root) / "pairs.parquet")
     train = pairs[pairs["split"] == task.cfg.data.train_split]
-    R_bar = mean_rotation(torch.from_numpy(train[R_COLUMNS].to_numpy().reshape(-1, 3, 3)))
+    R_bar = mean_rotation(torch.tensor(train[R_COLUMNS].to_numpy().reshape(-1, 3, 3)))
     turn = Rotation.from_rotvec(np.radians([0, 0, zlib.crc32(task.key.encode()) % 30])).as_matrix()
     T_bar = torch.from_numpy(train[["dE", "dN", "dU"]].to_numpy().mean(0))
     metrics = {}
     for split in task.eval_splits:
         rows = pairs[pairs["split"] == split].reset_index(drop=True)
         n = len(rows)
-        R_gt = torch.from_numpy(rows[R_COLUMNS].to_numpy().reshape(-1, 3, 3))
-        T_gt = torch.from_numpy(rows[["dE", "dN", "dU"]].to_numpy())
+        R_gt = torch.tensor(rows[R_COLUMNS].to_numpy().reshape(-1, 3, 3))  # copies: a
+        T_gt = torch.tensor(rows[["dE", "dN", "dU"]].to_numpy())  # column view is read-only
         R_hat = (R_bar @ torch.from_numpy(turn)).expand(n, 3, 3)
         frame = predictions_frame(
             R_hat, R_gt, T_bar.expand(n, 3), T_gt, index=np.arange(n),
