@@ -18,7 +18,6 @@ from benchmark.training.config import (
     load_train_config,
 )
 from benchmark.training.identity import (
-    DEVICE_TAGS,
     MODEL_KEY_TAG,
     device_tags,
     model_tags,
@@ -48,7 +47,6 @@ from benchmark.training.pipeline import (
 
 __all__ = [
     "CHECKPOINT",
-    "DEVICE_TAGS",
     "MODEL_KEY_TAG",
     "CheckpointMismatchError",
     "DataConfig",

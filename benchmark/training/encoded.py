@@ -305,10 +305,9 @@ def encode_for_heads(
         "manifest_sha256": file_sha256(Path(base.root) / "manifest.json"),
         "encoder_options": options,
     }
-    if precision != "fp32":  # fp32 caches keep the identity they had before precisions
-        identity["precision"] = precision
     tag = hashlib.sha256(options.encode()).hexdigest()[:8]
-    if precision != "fp32":  # beside the fp32 cache, not overwriting it
+    if precision != "fp32":  # fp32 caches keep their identity and place from before precisions;
+        identity["precision"] = precision  # another precision's cache sits beside them
         tag += f"-{precision}"
     return encode_dataset(model, dataset, checkpoint.parent / "encodings" / tag, identity,
                           progress=progress, precision=precision)  # fmt: skip

@@ -93,9 +93,6 @@ def run_key(cfg: TrainConfig, dataset_manifest: str, precision: str | None = Non
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-DEVICE_TAGS = ("device", "precision", "accelerator")  # where a run computed: see device_tags
-
-
 def model_tags(
     cfg: TrainConfig, dataset_manifest: str, precision: str | None = None
 ) -> dict[str, str]:
