@@ -301,7 +301,7 @@ def test_no_import_cycles_between_modules():
 
 
 # The runner's rooms, in pipeline order (issue 22): a module imports only its own room or a
-# lower one; the top level (reproduction, bench_ray, __init__) may import every room.
+# lower one; the top level (reproduction, __init__) may import every room.
 RUNNER_ROOMS = ("plan", "execute", "claims", "report")
 RUNNER_TOP_MODULES_MAX = 8
 
@@ -339,3 +339,71 @@ def test_runner_top_level_stays_small():
                    and (p / "__init__.py").is_file())  # fmt: skip
     assert len(top) <= RUNNER_TOP_MODULES_MAX, top
     assert set(RUNNER_ROOMS) <= set(rooms), rooms
+
+
+# ------------------------------------------------------------------ benches and the command line
+# Every bench in one room (issue 41): ``benchmark/bench/``; ``benchmark/commands/bench_*.py`` are
+# its command adapters (flags -> config -> library call).
+BENCH_ROOM = "benchmark/bench/"
+
+
+@pytest.mark.parametrize("path", FILES, ids=rel)
+def test_benches_live_in_one_room(path):
+    where = rel(path)
+    if where.startswith((BENCH_ROOM, "benchmark/commands/")):
+        return
+    assert not path.stem.startswith("bench"), (
+        f"{where}: a bench module outside {BENCH_ROOM} (move it there; the command adapter "
+        "stays in benchmark/commands/)"
+    )
+
+
+@pytest.mark.parametrize("path", FILES, ids=rel)
+def test_only_the_command_layer_imports_the_benches(path):
+    where = rel(path)
+    if where.startswith((BENCH_ROOM, "benchmark/commands/", *COMMAND_ENTRIES)):
+        return
+    bad = [n for n in imports_of(path) if package_of(n) == "bench"]
+    assert not bad, f"{where} imports {bad}; only benchmark/commands/ may import the benches"
+
+
+def launches_the_command_line(path: Path) -> list[str]:
+    """Literal argument lists in ``path`` that start this package's command line: ``-m``
+    followed by ``benchmark``/``benchmark.cli``/``benchmark.__main__``, or ``uavbench`` as the
+    program (a list or tuple of strings, as ``subprocess`` takes)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, (ast.List, ast.Tuple)):
+            continue
+        # positions kept: a non-string element (sys.executable, an f-string) is None
+        words = [e.value if isinstance(e, ast.Constant) and isinstance(e.value, str) else None
+                 for e in node.elts]  # fmt: skip
+        for i, word in enumerate(words):
+            after = words[i + 1] if i + 1 < len(words) else None
+            if (word == "-m" and after in ("benchmark", "benchmark.cli", "benchmark.__main__")) or (
+                i == 0 and word == "uavbench"
+            ):
+                found.append(f"line {node.lineno}: {words[:6]}")
+    return found
+
+
+@pytest.mark.parametrize("path", FILES, ids=rel)
+def test_no_library_module_launches_the_command_line(path):
+    # A library call in a fresh interpreter (benchmark.bench.fresh_process) replaces it: the
+    # library never depends on flag names.
+    if rel(path).startswith("benchmark/commands/"):
+        return
+    found = launches_the_command_line(path)
+    assert not found, f"{rel(path)} starts the uavbench command line: {found}"
+
+
+def test_the_launch_check_sees_a_launch(tmp_path):
+    launcher = tmp_path / "launcher.py"
+    launcher.write_text(
+        "import subprocess, sys\n"
+        "subprocess.run([sys.executable, '-m', 'benchmark', 'simulate', '--profile', 'smoke'])\n"
+        "subprocess.run(('uavbench', 'reproduce'))\n"
+        "subprocess.run([sys.executable, '-m', 'pytest'])\n"
+        "requirements = [f'torch=={1}', 'uavbench']\n"
+    )
+    assert len(launches_the_command_line(launcher)) == 2

@@ -1,12 +1,12 @@
 """``uavbench bench accelerator``: does this machine's accelerator run the benchmark, and how fast
-(:mod:`benchmark.bench_accelerator`)."""
+(:mod:`benchmark.bench.accelerator`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from benchmark import bench_accelerator as lib
+from benchmark.bench import accelerator as lib
 from benchmark.errors import UsageError
 
 HELP = "one-command accelerator check: smoke reproduction, train fp32/bf16, latency"

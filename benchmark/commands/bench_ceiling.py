@@ -1,11 +1,11 @@
 """``uavbench bench ceiling [--device D] [--precision fp32,bf16] [--repeats N]``: the convolution
-throughput ceiling of a device (:mod:`benchmark.models.bench_ceiling`)."""
+throughput ceiling of a device (:mod:`benchmark.bench.ceiling`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from benchmark.models import bench_ceiling as lib
+from benchmark.bench import ceiling as lib
 
 HELP = "convolution throughput ceiling (GFLOP/s, fp32/bf16) of the device"
 DESCRIPTION = lib.__doc__.split("\n")[0]

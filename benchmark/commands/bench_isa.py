@@ -1,12 +1,12 @@
 """``uavbench bench isa``: the dataset's manifest digest with each library's SIMD level forced
-down, side by side (:mod:`benchmark.data.bench_isa`)."""
+down, side by side (:mod:`benchmark.bench.isa`)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 
-from benchmark.data import bench_isa as lib
+from benchmark.bench import isa as lib
 
 HELP = "dataset manifest digest with each library's SIMD level forced down, side by side"
 DESCRIPTION = lib.__doc__

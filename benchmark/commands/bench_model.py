@@ -1,11 +1,11 @@
 """``uavbench bench model``: measured speed of the pair model and of its two optimisations
-(:mod:`benchmark.models.bench_model`)."""
+(:mod:`benchmark.bench.model`)."""
 
 from __future__ import annotations
 
 import argparse
 
-from benchmark.models import bench_model as lib
+from benchmark.bench import model as lib
 
 HELP = "speed-ups of the shared-satellite encoding and channels_last, side by side"
 DESCRIPTION = lib.__doc__

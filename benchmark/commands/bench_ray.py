@@ -1,14 +1,15 @@
-"""``uavbench bench ray``: parse the flags into a :class:`benchmark.runner.bench_ray.BenchRayConfig`
-and run :func:`benchmark.runner.bench_ray.bench_ray` (the smoke reproduction through the process
-pool and through a local Ray, side by side)."""
+"""``uavbench bench ray``: parse the flags into a
+:class:`benchmark.bench.ray_cluster.BenchRayConfig` and run
+:func:`benchmark.bench.ray_cluster.bench_ray` (the smoke reproduction through the process pool
+and through a local Ray, side by side)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
+from benchmark.bench import ray_cluster as lib
 from benchmark.commands.reproduce import add_workers_argument
-from benchmark.runner import bench_ray as lib
 
 HELP = "smoke reproduction through the process pool and a local Ray: wall times, ratio"
 DESCRIPTION = lib.__doc__

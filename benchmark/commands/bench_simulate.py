@@ -1,12 +1,12 @@
 """``uavbench bench simulate``: measured simulator throughput against the issue's targets
-(:mod:`benchmark.data.bench_simulate`)."""
+(:mod:`benchmark.bench.simulate`)."""
 
 from __future__ import annotations
 
 import argparse
 import os
 
-from benchmark.data import bench_simulate as lib
+from benchmark.bench import simulate as lib
 
 HELP = "pairs/s at 96 and 224 px with all workers, and the time to build a city"
 DESCRIPTION = lib.__doc__

@@ -1,14 +1,14 @@
 """``uavbench bench train``: training throughput per precision, against a plain reference loop
-(:mod:`benchmark.training.bench`)."""
+(:mod:`benchmark.bench.train`)."""
 
 from __future__ import annotations
 
 import argparse
 from collections.abc import Sequence
 
+from benchmark.bench import train as lib
+from benchmark.bench.train import BENCH_ENCODERS, ENCODERS, MODELS, OPTIMIZERS
 from benchmark.errors import UsageError
-from benchmark.training import bench as lib
-from benchmark.training.bench import BENCH_ENCODERS, ENCODERS, MODELS, OPTIMIZERS
 
 HELP = "training pairs/s fp32/bf16 (quick, paper model), x plain loop, % of conv ceiling"
 DESCRIPTION = lib.__doc__.split("\n")[0]

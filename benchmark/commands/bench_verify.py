@@ -1,12 +1,12 @@
 """``uavbench bench verify DATASET``: what checksum verification by default costs, side by side
-(:mod:`benchmark.data.bench_verify`)."""
+(:mod:`benchmark.bench.verify`)."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from benchmark.data import bench_verify as lib
+from benchmark.bench import verify as lib
 
 HELP = "cost of opening a dataset: size check, first sha256, cached sha256, side by side"
 DESCRIPTION = lib.__doc__.split("\n")[0]

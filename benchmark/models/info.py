@@ -5,7 +5,7 @@ given input size, with the formulas of ``benchmark.models.flop_count`` (complex 
 the spectra's products and bilinear sampling of the matching encoder). It counts the matrix
 products and convolutions only (normalisation, activations, pooling and softmax are not counted,
 as in most published FLOP figures) and reports FLOPs = 2 x multiply-adds. A pair encoder gets a
-synthetic ``context`` with the quick dataset's geometry (``benchmark.models.bench_inputs``).
+synthetic ``context`` with the quick dataset's geometry (``benchmark.models.synthetic_inputs``).
 "Inference" runs the model in eval mode (the fusion variants' auxiliary branches and heads are
 skipped, as at test time); "training forward" includes them. The dense share (real ``addmm``/
 ``mm``/``bmm``) is printed separately: the paper's Table 6 figures (Re-Net 24.43, Pd/Re-Net with
@@ -33,10 +33,10 @@ from typing import Any
 import torch
 from torch import nn
 
-from benchmark.models.bench_inputs import synthetic_labels
 from benchmark.models.device import Placement
 from benchmark.models.flop_count import count_flops_by_kind
 from benchmark.models.pair import PoseModel, create_model
+from benchmark.models.synthetic_inputs import synthetic_labels
 
 OPTION_FIELDS = ("attitude_options", "translation_options", "encoder_options")
 

@@ -9,9 +9,10 @@ import pytest
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from benchmark.bench import ceiling as bench_ceiling
+from benchmark.bench.ceiling import SHAPES, conv_job, conv_step_flops, measure_ceiling
 from benchmark.commands.bench import run_target
-from benchmark.models import bench_ceiling, precision_support
-from benchmark.models.bench_ceiling import SHAPES, conv_job, conv_step_flops, measure_ceiling
+from benchmark.models import precision_support
 from benchmark.models.precision_support import precision_plan
 from tests.cpu_kinds import fake_cpu
 

@@ -9,7 +9,7 @@ import pytest
 import torch
 from torch import nn
 
-from benchmark.training.bench_breakdown import (
+from benchmark.bench.train_breakdown import (
     CLIP_LABEL,
     KINDS,
     breakdown_line,

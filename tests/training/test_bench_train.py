@@ -11,17 +11,17 @@ import pytest
 import torch
 from torch import nn
 
+from benchmark.bench import train as bench
+from benchmark.bench.ceiling import conv_step_flops
+from benchmark.bench.train import count_step_flops, step_flops
+from benchmark.bench.train_breakdown import KINDS
 from benchmark.commands import bench_train as command
 from benchmark.commands.bench import run_target
 from benchmark.data.dataset import CONTEXT_KEYS
 from benchmark.errors import UsageError
 from benchmark.models import precision_support
-from benchmark.models.bench_ceiling import conv_step_flops
 from benchmark.models.flop_count import KINDS as KINDS_OF_FLOPS
 from benchmark.models.matching_ops import fft_size
-from benchmark.training import bench
-from benchmark.training.bench import count_step_flops, step_flops
-from benchmark.training.bench_breakdown import KINDS
 from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
 TINY = ["--models", "quick", "--size", "32", "--width", "0.1", "--steps", "1", "--warmup", "0"]
@@ -87,7 +87,7 @@ class TestBenchTrain:
     def test_cpu_line_names_the_bf16_flags_and_isa(self, capsys):
         """The line's present/missing flags are /proc/cpuinfo's (read here independently) and
         its ATen ISA is torch's; bf16 is native exactly when a native-bf16 flag is present."""
-        from benchmark.models.bench_ceiling import native_bf16_flags
+        from benchmark.bench.ceiling import native_bf16_flags
 
         assert main([*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]) == 0
         line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("bf16 on "))

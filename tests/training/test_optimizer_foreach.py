@@ -7,8 +7,8 @@ import pytest
 import torch
 from tiny_pairs import tiny_config
 
+from benchmark.bench.train import batch_of
 from benchmark.models import create_model
-from benchmark.training.bench import batch_of
 from benchmark.training.loop import CPU_FOREACH, make_optimizer
 
 OPTIMIZERS = [

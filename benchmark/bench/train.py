@@ -20,7 +20,7 @@ Algorithm 1 loss plus the encoder's own loss, backward, optimiser update) of
   ``make_optimizer``'s ``foreach`` (same weights bit for bit; ``loop.CPU_FOREACH``),
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
-(``benchmark.models.bench_ceiling``) in each precision. Everything alternates step by step (both
+(``benchmark.bench.ceiling``) in each precision. Everything alternates step by step (both
 encoders' loops too), so machine load affects every column alike. It prints pairs/s, the ratio to
 plain and to our fp32, the step's counted rate and its share of the convolution ceiling of the
 same precision; per model, the matching encoder beside GoogLeNet (pairs/s and FLOPs per step,
@@ -28,14 +28,14 @@ loop by loop; ``matching_alt3`` beside ``matching``) and each encoder's FLOPs by
 bf16 beside fp32, a table of bf16/fp32 and bf16/plain per model and encoder (the issue's
 layout). On the CPU a line says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and
 which ISA and kernels ran a training convolution in each precision
-(``bench_ceiling.cpu_bf16_line``).
+(``ceiling.cpu_bf16_line``).
 
 The batch (``batch_of``): random pixels, labels and ``context`` with the quick dataset's geometry
-(``benchmark.models.bench_inputs``: the matching encoder's templates land as on real pairs).
+(``benchmark.models.synthetic_inputs``: the matching encoder's templates land as on real pairs).
 The optimiser is the paper's SGD with momentum (lr 1e-3, as the issue measured) or, with
 ``--optimizer adam``, the quick profile's Adam (lr 3e-4, gradient norm clipped at 10), both built by
 ``make_optimizer`` as training builds them. ``--profile N`` adds, per "ours" loop, where one step's
-time goes by kind of work (``bench_breakdown``) and torch.profiler's N top ops.
+time goes by kind of work (``train_breakdown``) and torch.profiler's N top ops.
 
 FLOPs of a step are counted, not estimated: ``torch.utils.flop_counter.FlopCounterMode`` runs one
 whole step (forward and backward) and counts 2 x multiply-adds of every convolution and matrix
@@ -193,9 +193,9 @@ def batch_of(
     """A random batch of ``batch`` pairs over ``distinct`` satellite images (same bytes for the
     same arguments): ``uav, sat (B, 3, size, size)`` in [0, 1], ``sat_id (B,)``, labels
     ``R (B, 3, 3)`` and ``T (B, 3)`` metres and the ``context`` dict (a pair encoder's geometry),
-    drawn from the quick dataset's ranges (``bench_inputs.synthetic_labels``); on ``device``
+    drawn from the quick dataset's ranges (``synthetic_inputs.synthetic_labels``); on ``device``
     (default CPU)."""
-    from benchmark.models.bench_inputs import synthetic_labels
+    from benchmark.models.synthetic_inputs import synthetic_labels
 
     g = torch.Generator().manual_seed(0)
     sats = torch.rand(distinct, 3, size, size, generator=g)
@@ -221,9 +221,9 @@ def make_step(
     """A function running one optimiser step of ``model`` on ``batch`` (gradient norm clipped at
     ``grad_clip`` first, as training does) and returning its seconds (device synchronised before
     each clock reading)."""
-    from benchmark.models.bench_ceiling import synchronize
+    from benchmark.bench.ceiling import synchronize
+    from benchmark.bench.train_breakdown import CLIP_LABEL
     from benchmark.models.device import autocast, outputs_to_float
-    from benchmark.training.bench_breakdown import CLIP_LABEL
 
     def step() -> float:
         synchronize(device)
@@ -315,7 +315,7 @@ def measure(
 ) -> tuple[list[LoopResult], dict[str, float]]:
     """Time the loops of one model side by side, every encoder's in the same rounds;
     ``(loops, ceiling GFLOP/s per precision)``."""
-    from benchmark.models.bench_ceiling import SHAPES, CeilingResult, conv_job
+    from benchmark.bench.ceiling import SHAPES, CeilingResult, conv_job
     from benchmark.models.flop_count import KINDS
 
     batch = batch_of(size, config.batch_size, config.distinct_sat, device)
@@ -362,7 +362,7 @@ def measure(
         results.append(LoopResult(name, precision, config.batch_size / seconds, total / 1e9,
                                   gflops, share, encoder, kinds))  # fmt: skip
     if config.profile:
-        from benchmark.training.bench_breakdown import breakdown_line, profile_step
+        from benchmark.bench.train_breakdown import breakdown_line, profile_step
 
         for (encoder, name), (precision, step) in loops.items():
             if name.startswith("ours"):
@@ -512,7 +512,7 @@ def load_text() -> str:
 def bench_train(config: TrainBenchConfig) -> int:
     """Time and print every model of ``config`` (rows, ceilings, the comparison lines and the bf16
     table); exit code 0 (UsageError: a device or precision this machine lacks)."""
-    from benchmark.models.bench_ceiling import cpu_bf16_line
+    from benchmark.bench.ceiling import cpu_bf16_line
     from benchmark.models.device import accelerator_name
     from benchmark.models.precision_support import bf16_support_label
 
@@ -543,7 +543,7 @@ def bench_train(config: TrainBenchConfig) -> int:
         print("\n".join(format_rows(name, size, width, results)), flush=True)
         for precision, gflops in ceilings.items():
             print(f"{'':7s} conv ceiling {precision}: {gflops:.1f} GFLOP/s (best of "
-                  "bench_ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
+                  "ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
         lines = [change_line(name, results, encoder) for encoder in encoders]
         lines += [encoder_line(name, results)]
         lines += [encoder_line(name, results, e, "matching") for e in encoders

@@ -18,10 +18,10 @@ children's) goes to one kind:
   losses' small ops, the autograd engine's own bookkeeping).
 
 With the step's convolution, matmul (real and complex: ``matmul`` + ``dft``) and sampling FLOPs
-(``bench.step_flops``) this gives each one's achieved rate; the line puts the convolutions' rate
-beside the ceiling (``bench_ceiling``). The matching encoder's complex elementwise products
-(``spectrum``) fall in ``other``. The profiler adds a few microseconds per op, so the shares are
-those of a slightly slowed step: they locate the time, the timed rounds give the speed.
+(``train.step_flops``) this gives each one's achieved rate; the line puts the convolutions' rate
+beside the ceiling (``benchmark.bench.ceiling``). The matching encoder's complex elementwise
+products (``spectrum``) fall in ``other``. The profiler adds a few microseconds per op, so the
+shares are those of a slightly slowed step: they locate the time, the timed rounds give the speed.
 """
 
 from __future__ import annotations

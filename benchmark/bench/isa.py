@@ -2,15 +2,18 @@
 down, one render per setting, side by side (issue 20, "same data on every CPU").
 
 numpy, OpenBLAS, numba, torch, OpenCV, Arrow and libjpeg-turbo choose kernels from the CPU at
-run time. Each row renders the profile's dataset in a fresh process with one of them forced to its
-baseline (environment variables below) and fresh city caches (cities are rebuilt under the same
-setting); the last row forces all at once. Equal digests everywhere mean the bytes do not depend
-on the instruction set the libraries find: on an AVX-512 machine the default row runs the AVX-512
-kernels and the forced rows the baseline ones, which is the comparison issue 20 is about.
+run time. Each row renders the profile's dataset in a fresh interpreter
+(``benchmark.bench.fresh_process``: the library function, not the command line) with one of them
+forced to its baseline (environment variables below) and fresh city caches (cities are rebuilt
+under the same setting); the last row forces all at once. Equal digests everywhere mean the bytes
+do not depend on the instruction set the libraries find: on an AVX-512 machine the default row
+runs the AVX-512 kernels and the forced rows the baseline ones, which is the comparison issue 20
+is about.
 
-The column ``in effect`` is what a probe process reports under the same environment (numpy's
-dispatched SIMD targets, OpenBLAS core, numba CPU, ATen capability, OpenCV dispatch, Arrow SIMD
-level), so a variable that a library ignores shows up instead of passing silently.
+The column ``in effect`` is what a probe (:func:`in_effect`, in a fresh interpreter) reports
+under the same environment (numpy's dispatched SIMD targets, OpenBLAS core, numba CPU, ATen
+capability, OpenCV dispatch, Arrow SIMD level), so a variable that a library ignores shows up
+instead of passing silently.
 
     uavbench bench isa [--profile smoke] [--workers 2] [--only NAME ...] [--strict]
 """
@@ -19,45 +22,42 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import platform
-import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from benchmark.bench.fresh_process import FreshProcessError, run_fresh
 from benchmark.errors import UsageError
 from benchmark.machine import cpu_model
 
-# One library per setting; the values that switch its run-time dispatch off.
-_PROBE = r"""
-import json, os
-out = {}
-import numpy as np
-from numpy._core import _multiarray_umath as m
-out["numpy"] = "+".join(f for f in m.__cpu_dispatch__ if m.__cpu_features__.get(f)) or "baseline"
-try:
-    from threadpoolctl import threadpool_info
-    out["openblas"] = ",".join(
-        str(i.get("architecture")) for i in threadpool_info() if i.get("internal_api") == "openblas"
-    ) or "?"
-except ImportError:
-    out["openblas"] = "?"
-import numba, llvmlite.binding as ll
-out["numba"] = (numba.config.CPU_NAME or ll.get_host_cpu_name()) + (
-    " svml" if numba.config.USING_SVML else "")
-import cv2
-out["opencv"] = "+".join(
-    t[1:] for t in cv2.getCPUFeaturesLine().split() if t.startswith("*") and not t.endswith("?")
-) or "baseline"
-import pyarrow
-out["arrow"] = pyarrow.runtime_info().simd_level
-import torch
-out["aten"] = torch.backends.cpu.get_cpu_capability()
-print(json.dumps(out))
-"""
+
+def in_effect() -> dict[str, str]:
+    """What each library runs in this process (the probe, run in a fresh one under a setting's
+    environment): numpy's dispatched SIMD targets, the OpenBLAS core, numba's CPU, OpenCV's
+    dispatch, Arrow's SIMD level, ATen's capability."""
+    import llvmlite.binding as ll
+    import numba
+    import pyarrow
+    import torch
+
+    out = {"numpy": "+".join(numpy_dispatch_found()) or "baseline"}
+    try:
+        from threadpoolctl import threadpool_info
+
+        cores = [str(i.get("architecture")) for i in threadpool_info()
+                 if i.get("internal_api") == "openblas"]  # fmt: skip
+        out["openblas"] = ",".join(cores) or "?"
+    except ImportError:
+        out["openblas"] = "?"
+    out["numba"] = (numba.config.CPU_NAME or ll.get_host_cpu_name()) + (
+        " svml" if numba.config.USING_SVML else ""
+    )
+    out["opencv"] = "+".join(opencv_dispatch_found()) or "baseline"
+    out["arrow"] = pyarrow.runtime_info().simd_level
+    out["aten"] = torch.backends.cpu.get_cpu_capability()
+    return out
 
 
 def numpy_dispatch_found() -> list[str]:
@@ -104,37 +104,37 @@ def lower_isa_env() -> dict[str, str]:
 
 
 def probe(env: dict[str, str]) -> dict[str, str]:
-    """What each library runs under ``env`` (a fresh interpreter): see the module docstring."""
-    run = subprocess.run(
-        [sys.executable, "-c", _PROBE],
-        env={**os.environ, **env},
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    if run.returncode != 0:
-        raise RuntimeError(f"bench isa: the probe failed under {env}: {run.stderr.strip()[-400:]}")
-    return json.loads(run.stdout.strip().splitlines()[-1])
+    """What each library runs under ``env``: :func:`in_effect` in a fresh interpreter."""
+    try:
+        return run_fresh(in_effect, env=env)
+    except FreshProcessError as err:
+        raise RuntimeError(f"bench isa: the probe failed under {env}: {err}") from err
+
+
+def _render(profile: str, size: int | None, seed: int, out: Path, workers: int) -> int:
+    """The child of :func:`render_manifest`: render the sized profile into ``out`` with a fresh
+    city cache beside it."""
+    from benchmark.data.profiles import get_data_profile
+    from benchmark.data.simulate import SimulateConfig, simulate
+
+    cache = out.parent / f"{out.name}-cities"
+    return simulate(SimulateConfig(get_data_profile(profile, size), seed, out, workers,
+                                   city_cache=cache, progress=False))  # fmt: skip
 
 
 def render_manifest(
     out: Path, env: dict[str, str], *, profile: str, workers: int, seed: int, size: int | None
 ) -> tuple[dict, str]:
-    """Render the dataset into ``out`` (fresh city cache beside it) in a subprocess under ``env``;
-    returns (manifest, manifest sha256). RuntimeError with the tail of stderr if it fails."""
-    cmd = [sys.executable, "-m", "benchmark", "simulate", "--profile", profile, "--out", str(out)]
-    cmd += ["--workers", str(workers), "--seed", str(seed), "--quiet"]
-    cmd += ["--city-cache", str(out.parent / f"{out.name}-cities")]
-    if size is not None:
-        cmd += ["--size", str(size)]
-    run = subprocess.run(
-        cmd, env={**os.environ, **env}, capture_output=True, text=True, check=False
-    )
-    if run.returncode != 0:
+    """Render the dataset into ``out`` (fresh city cache beside it) in a fresh interpreter under
+    ``env`` (its output in ``out``'s sibling ``<name>.log``); returns (manifest, manifest
+    sha256). RuntimeError with the failure and the log's tail if it fails."""
+    log = out.parent / f"{out.name}.log"
+    try:
+        run_fresh(_render, profile, size, seed, out, workers, env=env, log=log)
+    except FreshProcessError as err:
         raise RuntimeError(
-            f"bench isa: simulate failed under {env or 'the default environment'} (exit "
-            f"{run.returncode}): {run.stderr.strip()[-800:]}"
-        )
+            f"bench isa: simulate failed under {env or 'the default environment'}: {err}"
+        ) from err
     data = (out / "manifest.json").read_bytes()
     return json.loads(data), hashlib.sha256(data).hexdigest()
 

@@ -1,4 +1,4 @@
-"""``bench_inputs``: synthetic labels and context in the dataset's ranges, consistent with each
+"""``synthetic_inputs``: synthetic labels and context in the dataset's ranges, consistent with each
 other; ``model-info`` feeds them to a pair encoder (gravity-aided needs them) and refuses bf16 as
 training does on a CPU without native bf16."""
 
@@ -13,8 +13,8 @@ from benchmark.cli import main
 from benchmark.data.dataset import CONTEXT_KEYS
 from benchmark.data.dataset import PRIOR_SIGMA as DATASET_PRIOR_SIGMA
 from benchmark.geometry import SAT_R_N, rotmat_to_euler
-from benchmark.models.bench_inputs import PRIOR_SIGMA, synthetic_labels
 from benchmark.models.precision_support import ALLOW_SLOW_BF16_ENV
+from benchmark.models.synthetic_inputs import PRIOR_SIGMA, synthetic_labels
 from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
 MATCHING = ["model-info", "--encoder", "matching", "--variant", "/", "--size", "32"]

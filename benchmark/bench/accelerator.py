@@ -3,14 +3,15 @@
 One command, one line per figure, on a machine with nothing but the repository, its install
 command (``pip install -e .``) and a torch build for the device (CUDA, MPS or the CPU):
 
-1. a smoke reproduction (``uavbench reproduce --profile smoke --only table3``) in a temporary
-   directory with its own dataset, work dir, reports and sqlite MLflow store. Training units use
-   ``TrainConfig``'s defaults, ``device=auto`` and ``precision=auto`` (CUDA in bf16 where
-   supported, else MPS, else the CPU in fp32); the line reports the device, precision and
-   accelerator that the runs' MLflow tags record, so it shows where the units really ran;
+1. a smoke reproduction (what ``uavbench reproduce --profile smoke --only table3`` runs, in a
+   fresh interpreter) in a temporary directory with its own dataset, work dir, reports and sqlite
+   MLflow store. Training units use ``TrainConfig``'s defaults, ``device=auto`` and
+   ``precision=auto`` (CUDA in bf16 where supported, else MPS, else the CPU in fp32); the line
+   reports the device, precision and accelerator that the runs' MLflow tags record, so it shows
+   where the units really ran;
 2. ``bench train`` at the paper's size (224 px, width 1.0, batch 20 over 4 satellite images): our
    training loop in fp32 and bf16 (where supported) on ``--device``, pairs/s, bf16/fp32, and the
-   share of the measured convolution ceiling (``benchmark.models.bench_ceiling``);
+   share of the measured convolution ceiling (``benchmark.bench.ceiling``);
 3. inference latency per pair (batch 1, eval mode, as ``uavbench model-info`` measures it).
 
 ``--fast`` shrinks 2 and 3 to tiny sizes (tests; the reproduction is the smoke profile's anyway);
@@ -20,16 +21,15 @@ the reproduction failed (its log's last lines are printed).
 
 from __future__ import annotations
 
-import os
 import shutil
-import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+
+from benchmark.bench.fresh_process import FreshProcessError, run_fresh
 
 
 @dataclass(frozen=True)
@@ -53,28 +53,31 @@ class AcceleratorBenchConfig:
 
 def run_reproduction(config: AcceleratorBenchConfig, root: Path) -> tuple[bool, list[str]]:
     """Run the smoke reproduction under ``root``; ``(ok, lines)``."""
+    from benchmark.runner.execute.pool import ExecutorConfig
+    from benchmark.runner.reproduction import ReproduceConfig, reproduce
+
     data = config.data if config.data is not None else root / "data"
-    argv = [
-        *(sys.executable, "-m", "benchmark", "reproduce", "--profile", "smoke"),
-        *("--only", config.table, "--workers", "1", "--quiet", "--tracker", "mlflow"),
-        *("--data", str(data), "--workdir", str(root / "runs"), "--out", str(root / "reports")),
-        *("--tracking-uri", f"sqlite:///{root / 'mlflow.db'}"),
-    ]
-    # This checkout's code, whatever is installed; one thread per process as the runner's units.
-    package_root = str(Path(__file__).resolve().parents[1])
-    env = {**os.environ, "PYTHONPATH": package_root, "UAVBENCH_CACHE": str(root / "cache")}
-    env.pop("MLFLOW_TRACKING_URI", None)
+    run = ReproduceConfig(
+        profile="smoke", only=(config.table,), data=data, workdir=root / "runs",
+        out=root / "reports", tracker="mlflow", tracking_uri=f"sqlite:///{root / 'mlflow.db'}",
+        quiet=True, executor=ExecutorConfig(workers=1),
+    )  # fmt: skip
+    # In a fresh interpreter, as a user starts it; its own cache, no tracking URI of ours.
     log = root / "reproduce.log"
     start = time.perf_counter()
-    with log.open("w") as out:
-        code = subprocess.run(
-            argv, cwd=root, env=env, stdout=out, stderr=subprocess.STDOUT
-        ).returncode
+    try:
+        code = run_fresh(
+            reproduce, run, env={"UAVBENCH_CACHE": str(root / "cache")},
+            unset=("MLFLOW_TRACKING_URI",), cwd=root, log=log,
+        )  # fmt: skip
+        outcome = f"exit {code}"
+    except FreshProcessError as err:
+        code, outcome = None, err.error or f"died with exit {err.exitcode}"
     seconds = time.perf_counter() - start
     if code != 0:
-        tail = log.read_text().splitlines()[-15:]
+        tail = log.read_text(errors="replace").splitlines()[-15:] if log.is_file() else []
         return False, [
-            f"smoke reproduction ({config.table}): FAILED, exit {code} after {seconds:.0f} s; "
+            f"smoke reproduction ({config.table}): FAILED, {outcome} after {seconds:.0f} s; "
             f"last lines of {log}:",
             *(f"  {line}" for line in tail),
         ]
@@ -115,7 +118,7 @@ def bench_lines(
 ) -> list[str]:
     """``bench train`` at 224 px, width 1.0 (``--fast``: 48 px, width 0.25, batch 4) in each
     precision, and the conv ceiling; one line each."""
-    from benchmark.training import bench
+    from benchmark.bench import train as bench
 
     size, width, batch, sats = (48, 0.25, 4, 2) if config.fast else (224, 1.0, 20, 4)
     train = bench.TrainBenchConfig(
@@ -179,8 +182,8 @@ def latency_lines(
 def bench_accelerator(config: AcceleratorBenchConfig) -> int:
     """Run the check of ``config`` and print a line per figure; exit code 0, or 1 when the
     reproduction failed (UsageError: a device or precision this machine lacks)."""
+    from benchmark.bench.train import load_text, resolve
     from benchmark.models.device import accelerator_name
-    from benchmark.training.bench import load_text, resolve
 
     device, precisions, notes = resolve(config.device, config.precision)
     if config.threads is not None:
@@ -192,7 +195,7 @@ def bench_accelerator(config: AcceleratorBenchConfig) -> int:
         flush=True,
     )
     if device.type == "cpu":  # native bf16 or not, and the ISA/kernels a training conv ran
-        from benchmark.models.bench_ceiling import cpu_bf16_line
+        from benchmark.bench.ceiling import cpu_bf16_line
 
         print(cpu_bf16_line(("fp32", "bf16")), flush=True)
     for note in notes:

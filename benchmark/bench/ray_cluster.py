@@ -1,25 +1,24 @@
 """``uavbench bench ray``: the smoke reproduction through the process pool and through a local Ray,
 side by side, in one run.
 
-Prints the wall time of ``uavbench reproduce --executor pool`` and ``--executor ray`` (each a fresh
-process with a fresh workdir and tracking store, as a user runs it: imports, Ray's start-up and
-shutdown included; the dataset is rendered once beforehand and not timed), their ratio (target:
-Ray within 1.3x the pool) and whether ``results.csv`` holds the same numbers. ``--repeats N``
-alternates the two N times and reports medians, so a load change hits both alike.
+Prints the wall time of the reproduction with the process pool and with Ray as executor (each in a
+fresh interpreter with a fresh workdir and tracking store, as a user runs it: imports, Ray's
+start-up and shutdown included; the dataset is rendered once beforehand and not timed), their
+ratio (target: Ray within 1.3x the pool) and whether ``results.csv`` holds the same numbers.
+``--repeats N`` alternates the two N times and reports medians, so a load change hits both alike.
 """
 
 from __future__ import annotations
 
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from benchmark.bench.fresh_process import FreshProcessError, run_fresh
 from benchmark.errors import UsageError
 
 if TYPE_CHECKING:
@@ -56,27 +55,30 @@ def numbers(results_csv: Path) -> pd.DataFrame:
 
 
 def reproduce_once(config: BenchRayConfig, executor: str, data: Path, where: Path) -> float:
-    """Wall seconds of one ``uavbench reproduce`` in a fresh process; raises if it fails."""
+    """Wall seconds of one reproduction in a fresh interpreter (``reproduce(ReproduceConfig)``
+    as ``uavbench reproduce`` would call it; its output in ``where/reproduce.log``); raises
+    RuntimeError if it fails or returns a non-zero exit code."""
+    from benchmark.runner.execute.pool import ExecutorConfig
+    from benchmark.runner.reproduction import ReproduceConfig, reproduce
+
     where.mkdir(parents=True)
-    argv = [
-        sys.executable, "-m", "benchmark.cli", "reproduce", "--profile", config.profile,
-        "--only", config.only, "--data", str(data), "--workdir", str(where / "runs"),
-        "--out", str(where / "reports"), "--tracker", config.tracker, "--no-models", "--quiet",
-        "--workers", str(config.workers), "--executor", executor,
-    ]  # fmt: skip
-    checkout = str(Path(__file__).resolve().parents[2])  # this checkout, not an installed copy
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([checkout, os.environ.get("PYTHONPATH", "")]),
-    }
-    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-        env[var] = "1"
+    run = ReproduceConfig(
+        profile=config.profile, only=(config.only,), data=data, workdir=where / "runs",
+        out=where / "reports", tracker=config.tracker, log_models=False, quiet=True,
+        executor=ExecutorConfig(kind=executor, workers=config.workers),
+    )  # fmt: skip
+    # one thread per process, as the runner's units
+    threads = {var: "1" for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS")}
+    log = where / "reproduce.log"
     start = time.perf_counter()
-    done = subprocess.run(argv, cwd=where, env=env, capture_output=True, text=True)
+    try:
+        code = run_fresh(reproduce, run, env=threads, cwd=where, log=log)
+    except FreshProcessError as err:
+        raise RuntimeError(f"reproduce with the {executor} executor failed: {err}") from err
     wall = time.perf_counter() - start
-    if done.returncode != 0:
-        tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
-        raise RuntimeError(f"reproduce --executor {executor} exited {done.returncode}:\n{tail}")
+    if code != 0:
+        tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:])
+        raise RuntimeError(f"reproduce with the {executor} executor exited {code}:\n{tail}")
     return wall
 
 
