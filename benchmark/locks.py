@@ -7,7 +7,7 @@
         with work_lock(workdir / ".reproduce.lock", what="uavbench reproduce"):
             ...
     except LockBusyError as err:
-        raise UsageError(str(err)) from None
+        raise InputError(str(err)) from None
 
 The lock is an ``fcntl.flock`` on the lock file, so the kernel releases it when its holder exits,
 however it exits (kill -9 included): a lock left by a dead process is free and is taken over at

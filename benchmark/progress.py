@@ -1,15 +1,60 @@
-"""A dependency-free progress bar with rate and ETA, written to stderr.
+"""Progress display: a dependency-free progress bar with rate and ETA (stderr) and the status
+lines of long-running work (:func:`status`, stdout by default).
 
-Used by every long-running command (simulate, train, reproduce). On a terminal the bar redraws in
-place; when stderr is a file or pipe (CI logs) it prints one line at most every ``log_every``
-seconds, so logs stay short.
+The bar is used by every long-running command (simulate, train, reproduce). On a terminal it
+redraws in place; when stderr is a file or pipe (CI logs) it prints one line at most every
+``log_every`` seconds, so logs stay short.
+
+**Status lines.** Library code never prints: what long-running work is doing (a reproduction's
+plan, a dataset written, a server's address) goes through :func:`status`, one channel that a
+Python caller redirects or silences with :func:`status_to`; results are returned, and the command
+layer (``benchmark/commands/``) prints them.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import TextIO
+
+StatusSink = Callable[[str], None]
+_sinks: list[StatusSink | None] = []  # innermost status_to last
+_sinks_lock = threading.Lock()
+
+
+def _to_stdout(message: str) -> None:
+    # sys.stdout looked up at each call, so a redirected stdout (pytest's capture) gets the line
+    print(message, file=sys.stdout, flush=True)
+
+
+def to_stderr(message: str) -> None:
+    """A :func:`status_to` sink: the line on stderr, beside the progress bar (a command whose
+    stdout carries its result, e.g. ``uavbench train``'s metrics)."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def status(message: str) -> None:
+    """One status line of long-running work: to the innermost :func:`status_to` sink, else to
+    stdout."""
+    with _sinks_lock:
+        sink = _sinks[-1] if _sinks else _to_stdout
+    if sink is not None:
+        sink(message)
+
+
+@contextmanager
+def status_to(sink: StatusSink | None) -> Iterator[None]:
+    """Send :func:`status` lines to ``sink`` inside the block (None: drop them)."""
+    with _sinks_lock:
+        _sinks.append(sink)
+    try:
+        yield
+    finally:
+        with _sinks_lock:
+            _sinks.remove(sink)
 
 
 def format_duration(seconds: float) -> str:

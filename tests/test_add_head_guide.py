@@ -80,7 +80,7 @@ def scratch_copy(dest: Path) -> Path:
 def cue_datasets(smoke_dataset) -> list[Path]:
     """The smoke dataset and the heading-cue audit's extra datasets beside it (rendered once per
     session, shared with any other test of the smoke reproduction)."""
-    from benchmark.runner.claims.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
+    from benchmark.runner.execute.audit import CUE_EXTRA_SEEDS, cue_dataset_roots
 
     return cue_dataset_roots(smoke_dataset, CUE_EXTRA_SEEDS, quiet=True)
 

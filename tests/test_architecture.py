@@ -11,6 +11,7 @@ directly or round a circle.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -31,9 +32,9 @@ ALLOWED: dict[str, set[str]] = {
     # the entry point group uavbench.heads (pyproject.toml), so no import points up.
     "models": {"geometry", "errors", "config", "machine"},
     "baselines": {"geometry", "models"},
-    "analysis": {"geometry", "data", "errors"},  # heading_cue reads datasets (PairDataset)
+    "analysis": {"geometry", "data", "errors", "progress"},  # heading_cue reads datasets
     "evaluation": {"geometry", "data", "models", "progress", "errors"},
-    "tracking": {"errors", "locks"},
+    "tracking": {"errors", "locks", "progress"},  # progress: status lines (a server, a sync)
     # the non-learned references (issue 21): evaluated like models, never imported by them
     "references": {"geometry", "data", "sim", "evaluation", "progress", "errors"},
     "training": {
@@ -407,3 +408,165 @@ def test_the_launch_check_sees_a_launch(tmp_path):
         "requirements = [f'torch=={1}', 'uavbench']\n"
     )
     assert len(launches_the_command_line(launcher)) == 2
+
+
+# ------------------------------------------- the library returns values and raises typed errors
+# Issue 41: printing, exit codes and flag names only in the command layer. Library code reports
+# long-running work through the progress display (benchmark/progress.py: the bar and status()),
+# returns its results for the commands to print, and raises typed errors (benchmark.errors:
+# InputError; UsageError is the command line's, raised by the commands and config validation).
+PRINTING_ALLOWED = ("benchmark/commands/", "benchmark/progress.py")
+USAGE_ERROR_ALLOWED = ("benchmark/commands/", "benchmark/config.py", "benchmark/errors.py",
+                       "benchmark/cli.py")  # fmt: skip
+FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+LIBRARY_FILES = [p for p in FILES if not rel(p).startswith("benchmark/commands/")]
+
+
+def prints_or_exits(path: Path) -> list[str]:
+    """``print(...)``, ``sys.exit(...)``, ``exit(...)`` and ``quit(...)`` calls in ``path``."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, ast.Call):
+            continue
+        f = node.func
+        if isinstance(f, ast.Name) and f.id in ("print", "exit", "quit"):
+            found.append(f"line {node.lineno}: {f.id}()")
+        elif (
+            isinstance(f, ast.Attribute)
+            and f.attr == "exit"
+            and getattr(f.value, "id", "") == "sys"
+        ):
+            found.append(f"line {node.lineno}: sys.exit()")
+    return found
+
+
+def flags_in_raised_messages(path: Path) -> list[str]:
+    """Command-line flags (``--name``) in the string parts of every ``raise``'s exception."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Raise) and node.exc is not None:
+            for part in ast.walk(node.exc):
+                if isinstance(part, ast.Constant) and isinstance(part.value, str):
+                    found += [f"line {node.lineno}: {m}" for m in FLAG.findall(part.value)]
+    return found
+
+
+@pytest.mark.parametrize("path", LIBRARY_FILES, ids=rel)
+def test_library_neither_prints_nor_exits(path):
+    if rel(path).startswith(PRINTING_ALLOWED):
+        return
+    found = prints_or_exits(path)
+    assert not found, (
+        f"{rel(path)}: {found}; report through benchmark.progress (status, Progress) or return "
+        "the result for the command to print"
+    )
+
+
+@pytest.mark.parametrize("path", LIBRARY_FILES, ids=rel)
+def test_usage_error_only_in_the_command_layer(path):
+    if rel(path).startswith(USAGE_ERROR_ALLOWED):
+        return
+    names = {
+        node.id if isinstance(node, ast.Name) else node.attr
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, (ast.Name, ast.Attribute))
+    } | {
+        alias.name
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    assert "UsageError" not in names, f"{rel(path)} uses UsageError; raise InputError instead"
+
+
+@pytest.mark.parametrize("path", LIBRARY_FILES, ids=rel)
+def test_no_flag_name_in_a_library_message(path):
+    found = flags_in_raised_messages(path)
+    assert not found, f"{rel(path)}: {found}; name the config field or argument, not the flag"
+
+
+def test_the_library_checks_see_what_they_look_for(tmp_path):
+    source = tmp_path / "library.py"
+    source.write_text(
+        "import sys\n"
+        "print('hello')\n"
+        "sys.exit(2)\n"
+        "raise ValueError(f'--workers must be >= 1, got {0}')\n"
+        "raise ValueError('workers must be >= 1; a negative-number -3 and x--y are no flags')\n"
+    )
+    assert len(prints_or_exits(source)) == 2
+    assert [f.split(": ")[1] for f in flags_in_raised_messages(source)] == ["--workers"]
+
+
+# ----------------------------------------------------------- claims decide, the report writes
+# Issue 41 item 1: the work of a reproduction (rendering datasets, reading images, evaluating
+# the references, fusing along flights, planning) happens before the claims and the report, in
+# the plan and execute rooms, run by benchmark/runner/reproduction.py. The claims are functions
+# of results and the report a writer: neither imports these modules or calls these functions.
+# (Still in report/, left for a later step: provenance.py reads the checkpoints' weights with
+# torch for their digests and costs.py measures Table 6's latencies.)
+WORK_MODULES = (
+    "benchmark.sim",
+    "benchmark.analysis",
+    "benchmark.references",
+    "benchmark.data.writer",
+    "benchmark.data.simulate",
+    "benchmark.evaluation.sequence_eval",
+    "benchmark.evaluation.fusion",
+    "benchmark.training.pipeline",  # training and evaluating (its configs and tags are data)
+    "benchmark.training.loop",
+    "benchmark.training.build",
+    "benchmark.training.encoded",
+)
+WORK_FUNCTIONS = {
+    "heading_cue_rows", "cue_dataset_roots", "simulate_dataset", "evaluate_references",
+    "fuse_non_learned", "fuse_estimates", "fuse_predictions", "plan_units", "plan_merge",
+    "constant_rows",
+}  # fmt: skip
+PURE_ROOMS = ("benchmark/runner/claims/", "benchmark/runner/report/")
+
+
+def imported_names(path: Path) -> set[str]:
+    """The names ``from x import name`` brings into ``path`` (inside functions too)."""
+    return {
+        alias.name
+        for node in ast.walk(ast.parse(path.read_text(), str(path)))
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+
+
+def work_imports(path: Path) -> list[str]:
+    """What in ``path`` reaches the reproduction's work: a work module or a work function."""
+    modules = [
+        n for n in imports_of(path) if any(n == m or n.startswith(m + ".") for m in WORK_MODULES)
+    ]
+    return modules + sorted(imported_names(path) & WORK_FUNCTIONS)
+
+
+@pytest.mark.parametrize("path", [p for p in FILES if rel(p).startswith(PURE_ROOMS)], ids=rel)
+def test_claims_and_report_do_no_work(path):
+    found = work_imports(path)
+    if rel(path).startswith("benchmark/runner/claims/"):
+        found += [n for n in imports_of_any(path) if n == "torch" or n.startswith("torch.")]
+    assert not found, (
+        f"{rel(path)} reaches {found}: the work runs before the claims and the report "
+        "(benchmark/runner/reproduction.py: execute room); they read its results"
+    )
+
+
+def imports_of_any(path: Path) -> list[str]:
+    """Every absolute module name imported in ``path``, ours or not."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.append(node.module)
+    return names
+
+
+def test_the_writer_is_called_with_its_inputs_by_the_orchestration():
+    # one function strings the work together: the reproduction computes the report's inputs
+    source = (ROOT / "benchmark/runner/reproduction.py").read_text()
+    assert "def _report_inputs(" in source and "inputs=inputs" in source

@@ -9,7 +9,7 @@ import pytest
 
 from benchmark.commands.bench import TARGET_HELP, TARGETS, run_target
 from benchmark.data import list_splits
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import load_specs
 from benchmark.runner.plan.units import plan_units
@@ -43,6 +43,26 @@ def test_bench_and_latency_lines_without_reproduction(capsys):
     assert "paper profile estimate" in out and "[--fast" in out
 
 
+def test_library_returns_its_lines_and_prints_nothing(capsys):
+    """``bench_accelerator`` returns the figures' lines and ``ok`` (the command prints them and
+    picks the exit code); its opening lines go through ``progress.status``."""
+    from benchmark.bench.accelerator import AcceleratorBenchConfig, bench_accelerator
+    from benchmark.progress import status_to
+
+    config = AcceleratorBenchConfig(device="cpu", precision="fp32", reproduce=False, steps=1,
+                                    threads=1, fast=True)  # fmt: skip
+    said: list[str] = []
+    with status_to(said.append):
+        result = bench_accelerator(config)
+    assert capsys.readouterr().out == ""
+    assert said[0].startswith("accelerator check: cpu (")
+    assert result.ok and result.reproduction == () and result.precisions == ("fp32",)
+    lines = result.lines()
+    assert lines == [*result.bench, *result.latency, f"end: {result.end_load}"]
+    assert lines[0].startswith("train 48 px width 0.25 batch 4 fp32: ")
+    assert any(line.startswith("inference latency 48 px width 0.25 fp32: ") for line in lines)
+
+
 def test_failed_reproduction_exits_1_with_its_log(tmp_path, capsys):
     (tmp_path / "data").mkdir()
     argv = [*FAST, "--precision", "fp32", "--table", "table42", "--data", str(tmp_path / "data")]
@@ -56,7 +76,7 @@ def test_failed_reproduction_exits_1_with_its_log(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv", [["--steps", "0"], ["--data", "/nonexistent"], ["--device", "x"]])
 def test_bad_arguments(argv):
-    with pytest.raises(UsageError):
+    with pytest.raises(InputError):
         main(argv)
 
 

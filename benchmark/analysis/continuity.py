@@ -193,17 +193,43 @@ class ContinuityConfig:
     out: Path = Path("reports/continuity")
 
 
-def continuity_report(config: ContinuityConfig) -> int:
+@dataclass(frozen=True)
+class ContinuityReport:
+    """What :func:`continuity_report` found and wrote: the Markdown ``summary`` (also in
+    ``<stem>.md``) and the files under ``out`` named ``<stem>.{csv,png,md}`` and
+    ``<stem>_jumps.csv``."""
+
+    summary: str
+    out: Path
+    stem: str
+
+    @property
+    def files(self) -> tuple[Path, ...]:
+        """The four files written."""
+        names = (".csv", ".png", ".md", "_jumps.csv")
+        return tuple(self.out / f"{self.stem}{suffix}" for suffix in names)
+
+    def lines(self) -> list[str]:
+        """The summary, a blank line and where the files were written."""
+        return [
+            *self.summary.splitlines(),
+            "",
+            f"wrote {self.out / self.stem}.{{csv,png,md}} and {self.stem}_jumps.csv",
+        ]
+
+
+def continuity_report(config: ContinuityConfig) -> ContinuityReport:
     """Sweep, find and refine the jumps, write ``continuity_<attitude>.{csv,png,md}`` and the
-    jumps' CSV into ``config.out``, print the summary; exit code 0 (UsageError: a bad step)."""
-    from benchmark.errors import UsageError
+    jumps' CSV into ``config.out``; returns the summary and where it was written (InputError: a
+    bad step or attitude)."""
+    from benchmark.errors import InputError
 
     try:
         table = sweep(
             math.radians(config.pitch), math.radians(config.roll), config.step, config.attitude
         )
     except ValueError as err:
-        raise UsageError(str(err)) from err
+        raise InputError(str(err)) from err
     jumps = find_jumps(table)
     threshold = eq6_threshold_deg(math.radians(config.pitch), math.radians(config.roll))
     config.out.mkdir(parents=True, exist_ok=True)
@@ -251,6 +277,4 @@ def continuity_report(config: ContinuityConfig) -> int:
         lines.append(f"| {rep} | {', '.join(f'{w:g}' for w in where) or 'none'} |")
     summary = "\n".join(lines) + "\n"
     (config.out / f"{stem}.md").write_text(summary)
-    print(summary)
-    print(f"wrote {config.out / stem}.{{csv,png,md}} and {stem}_jumps.csv")
-    return 0
+    return ContinuityReport(summary, config.out, stem)

@@ -1,7 +1,8 @@
 """The benches behind ``uavbench bench TARGET``: one module per target, every one in this room.
 
-Each measures something side by side in one run and returns its numbers (and an exit code for
-the command to pass on): ``simulate`` and ``verify`` (the renderer and the dataset check),
+Each measures something side by side in one run and returns its numbers in a frozen result
+(``lines()`` renders what the command prints; a verdict such as ``same`` or ``ok`` that the
+command turns into its exit code): ``simulate`` and ``verify`` (the renderer and the dataset check),
 ``isa`` (the dataset's bytes under lower instruction sets), ``train`` and ``train_breakdown``
 (the training loop against a plain one, by kind of work), ``ceiling`` (the convolution ceiling),
 ``model`` (one model's latency and size), ``ray_cluster`` (the reproduction through the process

@@ -16,7 +16,8 @@ command (``pip install -e .``) and a torch build for the device (CUDA, MPS or th
 
 ``--fast`` shrinks 2 and 3 to tiny sizes (tests; the reproduction is the smoke profile's anyway);
 ``--data DIR`` reuses a smoke dataset instead of rendering one. Exit 0 when everything ran, 1 when
-the reproduction failed (its log's last lines are printed).
+the reproduction failed (its log's last lines are printed). :func:`bench_accelerator` returns the
+lines and whether the reproduction ran; the command prints them and picks the exit code.
 """
 
 from __future__ import annotations
@@ -66,15 +67,15 @@ def run_reproduction(config: AcceleratorBenchConfig, root: Path) -> tuple[bool, 
     log = root / "reproduce.log"
     start = time.perf_counter()
     try:
-        code = run_fresh(
+        result = run_fresh(
             reproduce, run, env={"UAVBENCH_CACHE": str(root / "cache")},
             unset=("MLFLOW_TRACKING_URI",), cwd=root, log=log,
         )  # fmt: skip
-        outcome = f"exit {code}"
+        ok, outcome = result.ok, f"{len(result.failures)} unit(s) failed"
     except FreshProcessError as err:
-        code, outcome = None, err.error or f"died with exit {err.exitcode}"
+        ok, outcome = False, err.error or f"died with exit {err.exitcode}"
     seconds = time.perf_counter() - start
-    if code != 0:
+    if not ok:
         tail = log.read_text(errors="replace").splitlines()[-15:] if log.is_file() else []
         return False, [
             f"smoke reproduction ({config.table}): FAILED, {outcome} after {seconds:.0f} s; "
@@ -179,41 +180,63 @@ def latency_lines(
     return lines
 
 
-def bench_accelerator(config: AcceleratorBenchConfig) -> int:
-    """Run the check of ``config`` and print a line per figure; exit code 0, or 1 when the
-    reproduction failed (UsageError: a device or precision this machine lacks)."""
+@dataclass(frozen=True)
+class AcceleratorBenchResult:
+    """What :func:`bench_accelerator` found on ``device`` in ``precisions``: whether the smoke
+    reproduction ran (``ok``; True when skipped) and its lines (``reproduction``, empty when
+    skipped), the training and conv-ceiling lines (``bench``), the inference latency lines
+    (``latency``), the precision plan's ``notes`` (also in the opening lines) and the load
+    averages at the end (``end_load``)."""
+
+    device: torch.device
+    precisions: tuple[str, ...]
+    notes: tuple[str, ...]
+    ok: bool
+    reproduction: tuple[str, ...]
+    bench: tuple[str, ...]
+    latency: tuple[str, ...]
+    end_load: str
+
+    def lines(self) -> list[str]:
+        """A line per figure: reproduction, training, ceilings, latency; then the end load."""
+        return [*self.reproduction, *self.bench, *self.latency, f"end: {self.end_load}"]
+
+
+def bench_accelerator(config: AcceleratorBenchConfig) -> AcceleratorBenchResult:
+    """Run the check of ``config``; returns a line per figure and whether the reproduction ran.
+    The opening lines (device, torch, load; the CPU's bf16 line; the precision notes) go to
+    :func:`benchmark.progress.status` before the minutes of work. InputError: a device or
+    precision this machine lacks."""
     from benchmark.bench.train import load_text, resolve
     from benchmark.models.device import accelerator_name
+    from benchmark.progress import status
 
     device, precisions, notes = resolve(config.device, config.precision)
     if config.threads is not None:
         torch.set_num_threads(config.threads)
     cuda = torch.version.cuda or "no"
-    print(
+    status(
         f"accelerator check: {device} ({accelerator_name(device)}); torch {torch.__version__}, "
-        f"CUDA build {cuda}, {torch.get_num_threads()} torch threads; {load_text()}",
-        flush=True,
+        f"CUDA build {cuda}, {torch.get_num_threads()} torch threads; {load_text()}"
     )
     if device.type == "cpu":  # native bf16 or not, and the ISA/kernels a training conv ran
         from benchmark.bench.ceiling import cpu_bf16_line
 
-        print(cpu_bf16_line(("fp32", "bf16")), flush=True)
+        status(cpu_bf16_line(("fp32", "bf16")))
     for note in notes:
-        print(note)
-    ok = True
+        status(note)
+    ok, reproduction = True, []
     if config.reproduce:
         root = config.keep or Path(tempfile.mkdtemp(prefix="uavbench-accel-"))
         root.mkdir(parents=True, exist_ok=True)
         try:
-            ok, lines = run_reproduction(config, root)
+            ok, reproduction = run_reproduction(config, root)
         finally:
             if config.keep is None:
                 shutil.rmtree(root, ignore_errors=True)
-        print("\n".join(lines), flush=True)
-    for line in [
-        *bench_lines(config, device, precisions),
-        *latency_lines(config, device, precisions),
-    ]:
-        print(line, flush=True)
-    print(f"end: {load_text()}")
-    return 0 if ok else 1
+    bench = bench_lines(config, device, precisions)
+    latency = latency_lines(config, device, precisions)
+    return AcceleratorBenchResult(
+        device, tuple(precisions), tuple(notes), ok, tuple(reproduction), tuple(bench),
+        tuple(latency), load_text(),
+    )  # fmt: skip

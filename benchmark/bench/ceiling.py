@@ -258,33 +258,54 @@ def cpu_bf16_line(precisions: tuple[str, ...] = ("fp32", "bf16")) -> str:
     )
 
 
+@dataclass(frozen=True)
+class CeilingBenchResult:
+    """What :func:`bench_ceiling` measured on ``device`` with ``threads`` torch threads: one
+    :class:`CeilingResult` per precision; ``cpu_line`` (:func:`cpu_bf16_line`, on the CPU only,
+    else None) and the precision plan's ``notes`` (a precision skipped, and why)."""
+
+    device: torch.device
+    threads: int
+    ceilings: tuple[CeilingResult, ...]
+    cpu_line: str | None
+    notes: tuple[str, ...]
+
+    def lines(self) -> list[str]:
+        """The CPU's bf16 line (on the CPU), the notes, one line per precision."""
+        lines = [self.cpu_line] if self.cpu_line is not None else []
+        lines += self.notes
+        for r in self.ceilings:
+            shapes = ", ".join(f"{k} {v:.1f}" for k, v in r.per_shape.items())
+            lines.append(
+                f"conv ceiling {r.precision}: {r.gflops:.1f} GFLOP/s ({r.best_shape}; {shapes}) "
+                f"on {self.device}, {self.threads} thread(s)"
+            )
+        return lines
+
+
 def bench_ceiling(
     device_name: str = "auto",
     precision: str | None = None,
     repeats: int = 3,
     batch: int | None = None,
     threads: int | None = None,
-) -> int:
-    """Measure and print the ceiling on the device named ``device_name`` (``"auto"``
-    allowed) in each precision of the comma list ``precision`` (None: fp32 and, where the device
-    supports it, bf16), ``repeats`` timed runs per shape of ``batch`` images (None: 24) on
-    ``threads`` torch threads (None: torch's); exit code 0."""
+) -> CeilingBenchResult:
+    """Measure the ceiling on the device named ``device_name`` (``"auto"`` allowed) in each
+    precision of the comma list ``precision`` (None: fp32 and, where the device supports it,
+    bf16), ``repeats`` timed runs per shape of ``batch`` images (None: 24) on ``threads`` torch
+    threads (None: torch's); returns the ceilings. InputError: a device or precision this machine
+    lacks, or an unknown name."""
+    from benchmark.errors import InputError
     from benchmark.models.device import resolve_device
     from benchmark.models.precision_support import precision_plan
 
     if threads is not None:
         torch.set_num_threads(threads)
-    device = resolve_device(device_name)
-    precisions, notes = precision_plan(device, precision)
-    if device.type == "cpu":
-        print(cpu_bf16_line(("fp32", "bf16")))
-    for note in notes:
-        print(note)
-    for name in precisions:
-        r = measure_ceiling(device, name, repeats, batch)
-        shapes = ", ".join(f"{k} {v:.1f}" for k, v in r.per_shape.items())
-        print(
-            f"conv ceiling {name}: {r.gflops:.1f} GFLOP/s ({r.best_shape}; {shapes}) on "
-            f"{device}, {torch.get_num_threads()} thread(s)"
-        )
-    return 0
+    try:
+        device = resolve_device(device_name)
+        precisions, notes = precision_plan(device, precision)
+    except ValueError as error:  # a typed error: the command exits 2, without a traceback
+        raise InputError(str(error)) from None
+    cpu_line = cpu_bf16_line(("fp32", "bf16")) if device.type == "cpu" else None
+    ceilings = tuple(measure_ceiling(device, name, repeats, batch) for name in precisions)
+    return CeilingBenchResult(device, torch.get_num_threads(), ceilings, cpu_line, tuple(notes))

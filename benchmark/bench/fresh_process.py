@@ -60,7 +60,8 @@ def _child(
         result = fn(*args)
     except BaseException:  # SystemExit and KeyboardInterrupt too: the parent must hear of it
         text = traceback.format_exc()
-        print(text, file=sys.stderr, flush=True)  # in the log too, where a user looks first
+        sys.stderr.write(text)  # the child's stderr is the log: where a user looks first
+        sys.stderr.flush()
         conn.send(("error", text))
     else:
         conn.send(("ok", result))

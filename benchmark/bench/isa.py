@@ -16,6 +16,9 @@ capability, OpenCV dispatch, Arrow SIMD level), so a variable that a library ign
 instead of passing silently.
 
     uavbench bench isa [--profile smoke] [--workers 2] [--only NAME ...] [--strict]
+
+:func:`bench_isa` returns the rows and whether every digest equals the default's; the command
+prints them (and exits 1 with ``--strict`` when one differs).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from benchmark.bench.fresh_process import FreshProcessError, run_fresh
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.machine import cpu_model
 
 
@@ -111,7 +114,7 @@ def probe(env: dict[str, str]) -> dict[str, str]:
         raise RuntimeError(f"bench isa: the probe failed under {env}: {err}") from err
 
 
-def _render(profile: str, size: int | None, seed: int, out: Path, workers: int) -> int:
+def _render(profile: str, size: int | None, seed: int, out: Path, workers: int) -> object:
     """The child of :func:`render_manifest`: render the sized profile into ``out`` with a fresh
     city cache beside it."""
     from benchmark.data.profiles import get_data_profile
@@ -139,49 +142,108 @@ def render_manifest(
     return json.loads(data), hashlib.sha256(data).hexdigest()
 
 
+def isa_rows() -> dict[str, dict[str, str]]:
+    """``{row: environment}`` of a full run, in order: ``default`` (nothing forced), one row per
+    :func:`lower_isa_settings` entry, and ``all`` (:func:`lower_isa_env`)."""
+    return {"default": {}, **lower_isa_settings(), "all": lower_isa_env()}
+
+
 @dataclass(frozen=True)
 class IsaBenchConfig:
     """``bench isa``: render ``profile`` (``size`` standard pairs, None: the profile's; dataset
     ``seed``) with ``workers`` processes once per setting (``only``: these besides default;
-    None: every one); ``strict``: exit 1 when a digest differs."""
+    None: every one)."""
 
     profile: str = "smoke"
     size: int | None = None
     workers: int = 2
     seed: int = 0
     only: tuple[str, ...] | None = None
-    strict: bool = False
 
 
-def bench_isa(config: IsaBenchConfig) -> int:
-    """Render and compare (printing a row per setting); exit code 0, or 1 with ``strict`` and a
-    differing digest. UsageError: an unknown profile or setting, no workers."""
+@dataclass(frozen=True)
+class IsaRow:
+    """One setting's render: its ``name``, the manifest's ``digest`` (sha256), whether it equals
+    the default row's (``same``), the render's ``wall`` seconds, the environment ``forced``, what
+    the probe found ``in_effect`` and the dataset ``files`` whose sha256 differs from the default
+    row's."""
+
+    name: str
+    digest: str
+    same: bool
+    wall: float
+    forced: dict[str, str]
+    in_effect: dict[str, str]
+    differing: tuple[str, ...]
+
+    def lines(self) -> list[str]:
+        """The row's two lines: digest, same/DIFFERS, wall and the variables forced; in effect."""
+        same = "same" if self.same else "DIFFERS"
+        forced = " ".join(f"{k}={v}" for k, v in self.forced.items()) or "(none)"
+        effect = ", ".join(f"{k} {v}" for k, v in self.in_effect.items())
+        return [
+            f"{self.name:9s} {self.digest[:16]}  {same:7s} {self.wall:5.1f} s  {forced}",
+            f"{'':9s} in effect: {effect}",
+        ]
+
+
+@dataclass(frozen=True)
+class IsaBenchResult:
+    """What :func:`bench_isa` found: one :class:`IsaRow` per setting (default first)."""
+
+    rows: tuple[IsaRow, ...]
+
+    @property
+    def same(self) -> bool:
+        """Every row's dataset files are the default row's, byte for byte."""
+        return not any(row.differing for row in self.rows)
+
+    def lines(self) -> list[str]:
+        """Two lines per row, the files differing per row, and the verdict."""
+        lines = [line for row in self.rows for line in row.lines()]
+        lines += [
+            f"{row.name}: files differing from default: {', '.join(row.differing)}"
+            for row in self.rows
+            if row.differing
+        ]
+        if self.same:
+            return [*lines, "all digests equal"]
+        return [*lines, "digests differ: the bytes depend on the CPU"]
+
+
+def bench_isa(config: IsaBenchConfig) -> IsaBenchResult:
+    """Render the dataset once per setting and compare; returns the rows (``same``: every
+    digest equal). The opening line (profile, workers, CPU, glibc) goes to
+    :func:`benchmark.progress.status`. InputError: an unknown profile or setting, no workers."""
     from benchmark.data.profiles import DATA_PROFILES
+    from benchmark.progress import status
 
     if config.profile not in DATA_PROFILES:
-        raise UsageError(
-            f"bench isa: unknown --profile {config.profile!r}; one of {sorted(DATA_PROFILES)}"
+        raise InputError(
+            f"bench isa: unknown IsaBenchConfig.profile {config.profile!r}; one of "
+            f"{sorted(DATA_PROFILES)}"
         )
     if config.workers < 1:
-        raise UsageError(f"bench isa: --workers must be >= 1, got {config.workers}")
-    settings = lower_isa_settings()
-    rows = {"default": {}, **settings, "all": lower_isa_env()}
+        raise InputError(f"bench isa: IsaBenchConfig.workers must be >= 1, got {config.workers}")
+    rows = isa_rows()
     if config.only is not None:
         unknown = sorted(set(config.only) - set(rows))
         if unknown:
-            raise UsageError(f"bench isa: unknown --only {unknown}; expected some of {list(rows)}")
+            raise InputError(
+                f"bench isa: unknown IsaBenchConfig.only {unknown}; expected some of {list(rows)}"
+            )
         rows = {k: v for k, v in rows.items() if k == "default" or k in config.only}
-    cpu = cpu_model()
-    print(
-        f"uavbench bench isa: profile {config.profile}, {config.workers} workers; CPU {cpu}; "
-        f"glibc {platform.libc_ver()[1]}"
+    # Before the minutes of rendering: what runs, and on which CPU.
+    status(
+        f"uavbench bench isa: profile {config.profile}, {config.workers} workers; "
+        f"CPU {cpu_model()}; glibc {platform.libc_ver()[1]}"
     )
-    results: dict[str, tuple[dict, str]] = {}
+    results: dict[str, tuple[dict, str, float, dict[str, str]]] = {}
     with tempfile.TemporaryDirectory(prefix="uavbench-isa-") as tmp:
         for name, env in rows.items():
             effect = probe(env)
             t0 = time.perf_counter()
-            results[name] = render_manifest(
+            manifest, digest = render_manifest(
                 Path(tmp) / name,
                 env,
                 profile=config.profile,
@@ -189,19 +251,14 @@ def bench_isa(config: IsaBenchConfig) -> int:
                 seed=config.seed,
                 size=config.size,
             )
-            wall = time.perf_counter() - t0
-            same = "same" if results[name][1] == results["default"][1] else "DIFFERS"
-            forced = " ".join(f"{k}={v}" for k, v in env.items()) or "(none)"
-            print(f"{name:9s} {results[name][1][:16]}  {same:7s} {wall:5.1f} s  {forced}")
-            print(f"{'':9s} in effect: " + ", ".join(f"{k} {v}" for k, v in effect.items()))
-    base = results["default"][0]["files"]
-    differ = False
-    for name, (manifest, _) in results.items():
+            results[name] = (manifest, digest, time.perf_counter() - t0, effect)
+    base_manifest, base_digest = results["default"][:2]
+    base = base_manifest["files"]
+    out = []
+    for name, (manifest, digest, wall, effect) in results.items():
         files = [
             f for f, e in manifest["files"].items() if base.get(f, {}).get("sha256") != e["sha256"]
         ]
-        if files:
-            differ = True
-            print(f"{name}: files differing from default: {', '.join(sorted(files))}")
-    print("all digests equal" if not differ else "digests differ: the bytes depend on the CPU")
-    return 1 if differ and config.strict else 0
+        out.append(IsaRow(name, digest, digest == base_digest, wall, dict(rows[name]), effect,
+                          tuple(sorted(files))))  # fmt: skip
+    return IsaBenchResult(tuple(out))

@@ -1,6 +1,7 @@
 """``uavbench bench model``: measured speed of the pair model and of its two optimisations.
 
-Prints, for one configuration (default: the paper's Pd/Re-Net with AGTFM at 224 px):
+Measures (and returns, for ``uavbench bench model`` to print), for one configuration (default: the
+paper's Pd/Re-Net with AGTFM at 224 px):
   - training step (forward + Algorithm 1 loss + backward + SGD step) of a batch of ``--batch`` pairs
     over ``--sats`` distinct satellite images, without and with the shared-satellite path
     (``sat_ids``), and their ratio;
@@ -48,8 +49,37 @@ class ModelBenchConfig:
     threads: int = 1
 
 
-def bench_model(config: ModelBenchConfig) -> int:
-    """Time and print the two optimisations of ``config``'s model; exit code 0."""
+@dataclass(frozen=True)
+class ModelBenchResult:
+    """What :func:`bench_model` measured on ``config``'s model, median seconds: a training step
+    without (``train_plain``) and with (``train_shared``) the shared-satellite path, and an eval
+    forward in contiguous (``eval_contiguous``) and channels_last (``eval_channels_last``)
+    memory format."""
+
+    config: ModelBenchConfig
+    train_plain: float
+    train_shared: float
+    eval_contiguous: float
+    eval_channels_last: float
+
+    def lines(self) -> list[str]:
+        """The configuration, the two ratios and the resulting throughput, a line each."""
+        c, n = self.config, self.config.batch
+        plain, shared = self.train_plain, self.train_shared
+        slow, fast = self.eval_contiguous, self.eval_channels_last
+        return [
+            f"model: {c.head}, variant {c.variant!r}, width {c.width:g}, {c.size} px; "
+            f"batch {n} pairs over {c.sats} satellite images; {c.threads} thread(s), "
+            f"median of {c.repeats}",
+            f"train step   plain {plain:.2f} s, shared satellite {shared:.2f} s: "
+            f"{plain / shared:.2f}x",
+            f"eval forward contiguous {slow:.2f} s, channels_last {fast:.2f} s: {slow / fast:.2f}x",
+            f"throughput   training {n / shared:.1f} pairs/s, inference {n / fast:.1f} pairs/s",
+        ]
+
+
+def bench_model(config: ModelBenchConfig) -> ModelBenchResult:
+    """Time the two optimisations of ``config``'s model; returns the median times."""
     torch.set_num_threads(config.threads)
     torch.manual_seed(0)
     kwargs = {"variant": config.variant, "width": config.width, "input_size": config.size}
@@ -81,15 +111,4 @@ def bench_model(config: ModelBenchConfig) -> int:
     torch.manual_seed(0)
     contiguous = create_model(**kwargs, channels_last=False)
     slow = _median_time(lambda: eval_forward(contiguous), config.repeats)
-
-    print(
-        f"model: {config.head}, variant {config.variant!r}, width {config.width:g}, {s} px; "
-        f"batch {n} pairs over {config.sats} satellite images; {config.threads} thread(s), "
-        f"median of {config.repeats}"
-    )
-    print(
-        f"train step   plain {plain:.2f} s, shared satellite {shared:.2f} s: {plain / shared:.2f}x"
-    )
-    print(f"eval forward contiguous {slow:.2f} s, channels_last {fast:.2f} s: {slow / fast:.2f}x")
-    print(f"throughput   training {n / shared:.1f} pairs/s, inference {n / fast:.1f} pairs/s")
-    return 0
+    return ModelBenchResult(config, plain, shared, slow, fast)

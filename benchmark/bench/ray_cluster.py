@@ -1,10 +1,11 @@
 """``uavbench bench ray``: the smoke reproduction through the process pool and through a local Ray,
 side by side, in one run.
 
-Prints the wall time of the reproduction with the process pool and with Ray as executor (each in a
-fresh interpreter with a fresh workdir and tracking store, as a user runs it: imports, Ray's
-start-up and shutdown included; the dataset is rendered once beforehand and not timed), their
-ratio (target: Ray within 1.3x the pool) and whether ``results.csv`` holds the same numbers.
+Measures (and returns, for the command to print) the wall time of the reproduction with the process
+pool and with Ray as executor (each in a fresh interpreter with a fresh workdir and tracking store,
+as a user runs it: imports, Ray's start-up and shutdown included; the dataset is rendered once
+beforehand and not timed), their ratio (target: Ray within 1.3x the pool) and whether
+``results.csv`` holds the same numbers.
 ``--repeats N`` alternates the two N times and reports medians, so a load change hits both alike.
 """
 
@@ -19,7 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from benchmark.bench.fresh_process import FreshProcessError, run_fresh
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -57,7 +58,7 @@ def numbers(results_csv: Path) -> pd.DataFrame:
 def reproduce_once(config: BenchRayConfig, executor: str, data: Path, where: Path) -> float:
     """Wall seconds of one reproduction in a fresh interpreter (``reproduce(ReproduceConfig)``
     as ``uavbench reproduce`` would call it; its output in ``where/reproduce.log``); raises
-    RuntimeError if it fails or returns a non-zero exit code."""
+    RuntimeError if it fails or a unit failed to train."""
     from benchmark.runner.execute.pool import ExecutorConfig
     from benchmark.runner.reproduction import ReproduceConfig, reproduce
 
@@ -72,34 +73,75 @@ def reproduce_once(config: BenchRayConfig, executor: str, data: Path, where: Pat
     log = where / "reproduce.log"
     start = time.perf_counter()
     try:
-        code = run_fresh(reproduce, run, env=threads, cwd=where, log=log)
+        result = run_fresh(reproduce, run, env=threads, cwd=where, log=log)
     except FreshProcessError as err:
         raise RuntimeError(f"reproduce with the {executor} executor failed: {err}") from err
     wall = time.perf_counter() - start
-    if code != 0:
-        tail = "\n".join(log.read_text(errors="replace").splitlines()[-15:])
-        raise RuntimeError(f"reproduce with the {executor} executor exited {code}:\n{tail}")
+    if not result.ok:
+        failed = "\n".join(result.failures)
+        raise RuntimeError(f"reproduce with the {executor} executor: units failed:\n{failed}")
     return wall
 
 
-def bench_ray(config: BenchRayConfig) -> int:
-    """Time the pool and the local Ray side by side and print the table; 0 if both computed the
-    same numbers, 1 otherwise."""
-    from benchmark.runner.claims.data_audit import CUE_EXTRA_SEEDS, cue_dataset_roots
+@dataclass(frozen=True)
+class BenchRayResult:
+    """What :func:`bench_ray` measured: the wall seconds of every run of each executor
+    (``pool``, ``ray``, in run order) and whether every ray run's ``results.csv`` holds the
+    numbers of the pool run of the same repeat (``same``)."""
+
+    pool: tuple[float, ...]
+    ray: tuple[float, ...]
+    same: bool
+
+    @property
+    def pool_s(self) -> float:
+        """The median wall seconds of the pool's runs."""
+        return statistics.median(self.pool)
+
+    @property
+    def ray_s(self) -> float:
+        """The median wall seconds of Ray's runs."""
+        return statistics.median(self.ray)
+
+    @property
+    def ratio(self) -> float:
+        """Ray's median wall time over the pool's (target: <= :data:`TARGET_RATIO`)."""
+        return self.ray_s / self.pool_s
+
+    def lines(self) -> list[str]:
+        """The table: both medians, their ratio against the target, the numbers' verdict."""
+        verdict = "within" if self.ratio <= TARGET_RATIO else "OVER"
+        return [
+            f"process pool   {self.pool_s:7.1f} s (median wall of reproduce)",
+            f"local Ray      {self.ray_s:7.1f} s",
+            f"Ray / pool     {self.ratio:7.2f}x ({verdict} the {TARGET_RATIO}x target)",
+            f"results.csv    {'identical numbers' if self.same else 'NUMBERS DIFFER'}",
+        ]
+
+
+def bench_ray(config: BenchRayConfig) -> BenchRayResult:
+    """Time the pool and the local Ray side by side; returns the wall times and whether both
+    computed the same numbers. What it does meanwhile (the setup, each run's wall time) goes to
+    :func:`benchmark.progress.status`. InputError: workers or repeats below 1, no ray."""
+    from benchmark.progress import status
+    from benchmark.runner.execute.audit import CUE_EXTRA_SEEDS, cue_dataset_roots
     from benchmark.runner.execute.ray_executor import import_ray
     from benchmark.runner.plan.repro_profiles import get_repro_profile
     from benchmark.runner.reproduction import prepare_dataset
 
     if config.workers < 1 or config.repeats < 1:
-        raise UsageError("--workers and --repeats must be >= 1")
-    import_ray()  # exit 2 with the install line before rendering anything
+        raise InputError(
+            f"BenchRayConfig.workers and .repeats must be >= 1, got {config.workers} and "
+            f"{config.repeats}"
+        )
+    import_ray()  # InputError (exit 2) with the install line before rendering anything
     with tempfile.TemporaryDirectory(prefix="bench-ray-") as tmp:
         root = config.dir if config.dir is not None else Path(tmp)
         data = root / "data"
         profile = get_repro_profile(config.profile)
-        print(f"bench ray: {config.profile} --only {config.only}, --workers {config.workers}, "
-              f"{config.repeats} repeat(s), {os.cpu_count()} cores; rendering the datasets "
-              "(untimed)", flush=True)  # fmt: skip
+        status(f"bench ray: profile {config.profile}, tables {config.only}, {config.workers} "
+               f"workers, {config.repeats} repeat(s), {os.cpu_count()} cores; rendering the "
+               "datasets (untimed)")  # fmt: skip
         prepare_dataset(profile, data, 0, config.workers, quiet=True)
         # The heading-cue audit's extra datasets too: else the first timed run renders them.
         cue_dataset_roots(data, CUE_EXTRA_SEEDS, quiet=True)
@@ -108,18 +150,11 @@ def bench_ray(config: BenchRayConfig) -> int:
             for executor in ("pool", "ray"):
                 where = root / f"{executor}-{repeat}"
                 walls[executor].append(reproduce_once(config, executor, data, where))
-                print(f"  {executor:4s} run {repeat + 1}: {walls[executor][-1]:7.1f} s", flush=True)
-        pool, ray = (statistics.median(walls[e]) for e in ("pool", "ray"))
+                status(f"  {executor:4s} run {repeat + 1}: {walls[executor][-1]:7.1f} s")
         same = all(
             numbers(root / f"ray-{r}" / "reports" / "results.csv").equals(
                 numbers(root / f"pool-{r}" / "reports" / "results.csv")
             )
             for r in range(config.repeats)
         )
-    ratio = ray / pool
-    verdict = "within" if ratio <= TARGET_RATIO else "OVER"
-    print(f"process pool   {pool:7.1f} s (median wall of reproduce)")
-    print(f"local Ray      {ray:7.1f} s")
-    print(f"Ray / pool     {ratio:7.2f}x ({verdict} the {TARGET_RATIO}x target)")
-    print(f"results.csv    {'identical numbers' if same else 'NUMBERS DIFFER'}")
-    return 0 if same else 1
+    return BenchRayResult(tuple(walls["pool"]), tuple(walls["ray"]), same)

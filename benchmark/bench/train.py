@@ -20,15 +20,14 @@ Algorithm 1 loss plus the encoder's own loss, backward, optimiser update) of
   ``make_optimizer``'s ``foreach`` (same weights bit for bit; ``loop.CPU_FOREACH``),
 
 plus, once per round, one training pass (forward + both gradients) of each ceiling convolution
-(``benchmark.bench.ceiling``) in each precision. Everything alternates step by step (both
-encoders' loops too), so machine load affects every column alike. It prints pairs/s, the ratio to
-plain and to our fp32, the step's counted rate and its share of the convolution ceiling of the
-same precision; per model, the matching encoder beside GoogLeNet (pairs/s and FLOPs per step,
-loop by loop; ``matching_alt3`` beside ``matching``) and each encoder's FLOPs by kind; with
-bf16 beside fp32, a table of bf16/fp32 and bf16/plain per model and encoder (the issue's
-layout). On the CPU a line says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and
-which ISA and kernels ran a training convolution in each precision
-(``ceiling.cpu_bf16_line``).
+(``benchmark.bench.ceiling``) in each precision. Everything alternates step by step (both encoders'
+loops too), so machine load affects every column alike. It reports (returns, for the command to
+print) pairs/s, the ratio to plain and to our fp32, the step's counted rate and its share of the
+convolution ceiling of the same precision; per model, the matching encoder beside GoogLeNet (pairs/s
+and FLOPs per step, loop by loop; ``matching_alt3`` beside ``matching``) and each encoder's FLOPs by
+kind; with bf16 beside fp32, a table of bf16/fp32 and bf16/plain per model and encoder (the issue's
+layout). On the CPU a line says whether bf16 is native (``avx512_bf16`` / ``amx_bf16``) and which
+ISA and kernels ran a training convolution in each precision (``ceiling.cpu_bf16_line``).
 
 The batch (``batch_of``): random pixels, labels and ``context`` with the quick dataset's geometry
 (``benchmark.models.synthetic_inputs``: the matching encoder's templates land as on real pairs).
@@ -305,6 +304,29 @@ def build(
     return m, make_optimizer(cfg, m, foreach=spec.foreach)
 
 
+@dataclass(frozen=True)
+class StepProfile:
+    """One profiled step of an "ours" loop (``config.profile``): the ``encoder``'s ``loop`` at
+    ``size`` px and ``width``, its time by kind of work (``breakdown``,
+    ``train_breakdown.breakdown_line``) and torch.profiler's top ops (``table``)."""
+
+    size: int
+    width: float
+    encoder: str
+    loop: str
+    breakdown: str
+    table: str
+
+    def lines(self) -> list[str]:
+        """The heading, the breakdown line and the op table."""
+        return [
+            f"profile of one step, {self.size} px width {self.width:g}, {self.encoder} "
+            f"{self.loop}:",
+            self.breakdown,
+            *self.table.splitlines(),
+        ]
+
+
 def measure(
     size: int,
     width: float,
@@ -314,7 +336,23 @@ def measure(
     encoders: Sequence[str] = ("googlenet",),
 ) -> tuple[list[LoopResult], dict[str, float]]:
     """Time the loops of one model side by side, every encoder's in the same rounds;
-    ``(loops, ceiling GFLOP/s per precision)``."""
+    ``(loops, ceiling GFLOP/s per precision)`` (:func:`measure_profiled` without the
+    profiles)."""
+    results, ceilings, _ = measure_profiled(size, width, config, device, precisions, encoders)
+    return results, ceilings
+
+
+def measure_profiled(
+    size: int,
+    width: float,
+    config: TrainBenchConfig,
+    device: torch.device,
+    precisions: Sequence[str],
+    encoders: Sequence[str] = ("googlenet",),
+) -> tuple[list[LoopResult], dict[str, float], list[StepProfile]]:
+    """Time the loops of one model side by side, every encoder's in the same rounds, then
+    (``config.profile`` > 0) profile one step of each "ours" loop; ``(loops, ceiling GFLOP/s per
+    precision, profiles)``."""
     from benchmark.bench.ceiling import SHAPES, CeilingResult, conv_job
     from benchmark.models.flop_count import KINDS
 
@@ -361,29 +399,29 @@ def measure(
         kinds = {k: flops[encoder, name][k] / 1e9 for k in KINDS}
         results.append(LoopResult(name, precision, config.batch_size / seconds, total / 1e9,
                                   gflops, share, encoder, kinds))  # fmt: skip
+    profiles = []
     if config.profile:
         from benchmark.bench.train_breakdown import breakdown_line, profile_step
 
         for (encoder, name), (precision, step) in loops.items():
             if name.startswith("ours"):
                 table, kinds = profile_step(step, config.profile)
-                print(f"profile of one step, {size} px width {width:g}, {encoder} {name}:")
-                print(breakdown_line(kinds, flops[encoder, name], ceilings.get(precision)))
-                print(table)
-    return results, ceilings
+                line = breakdown_line(kinds, flops[encoder, name], ceilings.get(precision))
+                profiles.append(StepProfile(size, width, encoder, name, line, table))
+    return results, ceilings, profiles
 
 
 def resolve(
     device_name: str = "auto", precision: str | None = None
 ) -> tuple[torch.device, list[str], list[str]]:
     """``(device, precisions, notes)`` of ``--device`` / ``--precision`` (``precision``: a comma
-    list; UsageError if bad).
+    list; InputError if bad).
 
     The bench measures bf16 by default wherever oneDNN has bf16 kernels, and anywhere on an
     explicit ``--precision`` (measuring how slow it is is its job); training and ``model-info``
     refuse bf16 on a CPU without native bf16 (``device.check_precision_supported``). Where the two
     differ a note says so, with training's reason and its way out."""
-    from benchmark.errors import UsageError
+    from benchmark.errors import InputError
     from benchmark.models.device import resolve_device
     from benchmark.models.precision_support import (
         ALLOW_SLOW_BF16_ENV,
@@ -396,7 +434,7 @@ def resolve(
         device = resolve_device(device_name)
         precisions, notes = precision_plan(device, precision)
     except ValueError as error:
-        raise UsageError(str(error)) from None
+        raise InputError(str(error)) from None
     if "bf16" in precisions and device.type == "cpu" and not slow_bf16_allowed():
         reason = bf16_unsupported_reason(device, native=True)
         if reason is not None:
@@ -509,18 +547,75 @@ def load_text() -> str:
     return f"load {loads} on {os.cpu_count()} cores"
 
 
-def bench_train(config: TrainBenchConfig) -> int:
-    """Time and print every model of ``config`` (rows, ceilings, the comparison lines and the bf16
-    table); exit code 0 (UsageError: a device or precision this machine lacks)."""
+@dataclass(frozen=True)
+class ModelRows:
+    """One model of :func:`bench_train`: its ``name`` (:data:`MODELS`) at ``size`` px and
+    ``width``, every timed loop (``loops``), the convolution ceilings timed in the same rounds
+    (GFLOP/s per precision) and the profiled steps (``config.profile``)."""
+
+    name: str
+    size: int
+    width: float
+    loops: tuple[LoopResult, ...]
+    ceilings: dict[str, float]
+    profiles: tuple[StepProfile, ...] = ()
+
+    def lines(self, encoders: Sequence[str], first_precision: str) -> list[str]:
+        """The profiles, one row per loop, the ceilings, then the before/after, encoder and
+        FLOPs-by-kind lines (``encoders`` as timed; kinds of the ``first_precision`` loops)."""
+        results = list(self.loops)
+        lines = [line for profile in self.profiles for line in profile.lines()]
+        lines += format_rows(self.name, self.size, self.width, results)
+        lines += [
+            f"{'':7s} conv ceiling {precision}: {gflops:.1f} GFLOP/s (best of ceiling.SHAPES, "
+            "timed in the same rounds)"
+            for precision, gflops in self.ceilings.items()
+        ]
+        more = [change_line(self.name, results, encoder) for encoder in encoders]
+        more += [encoder_line(self.name, results)]
+        more += [encoder_line(self.name, results, e, "matching") for e in encoders
+                 if e.startswith("matching_")]  # fmt: skip
+        more += [kinds_line(r) for r in results if r.loop == f"ours {first_precision}"]
+        return lines + [line for line in more if line]
+
+
+@dataclass(frozen=True)
+class TrainBenchResult:
+    """What :func:`bench_train` measured on ``device`` in ``precisions`` for ``encoders``: one
+    :class:`ModelRows` per model; ``notes`` of the precision plan (also in the opening lines) and
+    the load averages when it ended (``end_load``, :func:`load_text`)."""
+
+    device: torch.device
+    precisions: tuple[str, ...]
+    encoders: tuple[str, ...]
+    notes: tuple[str, ...]
+    models: tuple[ModelRows, ...]
+    end_load: str
+
+    def lines(self) -> list[str]:
+        """The table: the column heading, each model's lines, the bf16 table and the end load."""
+        lines = [HEADER]
+        for model in self.models:
+            lines += model.lines(self.encoders, self.precisions[0])
+        lines += bf16_table([(m.name, list(m.loops)) for m in self.models])
+        return [*lines, f"end: {self.end_load}"]
+
+
+def bench_train(config: TrainBenchConfig) -> TrainBenchResult:
+    """Time every model of ``config``; returns the rows, ceilings and profiles. The opening lines
+    (the configuration, the device's bf16 support and the precision notes) go to
+    :func:`benchmark.progress.status` before the minutes of timing. InputError: a device or
+    precision this machine lacks."""
     from benchmark.bench.ceiling import cpu_bf16_line
     from benchmark.models.device import accelerator_name
     from benchmark.models.precision_support import bf16_support_label
+    from benchmark.progress import status
 
     names, encoders = config.models, config.encoders
     device, precisions, notes = resolve(config.device, config.precision)
     if config.threads is not None:
         torch.set_num_threads(config.threads)
-    print(
+    status(
         f"bench train: {config.attitude} on {', '.join(encoders)} (googlenet variant "
         f"{config.variant}), batch {config.batch_size} with "
         f"{config.distinct_sat} distinct satellite images, {config.steps} timed steps, optimizer "
@@ -528,29 +623,17 @@ def bench_train(config: TrainBenchConfig) -> int:
         f"{torch.get_num_threads()} torch threads; {load_text()}"
     )
     if device.type == "cpu":
-        print(cpu_bf16_line(("fp32", "bf16")))
+        status(cpu_bf16_line(("fp32", "bf16")))
     else:
-        print(f"bf16 on {device}: {bf16_support_label(device)}")
+        status(f"bf16 on {device}: {bf16_support_label(device)}")
     for note in notes:
-        print(note)
-    print(HEADER)
+        status(note)
     measured = []
     for name in names:
         size, width = MODELS[name]
         size, width = config.size or size, config.width or width
-        results, ceilings = measure(size, width, config, device, precisions, encoders)
-        measured.append((name, results))
-        print("\n".join(format_rows(name, size, width, results)), flush=True)
-        for precision, gflops in ceilings.items():
-            print(f"{'':7s} conv ceiling {precision}: {gflops:.1f} GFLOP/s (best of "
-                  "ceiling.SHAPES, timed in the same rounds)")  # fmt: skip
-        lines = [change_line(name, results, encoder) for encoder in encoders]
-        lines += [encoder_line(name, results)]
-        lines += [encoder_line(name, results, e, "matching") for e in encoders
-                  if e.startswith("matching_")]  # fmt: skip
-        lines += [kinds_line(r) for r in results if r.loop == f"ours {precisions[0]}"]
-        print("\n".join(line for line in lines if line), flush=True)
-    for line in bf16_table(measured):
-        print(line)
-    print(f"end: {load_text()}")
-    return 0
+        results, ceilings, profiles = measure_profiled(size, width, config, device, precisions,
+                                                       encoders)  # fmt: skip
+        measured.append(ModelRows(name, size, width, tuple(results), ceilings, tuple(profiles)))
+    return TrainBenchResult(device, tuple(precisions), tuple(encoders), tuple(notes),
+                            tuple(measured), load_text())  # fmt: skip

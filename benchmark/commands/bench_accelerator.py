@@ -30,6 +30,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Run the check and print a line per figure; exit 0, or 1 when the reproduction failed."""
     if args.steps < 1:
         raise UsageError("--steps must be >= 1")
     if args.data is not None and not args.data.is_dir():
@@ -45,4 +46,7 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         fast=args.fast,
     )
-    return lib.bench_accelerator(config)
+    result = lib.bench_accelerator(config)
+    for line in result.lines():
+        print(line)
+    return 0 if result.ok else 1

@@ -26,4 +26,9 @@ def check_arguments(p: argparse.ArgumentParser, args: argparse.Namespace) -> Non
 
 
 def run(args: argparse.Namespace) -> int:
-    return lib.bench_ceiling(args.device, args.precision, args.repeats, args.batch, args.threads)
+    """Measure the ceiling and print the CPU's bf16 line, the notes, a line per precision;
+    exit 0."""
+    result = lib.bench_ceiling(args.device, args.precision, args.repeats, args.batch, args.threads)
+    for line in result.lines():
+        print(line)
+    return 0

@@ -32,7 +32,9 @@ def check_arguments(parser: argparse.ArgumentParser, args: argparse.Namespace) -
 
 
 def run(args: argparse.Namespace) -> int:
-    return lib.bench_ray(
+    """Time both executors and print the table; exit 0 if both computed the same numbers, 1
+    otherwise."""
+    result = lib.bench_ray(
         lib.BenchRayConfig(
             profile=args.profile,
             only=args.only,
@@ -42,3 +44,6 @@ def run(args: argparse.Namespace) -> int:
             dir=args.dir,
         )
     )
+    for line in result.lines():
+        print(line)
+    return 0 if result.same else 1

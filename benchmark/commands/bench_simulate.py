@@ -7,6 +7,7 @@ import argparse
 import os
 
 from benchmark.bench import simulate as lib
+from benchmark.errors import UsageError
 
 HELP = "pairs/s at 96 and 224 px with all workers, and the time to build a city"
 DESCRIPTION = lib.__doc__
@@ -28,12 +29,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Measure, print the city line and a line per size; exit 1 with ``--strict`` and a missed
+    target, else 0."""
+    pairs_bad = args.pairs is not None and args.pairs < 1
+    if args.workers < 1 or any(s < 8 for s in args.sizes) or pairs_bad:
+        raise UsageError("bench simulate: --workers >= 1, --sizes >= 8 and --pairs >= 1 expected")
     config = lib.SimulateBenchConfig(
         workers=args.workers,
         sizes=tuple(args.sizes),
         pairs=args.pairs,
         style=args.style,
         seed=args.seed,
-        strict=args.strict,
     )
-    return lib.bench_simulate(config)
+    result = lib.bench_simulate(config)
+    for line in result.lines():
+        print(line)
+    return 1 if args.strict and not result.ok else 0

@@ -104,4 +104,7 @@ def parse(argv: Sequence[str]) -> lib.TrainBenchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    return lib.bench_train(config_from(args))
+    """Time the models and print the table; exit 0."""
+    for line in lib.bench_train(config_from(args)).lines():
+        print(line)
+    return 0

@@ -35,4 +35,6 @@ def run(args: argparse.Namespace) -> int:
         if not math.isfinite(value) or abs(value) > 90:
             raise UsageError(f"--{name} must be a finite angle in [-90, 90] deg, got {value}")
     config = ContinuityConfig(args.pitch, args.roll, args.step, args.attitude, args.out)
-    return continuity_report(config)
+    for line in continuity_report(config).lines():
+        print(line)
+    return 0

@@ -10,6 +10,7 @@ What it writes and how it fails: :mod:`benchmark.evaluation.evaluate_checkpoint`
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from benchmark.errors import UsageError
@@ -57,6 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Check the flags, resolve the placement once, evaluate; print the headline metrics (where
+    the files are and a divergence on stderr). Exit 0, 1 for a diverged model."""
     if not args.checkpoint.is_file():
         raise UsageError(f"--checkpoint {args.checkpoint}: no such file")
     if args.batch_size < 1:
@@ -79,4 +82,11 @@ def run(args: argparse.Namespace) -> int:
         batch_size=args.batch_size,
         progress=not args.quiet,
     )
-    return evaluate_checkpoint(config)
+    result = evaluate_checkpoint(config)
+    for line in result.lines():
+        print(line)
+    print(result.written(), file=sys.stderr)  # on stderr, as before: stdout keeps the metrics
+    if not result.ok:  # a diverged model: a failure (exit 1), not a user error
+        print(f"uavbench evaluate: {result.failure()}", file=sys.stderr)
+        return 1
+    return 0

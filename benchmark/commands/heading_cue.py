@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark.analysis.heading_cue_report import HeadingCueConfig, print_heading_cue_audit
+    from benchmark.analysis.heading_cue_report import HeadingCueConfig, heading_cue_audit_report
 
     config = HeadingCueConfig(
         datasets=tuple(args.dataset),
@@ -39,4 +39,6 @@ def run(args: argparse.Namespace) -> int:
         test=tuple(args.test or ["standard/test"]),
         as_json=args.json,
     )
-    return print_heading_cue_audit(config)
+    for line in heading_cue_audit_report(config).lines():
+        print(line)
+    return 0

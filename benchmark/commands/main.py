@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 
 from benchmark import __version__
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 
 # subcommand -> module path. Order is the pipeline order shown in --help.
 COMMANDS: dict[str, str] = {
@@ -81,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = cmd_parser.parse_args(argv[1:])
     try:
         return int(module.run(args) or 0)
-    except UsageError as err:
+    except InputError as err:  # UsageError (a flag) or the library's refusal of an input
         print(f"uavbench {name}: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -25,4 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.n < 1:
         raise UsageError(f"--n must be >= 1, got {args.n}")
-    return preview(PreviewConfig(args.dataset, args.split, args.n, args.out, args.seed))
+    result = preview(PreviewConfig(args.dataset, args.split, args.n, args.out, args.seed))
+    for line in result.lines():
+        print(line)
+    return 0

@@ -11,6 +11,7 @@ reference option (a YAML scalar).
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from benchmark.errors import UsageError
@@ -74,6 +75,7 @@ def _parse_options(items: list[str]) -> dict[str, object]:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Check the flags, evaluate the reference, print its headline metrics; exit 0."""
     from benchmark.references.report import ReferenceRunConfig, evaluate_and_report
 
     if args.limit is not None and args.limit < 1:
@@ -93,4 +95,9 @@ def run(args: argparse.Namespace) -> int:
         verify=args.verify,
         progress=not args.quiet,
     )
-    return evaluate_and_report(config)
+    report = evaluate_and_report(config)
+    for line in report.lines():
+        print(line)
+    if report.out is not None:  # on stderr, as before: stdout keeps only the metrics
+        print(f"per-frame predictions in {report.out}", file=sys.stderr)
+    return 0

@@ -190,4 +190,8 @@ def config_from(args: argparse.Namespace) -> ReproduceConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    return reproduce(config_from(args))
+    """Reproduce; print the closing lines; exit 0 when every unit trained, else 1."""
+    result = reproduce(config_from(args))
+    for line in result.lines():
+        print(line)
+    return 0 if result.ok else 1

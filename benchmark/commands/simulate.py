@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 from pathlib import Path
 
 from benchmark.data.profiles import DATA_PROFILES, get_data_profile
 from benchmark.data.simulate import SimulateConfig, default_out, simulate
 from benchmark.errors import UsageError
+from benchmark.progress import status_to, to_stderr
 
 HELP = "render the UAV/satellite pair dataset (profiles smoke/quick/paper; resumable, parallel)"
 
@@ -79,4 +81,13 @@ def run(args: argparse.Namespace) -> int:
         wait=not args.no_wait,
         progress=not args.quiet,
     )
-    return simulate(config)
+    # The summary alone on stdout; what simulate notices while it works (a lock it waits for or
+    # takes over, a file rendered again) on stderr beside the progress bar, as the command always
+    # printed it.
+    with status_to(to_stderr):
+        result = simulate(config)
+    for line in result.warnings():
+        print(line, file=sys.stderr)
+    for line in result.lines():
+        print(line)
+    return 0

@@ -32,6 +32,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Sync, print the summary (or, on stderr, why the copy stopped); exit 0 when every ended
+    run is in the store, 1 when runs were left out or the copy failed midway."""
+    import sys
+
     from benchmark.tracking.sync_report import sync_and_report
 
-    return sync_and_report(args.source, args.target, quiet=args.quiet)
+    result = sync_and_report(args.source, args.target, quiet=args.quiet)
+    if result.failure:
+        print(f"uavbench sync: {result.failure}", file=sys.stderr)
+        return 1
+    for line in result.lines():
+        print(line)
+    return 0 if result.ok else 1

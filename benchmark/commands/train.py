@@ -10,6 +10,7 @@ written and tracked: :mod:`benchmark.training.tracked_run`.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 HELP = "train one variant from a config (--set a.b=value), evaluate it and track it in MLflow"
@@ -42,9 +43,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Check the flags, resolve the placement once, train; print the metrics (or the failure on
+    stderr). Exit 0, 1 when the run diverged."""
     from benchmark.config import ConfigError
     from benchmark.errors import UsageError
     from benchmark.models.device import resolve_placement
+    from benchmark.progress import status_to, to_stderr
     from benchmark.training.config import load_train_config
     from benchmark.training.encoded import resolve_pretrained
     from benchmark.training.tracked_run import TrainRunConfig, train_tracked
@@ -74,4 +78,17 @@ def run(args: argparse.Namespace) -> int:
         force=args.force,
         progress=not args.quiet,
     )
-    return train_tracked(config)
+    # What tracking says while the run goes on (a path taken as a sqlite store, runs only kept
+    # locally, MLflow failing mid-run) on stderr, as the command always printed it: stdout keeps
+    # the metrics.
+    with status_to(to_stderr):
+        result = train_tracked(config)
+    if not result.ok:  # the run diverged (marked FAILED when tracked): exit 1, one line
+        print(f"uavbench train: {result.failure}", file=sys.stderr)
+        return 1
+    lines = result.lines()
+    if result.finished_before is not None:  # the flag that reruns it is the command's to name
+        lines = [f"{lines[0]}; --force reruns"]
+    for line in lines:
+        print(line)
+    return 0

@@ -37,8 +37,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Serve the UI; print the screenshots written, or on stderr why it stopped. Exit 0, 1 for
+    an unreachable server, the server's own code (1 for 0) when it exited by itself."""
+    import sys
+
+    from benchmark.errors import UsageError
     from benchmark.tracking.ui import UiConfig, serve_ui
 
+    if not 1 <= args.port <= 65535:
+        raise UsageError(f"--port {args.port}: expected an integer in 1..65535")
     config = UiConfig(
         tracking_uri=args.tracking_uri,
         port=args.port,
@@ -46,4 +53,10 @@ def run(args: argparse.Namespace) -> int:
         open=args.open,
         screenshots=args.screenshots,
     )
-    return serve_ui(config)
+    result = serve_ui(config)
+    for line in result.lines():
+        print(line)
+    if not result.ok:
+        print(result.failure, file=sys.stderr)
+        return result.server_exit_code or 1
+    return 0

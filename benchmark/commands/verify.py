@@ -9,6 +9,7 @@ Exit 0 when all is good, 1 naming each bad file and the fix, 2 for a path that i
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from benchmark.data.verify import verify_and_report
@@ -22,4 +23,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    return verify_and_report(args.dataset, progress=not args.quiet)
+    report = verify_and_report(args.dataset, progress=not args.quiet)
+    # all good: the OK line on stdout; else each problem and the fix on stderr
+    stream = sys.stdout if report.ok else sys.stderr
+    for line in report.lines():
+        print(line, file=stream)
+    return 0 if report.ok else 1

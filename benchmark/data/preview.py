@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 
 if TYPE_CHECKING:
     from benchmark.data.dataset import PairDataset
@@ -131,18 +131,32 @@ class PreviewConfig:
     seed: int = 0
 
 
-def preview(config: PreviewConfig) -> int:
-    """Write the contact sheet of ``config``; exit code 0 (UsageError: no such split/dataset)."""
+@dataclass(frozen=True)
+class PreviewResult:
+    """The contact sheet written: its PNG ``out``, holding ``n_pairs`` pairs of ``split``."""
+
+    out: Path
+    n_pairs: int
+    split: str
+
+    def lines(self) -> list[str]:
+        """One line: where the sheet was written and what it shows."""
+        return [f"wrote {self.out} ({self.n_pairs} pairs of {self.split})"]
+
+
+def preview(config: PreviewConfig) -> PreviewResult:
+    """Write the contact sheet of ``config``; returns where and what (InputError: no such
+    split/dataset)."""
     from benchmark.data.dataset import PairDataset, list_splits
     from benchmark.data.format import DatasetError
 
     try:
         splits = list_splits(config.dataset)
         if config.split not in splits:
-            raise UsageError(f"unknown split {config.split!r}; {config.dataset} has {splits}")
+            raise InputError(f"unknown split {config.split!r}; {config.dataset} has {splits}")
         ds = PairDataset(config.dataset, config.split, verify="size")
     except DatasetError as err:
-        raise UsageError(str(err)) from err
+        raise InputError(str(err)) from err
     out = config.out or config.dataset / f"preview_{config.split.replace('/', '_')}.png"
     indices = pick_indices(len(ds), config.n, config.seed)
     title = (
@@ -150,5 +164,4 @@ def preview(config: PreviewConfig) -> int:
         f"{ds.manifest['image_size']} px; red: UAV position and heading"
     )
     contact_sheet(ds, indices, out, title)
-    print(f"wrote {out} ({len(indices)} pairs of {config.split})")
-    return 0
+    return PreviewResult(out, len(indices), config.split)

@@ -270,7 +270,7 @@ class RenderPool:
                 raise RenderWorkerError(
                     f"a render worker process died ({dead}{oom}) while rendering into "
                     f"{self.ctx.root}; rerun the same command (finished shards are kept), with "
-                    "fewer --workers if memory is short"
+                    "fewer workers if memory is short"
                 ) from err
             return
         _CTX = self.ctx

@@ -17,12 +17,11 @@ over. Disk full and permission errors end in one line naming the path and the fi
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from benchmark.data.profiles import DataProfile
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 
 
 def default_out(profile: str, size: int | None, seed: int) -> Path:
@@ -54,9 +53,57 @@ class SimulateConfig:
     progress: bool = True
 
 
-def simulate(config: SimulateConfig) -> int:
-    """Render (or resume, or confirm) the dataset of ``config``; print what was done; exit code
-    0. UsageError for a directory of another dataset, a busy lock or a disk error."""
+@dataclass(frozen=True)
+class SimulateResult:
+    """What :func:`simulate` did to the dataset at ``out`` (profile ``profile``, ``seed``):
+    ``state`` is ``"complete"`` (already finished and confirmed: nothing rendered) or
+    ``"written"``; the seconds spent building the cities, planning and rendering; the UAV and
+    satellite images rendered with ``workers`` processes; and ``replaced``, the shards whose bytes
+    on disk differed from their render (corrupted) and were written again."""
+
+    out: Path
+    profile: str
+    seed: int
+    workers: int
+    state: str
+    cities_s: float = 0.0
+    plan_s: float = 0.0
+    render_s: float = 0.0
+    rendered_uav: int = 0
+    rendered_sat: int = 0
+    replaced: tuple[str, ...] = ()
+
+    def lines(self) -> list[str]:
+        """The summary: one line saying what was done (and how fast)."""
+        if self.state == "complete":
+            return [
+                f"{self.out}: already complete (profile {self.profile}, seed {self.seed}); "
+                "nothing to do"
+            ]
+        n = self.rendered_uav + self.rendered_sat
+        rate = n / self.render_s if self.render_s > 0 else float("nan")
+        return [
+            f"{self.out}: {self.state}; cities {self.cities_s:.1f} s, plan {self.plan_s:.1f} s, "
+            f"rendered {self.rendered_uav} UAV + {self.rendered_sat} satellite images in "
+            f"{self.render_s:.1f} s ({rate:.1f} img/s, {self.workers} workers)"
+        ]
+
+    def warnings(self) -> list[str]:
+        """The corrupted shards that were replaced, as one line (empty when none were): worth
+        telling apart from the summary (the command prints it on stderr)."""
+        if not self.replaced:
+            return []
+        return [
+            f"{self.out}: replaced {len(self.replaced)} corrupted shard(s): "
+            + ", ".join(self.replaced)
+        ]
+
+
+def simulate(config: SimulateConfig) -> SimulateResult:
+    """Render (or resume, or confirm) the dataset of ``config``; returns what was done. What it
+    notices on the way (a lock it waits for, a file rendered again) goes through
+    :func:`benchmark.progress.status`. InputError for a directory of another dataset, a busy lock
+    or a disk error."""
     single_thread_env()
     from benchmark.data.format import DatasetError, os_error_message
     from benchmark.data.writer import ConfigMismatchError, simulate_dataset
@@ -74,27 +121,22 @@ def simulate(config: SimulateConfig) -> int:
             wait=config.wait,
         )
     except (ConfigMismatchError, LockBusyError, DatasetError) as err:
-        raise UsageError(str(err)) from err
+        raise InputError(str(err)) from err
     except OSError as err:
         message = os_error_message(err)
         if message is None:
             raise
-        raise UsageError(message) from None
-    if stats.get("replaced"):
-        print(f"{out}: replaced {len(stats['replaced'])} corrupted shard(s): "
-              + ", ".join(stats["replaced"]), file=sys.stderr)  # fmt: skip
-    if stats["state"] == "complete":
-        print(
-            f"{out}: already complete (profile {profile.name}, seed {config.seed}); nothing to do"
-        )
-    else:
-        n = stats["rendered_uav"] + stats["rendered_sat"]
-        rate = n / stats["render_s"] if stats["render_s"] > 0 else float("nan")
-        print(
-            f"{out}: {stats['state']}; cities {stats['cities_s']:.1f} s, "
-            f"plan {stats['plan_s']:.1f} s, "
-            f"rendered {stats['rendered_uav']} UAV + {stats['rendered_sat']} satellite images in "
-            f"{stats['render_s']:.1f} s ({rate:.1f} img/s, {config.workers} workers)",
-            file=sys.stdout,
-        )
-    return 0
+        raise InputError(message) from None
+    return SimulateResult(
+        out=out,
+        profile=profile.name,
+        seed=config.seed,
+        workers=config.workers,
+        state=stats["state"],
+        cities_s=stats.get("cities_s", 0.0),
+        plan_s=stats.get("plan_s", 0.0),
+        render_s=stats.get("render_s", 0.0),
+        rendered_uav=stats.get("rendered_uav", 0),
+        rendered_sat=stats.get("rendered_sat", 0),
+        replaced=tuple(stats.get("replaced", ())),
+    )

@@ -4,17 +4,17 @@
 
 Hashes every file (sha256; no cache is trusted, so this also finds what a stat cannot see, such as
 bit rot), and checks sizes, the shape and dtype of every shard, the row counts of the tables and
-of every split, and that ``config.json`` agrees with the manifest. Exit 0 when all is good; exit 1
-naming each bad file, what is wrong with it and the fix (the ``uavbench simulate`` call that
-renders it again: simulate re-renders exactly the files that disagree with the manifest); exit 2
-for a path that is not a dataset at all. Files found good are recorded in the verification cache
+of every split, and that ``config.json`` agrees with the manifest. :func:`verify_and_report`
+returns the verdict (:class:`VerifyReport`): each bad file, what is wrong with it and the fix (the
+``uavbench simulate`` call that renders it again: simulate re-renders exactly the files that
+disagree with the manifest); the command exits 0 when all is good, 1 otherwise, and 2 for a path
+that is not a dataset at all (InputError). Files found good are recorded in the verification cache
 (``benchmark.data.integrity``), so the next ``train`` opens them with a stat.
 """
 
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +24,7 @@ import numpy as np
 from benchmark.data.format import CONFIG, MANIFEST, DatasetError, read_json, read_manifest
 from benchmark.data.integrity import check_files
 from benchmark.data.profiles import DATA_PROFILES, DataProfile, get_data_profile
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.progress import Progress
 
 
@@ -156,10 +156,44 @@ def _fix(root: Path) -> str:
     return f"the command that rendered {root}"
 
 
-def verify_and_report(root: Path, *, progress: bool = True) -> int:
-    """Verify the dataset at ``root`` in full and print the verdict: exit code 0 (all good) or 1
-    (each problem and the fix on stderr); UsageError when ``root`` is no dataset or on a disk
-    error."""
+@dataclass(frozen=True)
+class VerifyReport:
+    """The verdict on the dataset at ``root``: its ``n_files`` manifest entries, the
+    ``problems`` found (none: all good) and the ``fixes`` for them (the ``uavbench simulate``
+    call that renders the bad files again, ...)."""
+
+    root: Path
+    n_files: int
+    problems: tuple[Problem, ...] = ()
+    fixes: tuple[str, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        """True when every file matches the manifest."""
+        return not self.problems
+
+    def lines(self) -> list[str]:
+        """The verdict as printed: one OK line, or one line per problem (naming the file) and a
+        last line counting them with the fix."""
+        if self.ok:
+            return [
+                f"{self.root}: OK, {self.n_files} files match {MANIFEST} (sha256, sizes, shapes, "
+                "split counts)"
+            ]
+        lines = []
+        for p in self.problems:
+            where = str(self.root / p.file)
+            lines.append(p.what if where in p.what else f"{where}: {p.what}")
+        lines.append(
+            f"{self.root}: {len(self.problems)} problem(s) in "
+            f"{len({p.file for p in self.problems})} file(s); fix: {'; and '.join(self.fixes)}"
+        )
+        return lines
+
+
+def verify_and_report(root: Path, *, progress: bool = True) -> VerifyReport:
+    """Verify the dataset at ``root`` in full; returns the verdict with each problem and its fix
+    (``ok`` when all is good). InputError when ``root`` is no dataset or on a disk error."""
     from benchmark.data.format import os_error_message
 
     try:
@@ -167,19 +201,13 @@ def verify_and_report(root: Path, *, progress: bool = True) -> int:
         n = len(read_manifest(root)["files"])
     except DatasetError as err:
         if not (root / CONFIG).is_file() or not (root / MANIFEST).is_file():
-            raise UsageError(str(err)) from None  # not a dataset, or an unfinished one
+            raise InputError(str(err)) from None  # not a dataset, or an unfinished one
         problems, n = [Problem(MANIFEST, str(err))], 1  # a damaged manifest: simulate rebuilds it
     except OSError as err:
         message = os_error_message(err)
         if message is None:
             raise
-        raise UsageError(message) from None
-    if not problems:
-        print(f"{root}: OK, {n} files match {MANIFEST} (sha256, sizes, shapes, split counts)")
-        return 0
-    for p in problems:
-        where = str(root / p.file)
-        print(p.what if where in p.what else f"{where}: {p.what}", file=sys.stderr)
+        raise InputError(message) from None
     kinds = {p.kind for p in problems}
     fixes = []
     if "file" in kinds:
@@ -194,9 +222,4 @@ def verify_and_report(root: Path, *, progress: bool = True) -> int:
         )
     if "config" in kinds:
         fixes.append(f"render the dataset again into a new directory with {_fix(root)}")
-    print(
-        f"{root}: {len(problems)} problem(s) in {len({p.file for p in problems})} file(s); "
-        f"fix: {'; and '.join(fixes)}",
-        file=sys.stderr,
-    )
-    return 1
+    return VerifyReport(root, n, tuple(problems), tuple(fixes))

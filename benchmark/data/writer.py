@@ -12,7 +12,6 @@ import hashlib
 import io
 import json
 import os
-import sys
 import time
 from collections.abc import Callable
 from functools import partial
@@ -39,8 +38,9 @@ from benchmark.data.integrity import check_files
 from benchmark.data.journal import JOURNAL, append_journal, read_journal, remove_journal, trusted
 from benchmark.data.profiles import FLIGHT_STYLE, GENERALIZED_STYLE, TRAIN_STYLES, DataProfile
 from benchmark.data.render_pool import RenderContext, RenderPool, _shard_shape, shard_size
+from benchmark.errors import InputError
 from benchmark.locks import work_lock
-from benchmark.progress import Progress
+from benchmark.progress import Progress, status
 
 LOCK = ".simulate.lock"  # one writer per dataset directory (benchmark.locks)
 # Bump when benchmark.sim.flights / splits change what they produce. 3: labels through
@@ -79,8 +79,9 @@ SPLIT_NOTES = {
 }
 
 
-class ConfigMismatchError(ValueError):
-    """The output directory holds a dataset (or a partial one) with another config.
+class ConfigMismatchError(InputError):
+    """The output directory holds a dataset (or a partial one) with another config (an
+    :class:`~benchmark.errors.InputError`, so a ValueError as before).
 
     ``differences``: one ``"field: existing .. != requested .."`` per differing config field
     (empty when ``out`` is no dataset at all), for callers that word their own fix."""
@@ -94,8 +95,9 @@ class ConfigMismatchError(ValueError):
         """``out`` holds a dataset whose config differs from the requested one in
         ``differences``."""
         return cls(
-            f"--out {out} holds a dataset with a different config ({_summary(differences)}); "
-            f"choose another --out or the same profile/size/seed",
+            f"output directory {out} holds a dataset with a different config "
+            f"({_summary(differences)}); choose another output directory or the same "
+            "profile/size/seed",
             differences,
         )
 
@@ -133,12 +135,13 @@ def check_output_dir(out: Path, config: dict[str, Any]) -> str:
     if not out.exists():
         return "new"
     if not out.is_dir():
-        raise ConfigMismatchError(f"--out {out} exists and is not a directory")
+        raise ConfigMismatchError(f"output directory {out} exists and is not a directory")
     cfg_path = out / CONFIG
     if not cfg_path.is_file():
         if any(p.name not in (LOCK, JOURNAL) for p in out.iterdir()):
             raise ConfigMismatchError(
-                f"--out {out} is a non-empty directory without {CONFIG}; refusing to write into it"
+                f"output directory {out} is a non-empty directory without {CONFIG}; refusing to "
+                "write into it"
             )
         return "new"
     old = read_json(cfg_path, "dataset config")
@@ -212,10 +215,6 @@ def n_shards(kind: str, n_rows: int, p: DataProfile) -> int:
     return -(-n_rows // shard_size(kind, p))
 
 
-def _say(message: str) -> None:
-    print(message, file=sys.stderr, flush=True)
-
-
 def dataset_problems(out: Path) -> list[tuple[str, str]]:
     """``(file, problem)`` for every file of a finished dataset that disagrees with its manifest
     (cached sha256: a stat per file once each was hashed, ``benchmark.data.integrity``)."""
@@ -260,8 +259,9 @@ def simulate_dataset(
     disagrees with the manifest is rendered again. Shards found on disk are trusted only through
     the render journal (``benchmark.data.journal``); others are rendered again and compared byte
     for byte, a differing one is replaced. One process renders into ``out`` at a time: the lock
-    ``out/.simulate.lock`` (``benchmark.locks``); with ``wait`` a second call waits for it (saying
-    so through ``notify``, default stderr), else it raises ``LockBusyError`` naming the holder.
+    ``out/.simulate.lock`` (``benchmark.locks``); with ``wait`` a second call waits for it, else it
+    raises ``LockBusyError`` naming the holder. What it notices on the way (the wait, a lock taken
+    over, a file rendered again) goes to ``notify``, default :func:`benchmark.progress.status`.
 
     ``max_tasks`` stops after that many shards without writing the manifest (an interruption, for
     tests and benchmarks). Returns statistics: ``state`` (complete, written, interrupted),
@@ -270,7 +270,7 @@ def simulate_dataset(
     different dataset.
     """
     out = Path(out)
-    say = notify or _say
+    say = notify or status
     config = dataset_config(profile, seed)
     state = check_output_dir(out, config)
     if state == "complete" and not dataset_problems(out):

@@ -14,13 +14,16 @@ the checkpoint was trained with. Errors end in one line (exit 2): a missing, tru
 dataset file (named, with ``uavbench verify`` as the way to a full report), disk full or no
 permission for ``--out`` (the path and the fix). ``--device`` / ``--precision`` as in
 ``uavbench train`` (``benchmark.models.device``): the checkpoint loads on any device.
+
+:func:`evaluate_checkpoint` returns what it measured and wrote (:class:`EvaluateResult`);
+``benchmark.commands.evaluate`` prints it and picks the exit code (1 for a diverged model).
 """
 
 from __future__ import annotations
 
 import json
-import sys
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -45,54 +48,94 @@ class EvaluateConfig:
     progress: bool = True
 
 
-def evaluate_checkpoint(config: EvaluateConfig) -> int:
-    """Evaluate and write every split of ``config`` (predictions CSV per split, metrics JSON),
-    printing the headline metrics; exit code 0, or 1 for a diverged model (non-finite metrics).
-    UsageError: an unreadable checkpoint, a missing split, a damaged dataset, a disk error."""
+# The headline metrics of a split, in the order they are printed.
+HEADLINE_KEYS = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
+
+
+@dataclass(frozen=True)
+class EvaluateResult:
+    """What one :func:`evaluate_checkpoint` measured and wrote: ``metrics`` (split -> summary)
+    with the ``satellite`` images, the predictions CSVs and ``metrics_file`` in ``out``;
+    ``non_finite``: the non-finite metrics found (``"split: non-finite keys"``, ``""`` when
+    none), i.e. the checkpoint's model diverged."""
+
+    out: Path
+    metrics_file: Path
+    satellite: str
+    metrics: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    non_finite: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """Every metric is finite."""
+        return not self.non_finite
+
+    def lines(self) -> list[str]:
+        """The headline metrics, one line per split (what ``uavbench evaluate`` prints)."""
+        return [
+            f"{split} ({self.satellite} satellite): n={int(summary['n'])} "
+            + ", ".join(f"{k}={summary[k]:.3f}" for k in HEADLINE_KEYS)
+            for split, summary in self.metrics.items()
+        ]
+
+    def written(self) -> str:
+        """Where the files are (one line)."""
+        return f"predictions and {self.metrics_file.name} in {self.out}"
+
+    def failure(self) -> str:
+        """Why the result is not usable (``""`` when :attr:`ok`): one line with the fix."""
+        if self.ok:
+            return ""
+        return (
+            f"{self.non_finite}; the checkpoint's model diverged (retrain it with a lower optim.lr)"
+        )
+
+
+def evaluate_checkpoint(config: EvaluateConfig) -> EvaluateResult:
+    """Evaluate and write every split of ``config`` (predictions CSV per split, metrics JSON).
+    Returns the metrics and where they are (:class:`EvaluateResult`; not ``ok`` for a diverged
+    model, whose metrics are not finite). Raises :class:`~benchmark.errors.InputError` for an
+    unreadable checkpoint, a missing split, a damaged dataset or a disk error."""
     from benchmark.data import DatasetError, list_splits, os_error_message
-    from benchmark.errors import UsageError
+    from benchmark.errors import InputError
     from benchmark.models.checkpoint import load_checkpoint, load_trained_model
 
     try:
         ckpt = load_checkpoint(config.checkpoint)
         model = load_trained_model(config.checkpoint, config.placement.device)
     except ValueError as err:
-        raise UsageError(str(err)) from None
+        raise InputError(str(err)) from None
     data_cfg = ckpt["config"]["data"]
     root = config.data_root or Path(data_cfg["root"])
     splits = list(config.splits) or ["standard/test"]
     try:
         available = list_splits(root)
     except (DatasetError, OSError) as err:
-        raise UsageError(f"dataset {root}: {err}") from None
+        raise InputError(f"dataset {root}: {err}") from None
     for split in splits:
         if split not in available:
-            raise UsageError(
-                f"--split {split!r} is not in {root}; available: {', '.join(available)}"
+            raise InputError(
+                f"splits: {split!r} is not in {root}; available: {', '.join(available)}"
             )
     out = config.out or config.checkpoint.parent / "predictions"
     try:
-        bad = _evaluate_splits(config, model, ckpt, root, splits, out)
+        result = _evaluate_splits(config, model, ckpt, root, splits, out)
     except DatasetError as err:
-        raise UsageError(f"{err} (`uavbench verify {root}` checks every file)") from None
+        raise InputError(f"{err} (`uavbench verify {root}` checks every file)") from None
     except OSError as err:
-        if err.filename is None:  # a bare write error (e.g. ENOSPC from a CSV writer): name --out
+        if err.filename is None:  # a bare write error (e.g. ENOSPC from a CSV writer): name out
             err = OSError(err.errno, err.strerror, str(out))
         message = os_error_message(err)
         if message is None:
             raise
-        raise UsageError(message) from None
-    if bad:  # a diverged model: a failure (exit 1), not a user error
-        print(f"uavbench evaluate: {bad}; the checkpoint's model diverged (retrain it with a "
-              "lower optim.lr)", file=sys.stderr)  # fmt: skip
-        return 1
-    return 0
+        raise InputError(message) from None
+    return result  # a diverged model is a failure (exit 1), not a user error: not raised
 
 
 def _evaluate_splits(
     config: EvaluateConfig, model: Any, ckpt: dict, root: Path, splits: list[str], out: Path
-) -> str | None:
-    """Evaluate and write every split; the non-finite metrics found (``"split: keys"``) or None."""
+) -> EvaluateResult:
+    """Evaluate and write every split; the metrics, with the non-finite ones found."""
     from benchmark.data import PairDataset, atomic_write_bytes
     from benchmark.evaluation.evaluate import evaluate, non_finite_metrics
 
@@ -114,12 +157,6 @@ def _evaluate_splits(
         results[split] = summary
         if non_finite_metrics(summary):
             bad.append(f"{split}: non-finite " + ", ".join(non_finite_metrics(summary)))
-        keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
-        print(
-            f"{split} ({config.satellite} satellite): n={int(summary['n'])} "
-            + ", ".join(f"{k}={summary[k]:.3f}" for k in keys)
-        )
     metrics = out / f"metrics{suffix}.json"
     atomic_write_bytes(metrics, (json.dumps(results, indent=1, sort_keys=True) + "\n").encode())
-    print(f"predictions and metrics{suffix}.json in {out}", file=sys.stderr)
-    return "; ".join(bad) or None
+    return EvaluateResult(out, metrics, config.satellite, results, "; ".join(bad))

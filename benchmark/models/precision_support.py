@@ -38,6 +38,7 @@ import os
 
 import torch
 
+from benchmark.errors import InputError
 from benchmark.machine import cpu_model, read_cpuinfo
 
 BENCH_PRECISIONS = ("fp32", "bf16")
@@ -210,7 +211,7 @@ def precision_plan(device: torch.device, spec: str | None) -> tuple[list[str], l
 
     ``spec`` None: fp32, plus bf16 where :func:`bf16_unsupported_reason` finds no reason (the
     reason becomes a note otherwise). A comma list (``"fp32,bf16"``) is measured as given, with a
-    note for a bf16 the device does not support. Unknown names raise ValueError.
+    note for a bf16 the device does not support. Unknown names raise InputError (a ValueError).
     """
     reason = bf16_unsupported_reason(device)
     if spec is None:
@@ -220,8 +221,8 @@ def precision_plan(device: torch.device, spec: str | None) -> tuple[list[str], l
     names = [s.strip() for s in spec.split(",") if s.strip()]
     bad = [n for n in names if n not in BENCH_PRECISIONS]
     if bad or not names or len(set(names)) != len(names):
-        raise ValueError(
-            f"--precision {spec!r}: expected a comma list of distinct {', '.join(BENCH_PRECISIONS)}"
+        raise InputError(
+            f"precision {spec!r}: expected a comma list of distinct {', '.join(BENCH_PRECISIONS)}"
         )
     notes = []
     if "bf16" in names and reason is not None:

@@ -9,12 +9,14 @@ Prints the headline metrics (and the failure rate, the 3D position error and Ort
 plus ``reference_failed`` and ``reference_score``) to ``--out`` and the summary beside it as JSON.
 Failed frames get the constant predictor's pose from ``--train-split`` (default: the split the
 models evaluated on ``--split`` train on). ``--set key=value`` passes a reference option.
+
+:func:`evaluate_and_report` returns the summary (:class:`ReferenceReport`);
+``benchmark.commands.reference`` prints it.
 """
 
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,12 +42,42 @@ class ReferenceRunConfig:
     progress: bool = True
 
 
-def evaluate_and_report(config: ReferenceRunConfig) -> int:
-    """Evaluate the reference of ``config``, write its files and print the headline metrics;
-    exit code 0 (UsageError: an unknown reference, option or split, a damaged dataset, a disk
-    error)."""
+@dataclass(frozen=True)
+class ReferenceReport:
+    """What one reference evaluation measured: the reference's ``label``, the ``split`` with the
+    ``satellite`` images, its ``summary`` (headline metrics, failure rate, accuracies, speed) and
+    the per-frame CSV ``out`` (None: not written; the summary JSON is beside it)."""
+
+    label: str
+    split: str
+    satellite: str
+    summary: Mapping[str, float]
+    out: Path | None = None
+
+    def lines(self) -> list[str]:
+        """What ``uavbench reference`` prints: the label, then the headline metrics in one
+        line."""
+        s = self.summary
+        keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "median_dpsi_deg", "dphi_deg")
+        return [
+            self.label,
+            f"{self.split} ({self.satellite} satellite): n={int(s['n'])} "
+            + ", ".join(f"{k}={s[k]:.2f}" for k in keys)
+            + f", dE_m={s['dE_m']:.1f}, dN_m={s['dN_m']:.1f}, dU_m={s['dU_m']:.1f}"
+            + f", median_pos_err_m={s['median_pos_err_m']:.1f}"
+            + "".join(f", {k}={s[k]:.3f}" for k in s if k.startswith("acc_"))
+            + f", failure_rate={s['failure_rate']:.3f}"
+            + f", frames_per_s={s.get('frames_per_s', float('nan')):.1f}"
+            + f", cpu_ms_per_frame={s['cpu_ms_per_frame']:.0f}",
+        ]
+
+
+def evaluate_and_report(config: ReferenceRunConfig) -> ReferenceReport:
+    """Evaluate the reference of ``config`` and write its files (when ``config.out``). Returns
+    the headline metrics (:class:`ReferenceReport`). Raises :class:`~benchmark.errors.InputError`
+    for an unknown reference, option or split, a damaged dataset or a disk error."""
     from benchmark.data import DatasetError, PairDataset, list_splits, os_error_message
-    from benchmark.errors import UsageError
+    from benchmark.errors import InputError
     from benchmark.references import (
         create_reference,
         default_train_split,
@@ -55,22 +87,22 @@ def evaluate_and_report(config: ReferenceRunConfig) -> int:
     )
 
     if config.name not in list_references():
-        raise UsageError(
+        raise InputError(
             f"unknown reference {config.name!r}; known: {', '.join(list_references())}"
         )
     options = dict(config.options)
     try:
         reference = create_reference(config.name, **options)
     except (TypeError, ValueError) as err:
-        raise UsageError(f"--set: {err}") from None
+        raise InputError(f"options of {config.name}: {err}") from None
     try:
         available = list_splits(config.data)
     except (DatasetError, OSError) as err:
-        raise UsageError(f"--data {config.data}: {err}") from None
+        raise InputError(f"data {config.data}: {err}") from None
     train_split = config.train_split or default_train_split(config.split, available)
-    for flag, split in (("--split", config.split), ("--train-split", train_split)):
+    for field_name, split in (("split", config.split), ("train_split", train_split)):
         if split not in available:
-            raise UsageError(f"{flag} {split!r} is not in {config.data}; available: "
+            raise InputError(f"{field_name} {split!r} is not in {config.data}; available: "
                              + ", ".join(available))  # fmt: skip
     try:
         dataset = PairDataset(
@@ -102,23 +134,10 @@ def evaluate_and_report(config: ReferenceRunConfig) -> int:
             text = json.dumps(record, indent=1, sort_keys=True) + "\n"
             config.out.with_suffix(".json").write_text(text)
     except DatasetError as err:
-        raise UsageError(f"{err} (`uavbench verify {config.data}` checks every file)") from None
+        raise InputError(f"{err} (`uavbench verify {config.data}` checks every file)") from None
     except OSError as err:
         message = os_error_message(err)
         if message is None:
             raise
-        raise UsageError(message) from None
-    keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "median_dpsi_deg", "dphi_deg")
-    print(
-        f"{reference.label}\n{config.split} ({config.satellite} satellite): n={int(summary['n'])} "
-        + ", ".join(f"{k}={summary[k]:.2f}" for k in keys)
-        + f", dE_m={summary['dE_m']:.1f}, dN_m={summary['dN_m']:.1f}, dU_m={summary['dU_m']:.1f}"
-        + f", median_pos_err_m={summary['median_pos_err_m']:.1f}"
-        + "".join(f", {k}={summary[k]:.3f}" for k in summary if k.startswith("acc_"))
-        + f", failure_rate={summary['failure_rate']:.3f}"
-        + f", frames_per_s={summary.get('frames_per_s', float('nan')):.1f}"
-        + f", cpu_ms_per_frame={summary['cpu_ms_per_frame']:.0f}"
-    )
-    if config.out is not None:
-        print(f"per-frame predictions in {config.out}", file=sys.stderr)
-    return 0
+        raise InputError(message) from None
+    return ReferenceReport(reference.label, config.split, config.satellite, summary, config.out)

@@ -6,7 +6,7 @@
 
     from benchmark.runner import ReproduceConfig, reproduce
 
-    reproduce(ReproduceConfig(profile="smoke", tracker="null"))  # the exit code: 0, or 1
+    result = reproduce(ReproduceConfig(profile="smoke", tracker="null"))  # result.ok, .written
 
 (``uavbench reproduce`` is ``benchmark.commands.reproduce``: it parses its flags into a
 ``ReproduceConfig``.) The two names load on first use, so importing one floor loads no other.

@@ -14,16 +14,15 @@ from __future__ import annotations
 import dataclasses
 import os
 import platform
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.locks import LockBusyError, work_lock
-from benchmark.progress import format_duration
-from benchmark.runner.claims.data_audit import check_cue_datasets
+from benchmark.progress import format_duration, status
+from benchmark.runner.execute.audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
 from benchmark.runner.execute.ray_executor import is_local_address
 from benchmark.runner.execute.worker import (
@@ -45,6 +44,7 @@ from benchmark.runner.plan.units import Unit, plan_units
 from benchmark.runner.report.logbook import Logbook, write_config
 
 if TYPE_CHECKING:
+    from benchmark.runner.report.outputs import ReportInputs
     from benchmark.tracking import Tracker
 
 
@@ -94,16 +94,16 @@ def prepare_dataset(profile: ReproProfile, out: Path, seed: int, workers: int, q
         )
     except ConfigMismatchError as err:
         if not err.differences:  # not a dataset at all (a file, a foreign directory)
-            raise UsageError(f"{out}: {err}") from None
-        raise UsageError(
-            f"{out} holds a dataset of another simulator or profile ({err.summary}); pass another "
-            f"--data, or move it away (or delete it) and this command renders it there"
+            raise InputError(f"{out}: {err}") from None
+        raise InputError(
+            f"{out} holds a dataset of another simulator or profile ({err.summary}); choose "
+            f"another data directory, or move it away (or delete it) and it is rendered there"
         ) from None
     if stats["state"] != "complete":
-        print(f"dataset {out}: {stats['state']} (rendering took {stats.get('render_s', 0):.0f} s)")
+        status(f"dataset {out}: {stats['state']} (rendering took {stats.get('render_s', 0):.0f} s)")
 
 
-def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) -> UsageError:
+def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) -> InputError:
     """One line for a dataset that cannot be used or repaired: what is wrong and the fix."""
     from benchmark.data.format import os_error_message
 
@@ -111,11 +111,10 @@ def _data_error(root: Path, profile: ReproProfile, seed: int, err: Exception) ->
         what = os_error_message(err) or f"{err.strerror or err}: {err.filename or root}"
     else:
         what = str(err)
-    again = f"uavbench simulate --profile {profile.dataset} --out {root}"
-    again += f" --seed {seed}" if seed else ""
-    return UsageError(
-        f"dataset {root} is damaged and was not repaired ({what}); run "
-        f"`uavbench verify {root}` to list every bad file and its fix (bad bytes: rerun `{again}`)"
+    return InputError(
+        f"dataset {root} is damaged and was not repaired ({what}); run `uavbench verify {root}` "
+        f"to list every bad file and its fix (bad bytes: render profile {profile.dataset!r}, "
+        f"seed {seed}, into {root} again)"
     )
 
 
@@ -171,43 +170,77 @@ def _with_device(
         else:
             resolve_placement(device, precision)  # each worker resolves its own placement once
     except ValueError as err:
-        raise UsageError(f"reproduce: {err}") from None
+        raise InputError(f"reproduce: {err}") from None
     return dataclasses.replace(profile, device=device, precision=precision)
 
 
-def reproduce(config: ReproduceConfig) -> int:
-    """Run one reproduction; the exit code: 0 when every unit trained, 1 when one failed.
-    Bad input (a flag out of range, an unknown table, a device this machine lacks, a damaged
-    dataset, a busy ``workdir`` with ``wait=False``) raises ``UsageError`` before any training."""
+@dataclass(frozen=True)
+class ReproduceResult:
+    """What one reproduction did: the report files ``written`` under ``out`` in ``wall_s``
+    seconds on ``host``, the ``failures`` (one line per unit that failed to train), and where the
+    runs went (``tracking``: the tracker's summary; ``browse``: how to look at them, or "")."""
+
+    out: Path
+    written: tuple[Path, ...]
+    wall_s: float
+    host: str
+    failures: tuple[str, ...]
+    tracking: str
+    browse: str
+
+    @property
+    def ok(self) -> bool:
+        """Every unit trained."""
+        return not self.failures
+
+    def lines(self) -> list[str]:
+        """The closing lines ``uavbench reproduce`` prints."""
+        lines = [
+            f"wrote {len(self.written)} report files to {self.out} in "
+            f"{format_duration(self.wall_s)} on {self.host}"
+        ]
+        if self.failures:
+            lines.append(
+                f"{len(self.failures)} training run(s) failed:\n  " + "\n  ".join(self.failures)
+            )
+        lines.append(self.tracking)
+        return lines + ([self.browse] if self.browse else [])
+
+
+def reproduce(config: ReproduceConfig) -> ReproduceResult:
+    """Run one reproduction; what it wrote and which units failed (:class:`ReproduceResult`;
+    ``ok`` when every unit trained). Bad input (a value out of range, an unknown table, a device
+    this machine lacks, a damaged dataset, a busy ``workdir`` with ``wait=False``) raises
+    ``InputError`` before any training. What it is doing goes to ``benchmark.progress.status``."""
     try:
         repro = get_repro_profile(config.profile)
     except ValueError as err:
-        raise UsageError(str(err)) from None
+        raise InputError(str(err)) from None
     profile = _with_device(repro, config.device, config.precision, config.executor)
     if config.seeds is not None and config.seeds < 1:
-        raise UsageError(f"--seeds must be >= 1, got {config.seeds}")
+        raise InputError(f"seeds must be >= 1, got {config.seeds}")
     if config.executor.workers < 1:
-        raise UsageError(f"--workers must be >= 1, got {config.executor.workers}")
+        raise InputError(f"executor.workers must be >= 1, got {config.executor.workers}")
     if config.stale not in STALE_MODES:
-        raise UsageError(f"--stale must be one of {STALE_MODES}, got {config.stale!r}")
+        raise InputError(f"stale must be one of {STALE_MODES}, got {config.stale!r}")
     check_executor(config.executor, planned_tracking_uri(config.tracker, config.tracking_uri))
     try:
         specs = load_specs(config.specs, list(config.only) or None)
     except SpecError as err:
-        raise UsageError(str(err)) from err
+        raise InputError(str(err)) from err
     workdir = config.workdir or Path("runs") / profile.name
     # One writer per work directory for the whole invocation: a second one waits (or, with
-    # --no-wait, exits 2 naming the holder); a dead holder's lock is taken over.
+    # wait=False, raises naming the holder); a dead holder's lock is taken over.
     try:
         with work_lock(
             workdir / LOCK,
             what=f"uavbench reproduce --profile {profile.name}",
             wait=config.wait,
-            notify=lambda message: print(message, file=sys.stderr, flush=True),
+            notify=status,
         ):
             return _run_locked(config, profile, specs, workdir)
     except LockBusyError as err:
-        raise UsageError(f"{err} (or choose another --workdir)") from None
+        raise InputError(f"{err} (or choose another workdir)") from None
 
 
 def planned_tracking_uri(tracker: str, tracking_uri: str | None) -> str | None:
@@ -221,7 +254,9 @@ def planned_tracking_uri(tracker: str, tracking_uri: str | None) -> str | None:
     return tracking_uri or os.environ.get("MLFLOW_TRACKING_URI") or "sqlite:///mlflow.db"
 
 
-def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, workdir: Path) -> int:
+def _run_locked(
+    config: ReproduceConfig, profile: ReproProfile, specs: list, workdir: Path
+) -> ReproduceResult:
     from benchmark.data import list_splits
     from benchmark.tracking import RunStatus, create_tracker, git_commit
 
@@ -237,12 +272,12 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         units = plan_units(specs, profile, seeds, data_root, list_splits(data_root), dataset_hash,
                            workdir)  # fmt: skip
     except ValueError as err:
-        raise UsageError(str(err)) from err
+        raise InputError(str(err)) from err
 
     # What happens to the report's other tables, said before any training (and in the README).
     merge = plan_merge(out, specs, profile, data_root, workdir, dataset_hash, config.stale)
     if merge.describe():
-        print(merge.describe(), flush=True)
+        status(merge.describe())
 
     workdir.mkdir(parents=True, exist_ok=True)
     tracker = create_tracker(config.tracker, config.tracking_uri, workdir=Path.cwd())
@@ -260,7 +295,7 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
     # Runs left RUNNING by an invocation that was killed (kill -9, power loss) end KILLED.
     stale = logbook.close_stale(spec.name for spec in load_specs(config.specs))
     if stale:
-        print(f"closed {len(stale)} run(s) left RUNNING by a killed invocation: now KILLED")
+        status(f"closed {len(stale)} run(s) left RUNNING by a killed invocation: now KILLED")
     results: dict[str, UnitResult] = {}
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
@@ -302,7 +337,7 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
             )
         )
     todo = _with_shared_encoders(todo, units, workdir, logbook, config)
-    print(
+    status(
         f"reproduce {profile.name}: {len(specs)} tables/figures, {len(units)} training runs "
         f"({len(units) - len(todo)} already in the tracking store), {len(seeds)} seed(s), "
         f"logging to {tracker.uri or config.tracker}"
@@ -322,9 +357,9 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         invocation.unit_done(unit.key, result.ok)
         if not result.ok:
             failures.append(f"{unit.title}: {result.error}")
-            print(f"FAILED {unit.title}: {result.error}")
+            status(f"FAILED {unit.title}: {result.error}")
 
-    status = RunStatus.FINISHED
+    run_status = RunStatus.FINISHED
     units_log_to = None if config.tracker == "null" else tracker.uri  # null's uri reads "null"
     try:
         # First the shared encoders (their checkpoints are what the others load) and every
@@ -346,37 +381,36 @@ def _run_locked(config: ReproduceConfig, profile: ReproProfile, specs: list, wor
         run_executor(config.executor, rest, on_done, config.quiet, units_log_to)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
+        inputs = _report_inputs(specs, units, results, profile, (data_root, workdir), merge, config)
         written = _write_reports(
-            specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge
-        )
+            specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge,
+            inputs,
+        )  # fmt: skip
     except KeyboardInterrupt:
-        status = RunStatus.KILLED
+        run_status = RunStatus.KILLED
         invocation.end("interrupted")
         logbook.kill_unfinished_units(unit.key for unit, _ in todo)
-        print("interrupted: finished runs are kept; run the same command again to resume")
+        status("interrupted: finished runs are kept; run the same command again to resume")
         raise
     except BaseException:
-        status = RunStatus.FAILED
+        run_status = RunStatus.FAILED
         raise
     finally:
         logbook.close(
-            status if not failures or status is not RunStatus.FINISHED else RunStatus.FAILED
+            run_status if not failures or run_status is not RunStatus.FINISHED else RunStatus.FAILED
         )
         tracker.close()
-    wall = time.time() - started
-    print(
-        f"wrote {len(written)} report files to {out} in {format_duration(wall)} "
-        f"on {platform.node()}"
-    )
-    if failures:
-        print(f"{len(failures)} training run(s) failed:\n  " + "\n  ".join(failures))
     # Where the runs really went (counted at the end, not assumed at the start): the store, or
     # the local fallback and the `uavbench sync` that sends them; then how to browse them.
-    print(tracker.summary())
-    hint = browse_hint(config.tracker, tracker)
-    if hint:
-        print(hint)
-    return 1 if failures else 0
+    return ReproduceResult(
+        out=out,
+        written=tuple(written),
+        wall_s=time.time() - started,
+        host=platform.node(),
+        failures=tuple(failures),
+        tracking=tracker.summary(),
+        browse=browse_hint(config.tracker, tracker),
+    )
 
 
 def _with_shared_encoders(
@@ -404,12 +438,51 @@ def _with_shared_encoders(
     return shared + todo
 
 
+def _report_inputs(
+    specs: list,
+    units: list[Unit],
+    results: dict[str, UnitResult],
+    profile: ReproProfile,
+    paths: tuple[Path, Path],
+    merge: MergePlan,
+    config: ReproduceConfig,
+) -> ReportInputs:
+    """The report stage's work, before any report file is written (a failure leaves the report
+    directory as it was): the constant predictor on every table's splits, the non-learned
+    references (cached in the work directory; in processes of their own), the heading-cue
+    audit (renders its extra datasets where missing) and the non-learned rows of the sequence
+    tables fused along the flights (``executor.workers`` processes)."""
+    from benchmark.data.format import DatasetError
+    from benchmark.runner.execute.audit import heading_cue_rows
+    from benchmark.runner.execute.non_learned import fuse_non_learned
+    from benchmark.runner.execute.reference_rows import evaluate_references
+    from benchmark.runner.report.outputs import (
+        ReportInputs,
+        constant_rows,
+        results_frame,
+        validation_splits,
+    )
+
+    data_root, workdir = paths
+    workers, quiet = max(1, config.executor.workers), config.quiet
+    try:
+        val_of = validation_splits(results_frame(units, results))
+        rows, frames = constant_rows(specs, data_root, val_of)
+        references = evaluate_references(specs, data_root, workdir, profile.name, quiet)
+        references.constants.update(frames)
+        audit = heading_cue_rows(data_root, quiet=quiet)
+        fused = fuse_non_learned([*specs, *merge.live], references, data_root, workers, quiet)
+    except DatasetError as err:
+        raise _data_error(data_root, profile, 0, err) from None
+    return ReportInputs(rows, frames, references, audit, fused)
+
+
 def _write_reports(
-    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan
+    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan, inputs
 ) -> list[Path]:
-    """``outputs.write_reports`` with the merge planned before training; a dataset damaged
-    while the units ran (their results are kept in the store) is one line with the fix instead
-    of a traceback."""
+    """``outputs.write_reports`` with the merge planned before training and the inputs computed
+    by :func:`_report_inputs`; a dataset damaged while the units ran (their results are kept in
+    the store) is one line with the fix instead of a traceback."""
     from benchmark.data.format import DatasetError
     from benchmark.runner.report.outputs import write_reports
 
@@ -417,7 +490,7 @@ def _write_reports(
     try:
         return write_reports(
             specs, units, results, profile, data_root, out, logbook, invocations,
-            workdir=workdir, merge=merge,
+            workdir=workdir, merge=merge, inputs=inputs,
         )  # fmt: skip
     except DatasetError as err:
         raise _data_error(data_root, profile, 0, err) from None

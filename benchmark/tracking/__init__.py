@@ -10,9 +10,9 @@ an MlflowTracker is built.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
+from benchmark.progress import status
 from benchmark.tracking.base import (
     DESCRIPTION_TAG,
     EXPERIMENT_KIND,
@@ -75,9 +75,10 @@ def create_tracker(
     ``workdir/tracking-local``) or ``"null"``.
 
     ``tracking_uri`` goes through :func:`normalize_tracking_uri` (``x.db`` -> ``sqlite:///``;
-    an unusable value raises :class:`~benchmark.errors.UsageError`). An MLflow tracker whose
-    store is reachable but misses runs an earlier invocation kept in ``tracking-fallback`` prints
-    its :meth:`~MlflowTracker.pending_sync_notice` on stderr here, once per command."""
+    an unusable value raises :class:`~benchmark.errors.InputError`). An MLflow tracker whose
+    store is reachable but misses runs an earlier invocation kept in ``tracking-fallback`` says
+    its :meth:`~MlflowTracker.pending_sync_notice` here, once per command, as
+    :func:`~benchmark.progress.status` lines. Returns the tracker."""
     base = Path(workdir) if workdir is not None else Path.cwd()
     if kind == "null":
         return NullTracker()
@@ -90,8 +91,10 @@ def create_tracker(
             fallback_dir=base / "tracking-fallback",
         )
         notice = tracker.pending_sync_notice()
-        if notice:
-            print(notice, file=sys.stderr, flush=True)
+        # A warning said as the work starts, for people (programs read pending_sync_notice()):
+        # the status channel, which a Python caller can capture or silence, not a print.
+        for line in notice.splitlines():
+            status(line)
         return tracker
     raise ValueError(f"unknown tracker kind {kind!r}; expected one of 'mlflow', 'local', 'null'")
 

@@ -11,16 +11,17 @@ starting together on a fresh store do not race in MLflow's migration.
 
 Failure policy: if the server does not answer ``/health`` within ``health_timeout`` seconds at
 start, or any MLflow call fails later, the tracker switches for the rest of the process to a
-:class:`~benchmark.tracking.local.LocalTracker` under ``fallback_dir``, prints ONE loud block on
-stderr (what failed, where the runs go, the exact ``uavbench sync --from DIR --to URI`` that sends
-them) and emits one :class:`TrackingFallbackWarning` (for programs; not displayed by default, the
-block is the message for people). Every run still open is handed over with its complete record
+:class:`~benchmark.tracking.local.LocalTracker` under ``fallback_dir``, says ONE loud block
+(:func:`~benchmark.progress.status` lines: what failed, where the runs go, the exact
+``uavbench sync --from DIR --to URI`` that sends them) and emits one
+:class:`TrackingFallbackWarning` (for programs; not displayed by default, the block is the
+message for people). Every run still open is handed over with its complete record
 (params, tags, all metrics logged so far, artifacts), tagged ``mlflow_run_id`` with its id on the
 server, so the local copy is self-contained. Runs that ended before the failure are on the server.
 :meth:`MlflowTracker.summary` says at the end where the runs really are.
 
 Runs found in the fallback directory by a later invocation are reused (a finished unit is not
-trained again), but they stay local: with the store reachable again, ``create_tracker`` prints
+trained again), but they stay local: with the store reachable again, ``create_tracker`` says
 :meth:`MlflowTracker.pending_sync_notice` (N runs exist only locally, and the sync command) and
 the summary repeats it. ``uavbench sync`` copies them; once copied (``synced.json`` beside each
 run) they are found in the store only, never twice.
@@ -32,13 +33,13 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 import time
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from benchmark.progress import status
 from benchmark.tracking.base import (
     RUN_KEY_TAG,
     MetricPoint,
@@ -94,10 +95,10 @@ def _client(uri: str) -> Any:
 
 class TrackingFallbackWarning(UserWarning):
     """MLflow could not be used; results go to a local directory instead. Its message is the
-    block printed on stderr; catch it with ``pytest.warns`` / ``warnings.catch_warnings``."""
+    block said as status lines; catch it with ``pytest.warns`` / ``warnings.catch_warnings``."""
 
 
-# The block on stderr is what people read; the warning is for programs, so by default it is not
+# The status block is what people read; the warning is for programs, so by default it is not
 # displayed a second time (appended: a user's own -W / PYTHONWARNINGS filter still wins).
 warnings.filterwarnings("ignore", category=TrackingFallbackWarning, append=True)
 
@@ -161,7 +162,10 @@ class MlflowTracker(SummaryMixin, LineageMixin, Tracker):
         self._fallback = LocalTracker(self.fallback_dir)
         self._failure = self._failure or "failed during the run"
         message = fallback_message(reason, self.fallback_dir, self.uri)
-        print(message, file=sys.stderr, flush=True)
+        # Said while the work goes on (it goes on, locally): status lines, which a Python caller
+        # can capture or silence; the warning below is the same news for programs.
+        for line in message.splitlines():
+            status(line)
         warnings.warn(message, TrackingFallbackWarning, stacklevel=3)
         for run in list(self._open):
             self._hand_over(run, reason)

@@ -92,10 +92,10 @@ def _label(run: LocalRun) -> str:
 
 def open_target(target: str) -> tuple[str, Any]:
     """``(uri, MlflowClient)`` of the store ``target`` (a URI or a ``.db`` path); raises
-    :class:`SyncError` if it cannot be reached or opened (``UsageError`` for a bad value)."""
-    uri = normalize_tracking_uri(target, "--to")
+    :class:`SyncError` if it cannot be reached or opened (``InputError`` for a bad value)."""
+    uri = normalize_tracking_uri(target, "target")
     if uri is None:
-        raise SyncError("--to is empty: give the MLflow server URL or a sqlite store")
+        raise SyncError("target is empty: give the MLflow server URL or a sqlite store")
     return uri, _open_client(uri)
 
 
@@ -103,7 +103,7 @@ def _open_client(uri: str) -> Any:
     if uri.startswith(("http://", "https://")):
         ok, reason = server_is_healthy(uri, timeout=10.0)
         if not ok:
-            raise SyncError(f"--to {uri} is unreachable ({reason}); start the server, then rerun")
+            raise SyncError(f"target {uri} is unreachable ({reason}); start the server, then rerun")
     from mlflow.tracking import MlflowClient
 
     def open_store() -> Any:
@@ -114,7 +114,7 @@ def _open_client(uri: str) -> Any:
     try:
         return open_sqlite_store_once(uri, open_store)
     except Exception as err:
-        raise SyncError(f"--to {uri} cannot be opened: {err}") from None
+        raise SyncError(f"target {uri} cannot be opened: {err}") from None
 
 
 def sync_runs(
@@ -126,15 +126,17 @@ def sync_runs(
     """
     from benchmark.locks import LockBusyError, work_lock
 
-    uri = normalize_tracking_uri(target, "--to")  # a bad value is refused before anything else
+    # A bad value is refused before anything else. The messages name the arguments (source,
+    # target), not the command's flags: this is the library.
+    uri = normalize_tracking_uri(target, "target")
     if uri is None:
-        raise SyncError("--to is empty: give the MLflow server URL or a sqlite store")
+        raise SyncError("target is empty: give the MLflow server URL or a sqlite store")
     source = Path(source)
     if not source.is_dir():
-        raise SyncError(f"--from {source}: no such directory (nothing was kept locally there)")
+        raise SyncError(f"source {source}: no such directory (nothing was kept locally there)")
     runs = read_local_runs(source)
     if not runs:
-        raise SyncError(f"--from {source}: no runs in it (expected <experiment>/<run id>/run.json)")
+        raise SyncError(f"source {source}: no runs in it (expected <experiment>/<run id>/run.json)")
     client = _open_client(uri)
     try:
         with work_lock(source / ".sync.lock", what="uavbench sync"):

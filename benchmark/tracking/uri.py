@@ -6,9 +6,10 @@
 - a URI with a scheme MLflow's tracking stores accept (``http(s)``, ``sqlite``, ``postgresql``,
   ``mysql``, ``mssql``, ``databricks``...) is kept as given;
 - a plain path ending in ``.db`` / ``.sqlite`` / ``.sqlite3`` becomes ``sqlite:///<absolute path>``
-  (said once on stderr), which is what ``--tracking-uri ./mlflow.db`` means;
+  (said once, as a :func:`~benchmark.progress.status` line), which is what
+  ``--tracking-uri ./mlflow.db`` means;
 - anything else (a directory, ``mlruns``, ``file:`` store, a typo'd scheme) is refused with a
-  :class:`~benchmark.errors.UsageError` naming the value and the fix. Before, such a value made
+  :class:`~benchmark.errors.InputError` naming the value and the fix. Before, such a value made
   MLflow fail at open and every run went silently to the local fallback.
 
 :func:`open_sqlite_store_once`: MLflow creates and migrates a sqlite schema on the first open,
@@ -22,7 +23,6 @@ and then open a finished schema.
 from __future__ import annotations
 
 import os
-import sys
 import urllib.error
 import urllib.request
 from collections.abc import Callable
@@ -30,7 +30,8 @@ from pathlib import Path
 from typing import TypeVar
 from urllib.parse import urlsplit
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
+from benchmark.progress import status
 
 # Schemes of MLflow 3's tracking store registry (mlflow.tracking._tracking_service.utils) that
 # give a working store; "file" only with MLFLOW_ALLOW_FILE_STORE (MLflow 3 refuses it otherwise).
@@ -47,11 +48,13 @@ _SAID: set[str] = set()  # paths already reported as "becomes sqlite:///..." in 
 T = TypeVar("T")
 
 
-def normalize_tracking_uri(value: str | None, source: str = "--tracking-uri") -> str | None:
+def normalize_tracking_uri(value: str | None, source: str = "tracking_uri") -> str | None:
     """``value`` as a URI MLflow opens, ``None`` for ``None``/blank (the caller's default).
 
-    ``source`` names where the value came from (``--tracking-uri``, ``MLFLOW_TRACKING_URI``,
-    ``--to``) in the messages. Raises :class:`UsageError` for a value that is no usable store.
+    ``source`` names where the value came from in the messages: the argument or config field
+    (``tracking_uri``, ``target``) or the variable ``MLFLOW_TRACKING_URI``; never a command-line
+    flag (the library does not know them). Raises :class:`InputError` for a value that is no
+    usable store.
     """
     if value is None or not value.strip():
         return None
@@ -65,11 +68,11 @@ def normalize_tracking_uri(value: str | None, source: str = "--tracking-uri") ->
         if base == "file" and os.environ.get("MLFLOW_ALLOW_FILE_STORE", "").lower() == "true":
             return value
         if base == "file":
-            raise UsageError(
+            raise InputError(
                 f"{source} {value!r}: MLflow 3 no longer writes file stores; give a sqlite "
                 "database instead, e.g. ./mlflow.db (becomes sqlite:///<absolute path>)"
             )
-        raise UsageError(
+        raise InputError(
             f"{source} {value!r}: unknown tracking URI scheme {scheme!r}; expected an "
             "http(s):// server URL, a sqlite:///path.db URI or a path ending in .db"
         )
@@ -78,10 +81,12 @@ def normalize_tracking_uri(value: str | None, source: str = "--tracking-uri") ->
         uri = f"sqlite:///{path.resolve()}"
         if value not in _SAID:
             _SAID.add(value)
-            print(f"note: {source} {value} is a path: using the store {uri}", file=sys.stderr)
+            # A note while the work starts, not a result: the status channel (which a Python
+            # caller can capture or silence) rather than a print.
+            status(f"note: {value} is a path: using the store {uri}")
         return uri
     what = "a directory" if path.is_dir() else "a path that is not a sqlite database"
-    raise UsageError(
+    raise InputError(
         f"{source} {value!r} is {what}, not a tracking store; give a database file such as "
         f"{(path / 'mlflow.db') if path.is_dir() else path.with_suffix('.db')} (used as "
         "sqlite:///<absolute path>), a sqlite:/// URI or an http(s):// server URL"

@@ -16,16 +16,19 @@ key and tags are ``benchmark.training.identity``'s, a reproduce unit's. The flat
 becomes the run's params; per-epoch metrics are logged in batches; the evaluation CSVs, the config
 and the history are artifacts. Divergence (a non-finite training loss at any step, weight,
 validation or evaluation number: ``benchmark.training.loop.DivergenceError``) ends the run FAILED
-with the reason (exit code 1, one line); a full disk or a refused permission while writing the
-checkpoint or the outputs is one line naming the path and the fix (exit 2), the previous checkpoint
-intact. Ctrl-C ends the run KILLED, and the same command resumes from the last epoch's checkpoint
-and the evaluations already written.
+with the reason (a :class:`TrainResult` with ``failure`` set: exit code 1, one line); a full disk or
+a refused permission while writing the checkpoint or the outputs is an ``InputError`` naming the
+path and the fix (exit 2), the previous checkpoint intact. Ctrl-C ends the run KILLED, and the same
+command resumes from the last epoch's checkpoint and the evaluations already written.
+
+:func:`train_tracked` returns what happened (:class:`TrainResult`); ``benchmark.commands.train``
+prints it and picks the exit code.
 """
 
 from __future__ import annotations
 
-import sys
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -60,12 +63,52 @@ class TrainRunConfig:
     progress: bool = True
 
 
-def train_tracked(config: TrainRunConfig) -> int:
-    """Train, evaluate and track ``config`` (or say it is done); print the metrics. Exit code 0,
-    1 when the run diverged (marked FAILED); UsageError for bad data, splits or disk errors."""
+# The headline metrics of a split, in the order they are printed.
+HEADLINE_KEYS = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What one :func:`train_tracked` did. ``out``: the outputs directory; ``tracking_uri``: the
+    store the run went to (``"null"`` untracked); ``metrics``: split -> its evaluation summary.
+    ``finished_before``: the run (``"<id> (<backend>)"``) that already had this model and these
+    splits, so nothing was trained (None: trained now). ``failure``: why the run failed (it
+    diverged; marked FAILED when tracked), ``""`` when it did not."""
+
+    out: Path
+    tracking_uri: str
+    metrics: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
+    finished_before: str | None = None
+    failure: str = ""
+
+    @property
+    def ok(self) -> bool:
+        """The model is trained and evaluated (now or by an earlier run)."""
+        return not self.failure
+
+    def lines(self) -> list[str]:
+        """What ``uavbench train`` prints at the end: one line of headline metrics per split and
+        where the outputs are, or the run that had it done already (empty after a failure: the
+        command prints :attr:`failure`)."""
+        if self.failure:
+            return []
+        if self.finished_before is not None:
+            return [f"already finished: run {self.finished_before} has this model and these splits"]
+        lines = []
+        for split, summary in self.metrics.items():
+            cells = ", ".join(f"{k}={summary[k]:.3f}" for k in HEADLINE_KEYS if k in summary)
+            lines.append(f"{split}: n={int(summary['n'])} {cells}")
+        return [*lines, f"outputs in {self.out}; tracked in {self.tracking_uri}"]
+
+
+def train_tracked(config: TrainRunConfig) -> TrainResult:
+    """Train, evaluate and track ``config``, unless a finished run has it already (and not
+    ``config.force``). Returns what happened (:class:`TrainResult`: the metrics per split, the
+    earlier run, or the failure of a run that diverged, marked FAILED). Raises
+    :class:`~benchmark.errors.InputError` for bad data or splits and for disk errors."""
     from benchmark.config import ConfigError, flatten
     from benchmark.data import list_splits
-    from benchmark.errors import UsageError
+    from benchmark.errors import InputError
     from benchmark.tracking import (
         RUN_KEY_TAG,
         DatasetRef,
@@ -81,14 +124,14 @@ def train_tracked(config: TrainRunConfig) -> int:
     try:
         manifest = manifest_sha256(cfg.data.root)
     except FileNotFoundError as err:
-        raise UsageError(f"data.root: {err}") from None
+        raise InputError(f"data.root: {err}") from None
     available = list_splits(cfg.data.root)
     wanted = {f"data.train_split {s}": s for s in cfg.data.train_split.split("+")}
     wanted["data.val_split"] = cfg.data.val_split
-    wanted.update({f"--eval-split {s}": s for s in eval_splits})
+    wanted.update({f"eval_splits {s}": s for s in eval_splits})
     for what, split in wanted.items():
         if split is not None and split not in available:
-            raise UsageError(
+            raise InputError(
                 f"{what}={split!r} is not a split of {cfg.data.root}; available: "
                 f"{', '.join(available)}"
             )
@@ -102,11 +145,7 @@ def train_tracked(config: TrainRunConfig) -> int:
     if done is not None and not config.force:
         logged = {k.rpartition("/")[0] for k in done.metrics}
         if set(eval_keys(eval_splits)) <= logged:
-            print(
-                f"already finished: run {done.run_id} ({done.backend}) has this model and "
-                "these splits; --force reruns"
-            )
-            return 0
+            return TrainResult(out, tracker.uri, finished_before=f"{done.run_id} ({done.backend})")
     tags = {
         **run_tags(cfg, manifest, placement),
         RUN_KEY_TAG: key,
@@ -136,23 +175,17 @@ def train_tracked(config: TrainRunConfig) -> int:
             )
     except DivergenceError as err:  # a failure of the run (exit 1), recorded as its reason
         tracked_in = "" if not config.track else f"; the run is marked FAILED in {tracker.uri}"
-        print(f"uavbench train: {err}{tracked_in}", file=sys.stderr)
-        return 1
+        return TrainResult(out, tracker.uri, failure=f"{err}{tracked_in}")
     except (ConfigError, DatasetError, CheckpointMismatchError) as err:
-        raise UsageError(str(err)) from None
+        raise InputError(str(err)) from None
     except OSError as err:  # disk full or no permission writing the checkpoint or the outputs
         if err.filename is None:  # a bare write error (e.g. from a CSV writer): name the outputs
             err = OSError(err.errno, err.strerror, str(out))
         message = os_error_message(err)
         if message is None:
             raise
-        raise UsageError(message) from None
-    for split, summary in summaries.items():
-        keys = ("dtheta_deg", "dgamma_deg", "dpsi_deg", "dphi_deg", "dE_m", "dN_m", "dU_m")
-        cells = ", ".join(f"{k}={summary[k]:.3f}" for k in keys if k in summary)
-        print(f"{split}: n={int(summary['n'])} {cells}")
-    print(f"outputs in {out}; tracked in {tracker.uri}")
-    return 0
+        raise InputError(message) from None
+    return TrainResult(out, tracker.uri, metrics=summaries)
 
 
 def _train_and_evaluate(

@@ -106,6 +106,30 @@ class TestContinuityCommand:
         assert len(table) == 720
         assert "63.041 deg" in capsys.readouterr().out
 
+    def test_library_returns_the_report_and_prints_nothing(self, tmp_path, capsys):
+        # Issue 41: the library returns the summary and the files; the command prints them.
+        from benchmark.analysis.continuity import ContinuityConfig, continuity_report
+        from benchmark.errors import InputError
+
+        report = continuity_report(ContinuityConfig(step=0.5, out=tmp_path))
+        assert capsys.readouterr().out == ""
+        assert [f.name for f in report.files] == [
+            "continuity_uav.csv",
+            "continuity_uav.png",
+            "continuity_uav.md",
+            "continuity_uav_jumps.csv",
+        ]
+        assert all(f.stat().st_size > 0 for f in report.files)
+        assert report.summary == (tmp_path / "continuity_uav.md").read_text()
+        assert "63.041 deg" in report.summary
+        assert report.lines()[-2:] == [
+            "",
+            f"wrote {tmp_path / 'continuity_uav'}.{{csv,png,md}} and continuity_uav_jumps.csv",
+        ]
+        with pytest.raises(InputError, match="step must be in"):
+            continuity_report(ContinuityConfig(step=0.0, out=tmp_path / "bad"))
+        assert not (tmp_path / "bad").exists()
+
     def test_bad_angle_exits_2(self, tmp_path, capsys):
         assert main(["continuity", "--pitch", "120", "--out", str(tmp_path)]) == 2
         assert "--pitch must be" in capsys.readouterr().err

@@ -275,6 +275,30 @@ class TestHeadingCueAudit:
         test = result["splits"]["standard/test"]
         assert f"{test['ratio']:.3f}" in text and "standard/val" in text
 
+    def test_library_returns_the_report_and_prints_nothing(self, cue_dataset, cue_result,
+                                                            capsys):  # fmt: skip
+        # Issue 41: the library returns the report; the command prints its lines.
+        from benchmark.analysis.heading_cue_report import (
+            HeadingCueConfig,
+            format_result,
+            heading_cue_audit_report,
+        )
+        from benchmark.errors import InputError
+
+        report = heading_cue_audit_report(HeadingCueConfig((cue_dataset,), as_json=True))
+        assert report.result == cue_result
+        assert json.loads("\n".join(report.lines())) == json.loads(json.dumps(cue_result))
+        tables = HeadingCueConfig((cue_dataset,))
+        lines = heading_cue_audit_report(tables).lines()
+        assert lines[0] == f"== {cue_dataset}" and lines[1:] == format_result(cue_result).split(
+            "\n"
+        )
+        # a missing split is named by its config field, not by a command-line flag
+        with pytest.raises(InputError, match=r"^test split 'towns/test' is not in") as err:
+            heading_cue_audit_report(HeadingCueConfig((cue_dataset,), test=("towns/test",)))
+        assert "--test" not in str(err.value)
+        assert capsys.readouterr().out == ""
+
     def test_cli_bad_split_names_it_and_the_available_ones(self, cue_dataset, capsys):
         from benchmark.cli import main
 

@@ -205,15 +205,53 @@ class TestBenchIsa:
 
     def test_unknown_setting_or_profile_is_a_usage_error(self):
         from benchmark.commands.bench import run_target
-        from benchmark.errors import UsageError
+        from benchmark.errors import InputError
 
         def main(argv: list[str]) -> int:
             return run_target("isa", argv)
 
-        with pytest.raises(UsageError, match=r"unknown --only \['nope'\]; expected some of"):
+        with pytest.raises(InputError, match=r"unknown --only \['nope'\]; expected some of"):
             main(["--only", "nope"])
-        with pytest.raises(UsageError, match="unknown --profile 'tiny'"):
+        with pytest.raises(InputError, match="unknown --profile 'tiny'"):
             main(["--profile", "tiny"])
+
+    def test_the_library_refuses_naming_its_config_fields(self):
+        """``bench_isa`` itself (a Python caller's entry) names ``IsaBenchConfig``'s fields, not
+        the flags, and refuses before rendering anything."""
+        from benchmark.bench.isa import IsaBenchConfig, bench_isa
+        from benchmark.errors import InputError, UsageError
+
+        for config, field in (
+            (IsaBenchConfig(only=("nope",)), r"unknown IsaBenchConfig.only \['nope'\]"),
+            (IsaBenchConfig(profile="tiny"), "unknown IsaBenchConfig.profile 'tiny'"),
+            (IsaBenchConfig(workers=0), "IsaBenchConfig.workers must be >= 1"),
+        ):
+            with pytest.raises(InputError, match=field) as error:
+                bench_isa(config)
+            assert not isinstance(error.value, UsageError) and "--" not in str(error.value)
+
+    def test_result_lines_and_verdict(self):
+        """The rows render as the command prints them; ``same`` is false exactly when a row's
+        files differ from the default's, and the verdict and the differing files say so."""
+        from benchmark.bench.isa import IsaBenchResult, IsaRow
+
+        effect = {"numpy": "X86_V3", "aten": "AVX2"}
+        default = IsaRow("default", "a" * 64, True, 1.25, {}, effect, ())
+        numba = IsaRow("numba", "b" * 64, False, 2.0, {"NUMBA_CPU_NAME": "generic"}, effect,
+                       ("uav/000.npy", "uav/001.npy"))  # fmt: skip
+        assert default.lines() == [
+            f"default   {'a' * 16}  same      1.2 s  (none)",
+            "          in effect: numpy X86_V3, aten AVX2",
+        ]
+        assert IsaBenchResult((default,)).same
+        assert IsaBenchResult((default,)).lines()[-1] == "all digests equal"
+        differ = IsaBenchResult((default, numba))
+        assert not differ.same
+        assert differ.lines()[2] == f"numba     {'b' * 16}  DIFFERS   2.0 s  NUMBA_CPU_NAME=generic"
+        assert differ.lines()[-2:] == [
+            "numba: files differing from default: uav/000.npy, uav/001.npy",
+            "digests differ: the bytes depend on the CPU",
+        ]
 
     def test_settings_name_only_what_this_cpu_dispatches(self):
         from numpy._core import _multiarray_umath as m

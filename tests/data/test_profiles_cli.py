@@ -147,6 +147,18 @@ class TestPreviewCommand:
         assert img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 300
         assert np.std(img[..., :3]) > 0.05
 
+    def test_library_returns_where_it_wrote(self, smoke_root, tmp_path, capsys):
+        # Issue 41: the library returns the result; the command prints its line.
+        from benchmark.data.preview import PreviewConfig, PreviewResult, preview
+
+        out = tmp_path / "sheet.png"
+        result = preview(PreviewConfig(smoke_root, "flight/pitch-10", 2, out))
+        assert result == PreviewResult(out, 2, "flight/pitch-10") and out.stat().st_size > 0
+        assert capsys.readouterr().out == ""
+        assert main(["preview", str(smoke_root), "--split", "flight/pitch-10", "--n", "2",
+                     "--out", str(out)]) == 0  # fmt: skip
+        assert capsys.readouterr().out == f"wrote {out} (2 pairs of flight/pitch-10)\n"
+
     def test_unknown_split_and_missing_dataset(self, smoke_root, tmp_path, capsys):
         assert main(["preview", str(smoke_root), "--split", "nope"]) == 2
         assert "unknown split" in capsys.readouterr().err

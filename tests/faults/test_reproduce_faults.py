@@ -74,7 +74,7 @@ class TestOneWriterPerWorkdir:
         assert code == 2
         err = one_line(capsys.readouterr().err)
         assert f"pid {holder.pid} on {socket.gethostname()} (test holder" in err
-        assert "--workdir" in err and not (tmp_path / "nodata").exists()
+        assert "choose another workdir" in err and not (tmp_path / "nodata").exists()
 
     @pytest.mark.slow
     def test_two_concurrent_reproductions_train_each_unit_once(self, tmp_path, smoke_dataset):
@@ -149,7 +149,7 @@ class TestKilledInvocation:
 
         resumed = subprocess.run(cmd, cwd=tmp_path, env=ENV, capture_output=True, text=True)
         assert resumed.returncode == 0, resumed.stdout + resumed.stderr
-        assert "took over the stale lock" in resumed.stderr
+        assert "took over the stale lock" in resumed.stdout  # a status line (progress display)
         assert "left RUNNING by a killed invocation: now KILLED" in resumed.stdout
         runs = local_runs(tmp_path)
         assert not [r for r in runs if r["status"] == "RUNNING"]
@@ -296,14 +296,16 @@ class TestDamagedData:
 
         monkeypatch.setattr(journal, "open", read_only, raising=False)
         assert main(argv(dataset, tmp_path, "--tracker", "local")) == 2
-        text = capsys.readouterr().err
+        captured = capsys.readouterr()
+        text = captured.err
         assert "Traceback" not in text
-        # simulate's notice of what it tried ("corrupted file ...; rendering it again"), then
-        # the error, one line
-        notice, err = text.strip().splitlines()
+        # simulate's notice of what it tried ("corrupted file ...; rendering it again"), a status
+        # line (benchmark.progress: stdout), then the error, one line on stderr
+        (notice,) = [line for line in captured.out.splitlines() if line.startswith("simulate: ")]
+        (err,) = text.strip().splitlines()
         assert notice.startswith("simulate: corrupted file") and "shard_00001.npy" in notice
         assert f"dataset {dataset} is damaged" in err and "read-only file system" in err
-        assert f"uavbench verify {dataset}" in err and "uavbench simulate --profile smoke" in err
+        assert f"uavbench verify {dataset}" in err and "render profile 'smoke', seed 0" in err
         assert not (tmp_path / "runs" / "units").exists()
 
 
@@ -324,13 +326,14 @@ class TestDataOfAnotherSimulator:
         assert main(argv(dataset, tmp_path, "--tracker", "local")) == 2
         err = one_line(capsys.readouterr().err)
         assert f"{dataset} holds a dataset of another simulator or profile" in err
-        assert "generator_source: existing '0123456789ab'" in err and "--data" in err
+        assert "generator_source: existing '0123456789ab'" in err
+        assert "choose another data directory" in err
         assert (dataset / "config.json").read_bytes() == before
         assert not (tmp_path / "runs" / "units").exists() and not (tmp_path / "reports").exists()
 
     def test_a_heading_cue_audit_dataset(self, dataset, tmp_path, capsys):
         from benchmark.data.writer import dataset_config
-        from benchmark.runner.claims.data_audit import cue_dataset_plan
+        from benchmark.runner.execute.audit import cue_dataset_plan
 
         stale, profile, seed = cue_dataset_plan(dataset, 2)[1]
         before = self.other_simulators(dataset_config(profile, seed), stale)
@@ -387,7 +390,7 @@ def test_stale_lock_file_of_dead_process_is_taken_over(tmp_path, capsys):
     (tmp_path / "notdata").mkdir()
     (tmp_path / "notdata" / "notes.txt").write_text("not a dataset")
     assert main(argv(tmp_path / "notdata", tmp_path, "--tracker", "local")) == 2
-    err = capsys.readouterr().err
-    assert "took over the stale lock" in err and "pid 999999" in err
+    out, err = capsys.readouterr()
+    assert "took over the stale lock" in out and "pid 999999" in out  # a status line
     assert "non-empty directory without config.json" in err
     assert not lock.exists()

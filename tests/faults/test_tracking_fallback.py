@@ -48,12 +48,13 @@ def test_fallback_is_loud_then_sync_sends_identical_runs(tmp_path, monkeypatch, 
     url = f"http://127.0.0.1:{port}"
     command = f"uavbench sync --from ./tracking-fallback --to {url}"
 
-    # 1. Server down: one loud block on stderr, the runs go to ./tracking-fallback.
+    # 1. Server down: one loud block (status lines, on stdout), the runs go to
+    # ./tracking-fallback.
     with pytest.warns(TrackingFallbackWarning):
         tracker = create_tracker("mlflow", url, workdir=tmp_path)
-    err = capsys.readouterr().err
-    assert "MLFLOW TRACKING FAILED" in err and "unreachable" in err
-    assert "runs go to:  ./tracking-fallback" in err and command in err
+    block = capsys.readouterr().out
+    assert "MLFLOW TRACKING FAILED" in block and "unreachable" in block
+    assert "runs go to:  ./tracking-fallback" in block and command in block
     reference = log_reproduction(tracker)
     summary = tracker.summary()
     assert summary == (
@@ -70,7 +71,7 @@ def test_fallback_is_loud_then_sync_sends_identical_runs(tmp_path, monkeypatch, 
         with warnings.catch_warnings():
             warnings.simplefilter("error", TrackingFallbackWarning)
             rerun = create_tracker("mlflow", url, workdir=tmp_path)
-        notice = capsys.readouterr().err
+        notice = capsys.readouterr().out  # status lines
         assert "3 runs (2 finished) exist ONLY in ./tracking-fallback" in notice
         assert command in notice
         assert rerun.find_finished_run("table2", "u0").backend == "local"
@@ -102,6 +103,6 @@ def test_fallback_is_loud_then_sync_sends_identical_runs(tmp_path, monkeypatch, 
         assert "copied 0 runs" in capsys.readouterr().out
         assert len(client.search_runs([exp.experiment_id])) == 3
         after = create_tracker("mlflow", url, workdir=tmp_path)
-        assert capsys.readouterr().err == ""  # nothing pending any more
+        assert capsys.readouterr() == ("", "")  # nothing pending any more: not a word
         assert after.find_finished_run("table2", "u0").backend == "mlflow"
         assert after.summary() == f"tracking: {url}"

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from fault_tools import CLI
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.tracking import create_tracker, normalize_tracking_uri
 
 REPO = Path(__file__).resolve().parents[2]
@@ -25,7 +25,8 @@ def test_a_db_path_becomes_a_sqlite_store(tmp_path, monkeypatch, capsys, name):
     db = (tmp_path / name).resolve()
     assert tracker.uri == f"sqlite:///{db}"
     assert not tracker.using_fallback
-    assert f"using the store sqlite:///{db}" in capsys.readouterr().err
+    # said once as a status line (benchmark.progress.status: stdout by default)
+    assert f"using the store sqlite:///{db}" in capsys.readouterr().out
     with tracker.start_run("t", "r") as run:
         run.log_metrics({"loss": 1.0}, 0)
     assert db.is_file() and not (tmp_path / "tracking-fallback").exists()
@@ -61,16 +62,18 @@ def test_absolute_path_and_uris_are_kept(tmp_path):
 def test_anything_else_is_refused_with_the_fix(tmp_path, monkeypatch, value, match):
     monkeypatch.chdir(tmp_path)
     value = value.format(tmp=tmp_path)
-    with pytest.raises(UsageError, match=match) as err:
+    with pytest.raises(InputError, match=match) as err:
         create_tracker("mlflow", value, workdir=tmp_path)
-    assert repr(value) in str(err.value) and "--tracking-uri" in str(err.value)
+    # the library names the argument, not the command's flag
+    assert repr(value) in str(err.value) and "tracking_uri" in str(err.value)
+    assert "--tracking-uri" not in str(err.value)
     assert not (tmp_path / "tracking-fallback").exists()
 
 
 def test_env_value_is_checked_and_named(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", str(tmp_path))
-    with pytest.raises(UsageError, match="MLFLOW_TRACKING_URI"):
+    with pytest.raises(InputError, match="MLFLOW_TRACKING_URI"):
         create_tracker("mlflow", workdir=tmp_path)
 
 

@@ -12,6 +12,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from benchmark.bench import ceiling as bench_ceiling
 from benchmark.bench.ceiling import SHAPES, conv_job, conv_step_flops, measure_ceiling
 from benchmark.commands.bench import run_target
+from benchmark.errors import InputError
 from benchmark.models import precision_support
 from benchmark.models.precision_support import precision_plan
 from tests.cpu_kinds import fake_cpu
@@ -53,6 +54,22 @@ class TestMeasureCeiling:
         assert [p for p, _ in found] == ["fp32", "bf16"], out
         assert all(float(g) > 0 for _, g in found)
 
+    def test_library_returns_the_ceilings_and_prints_nothing(self, capsys):
+        """``bench_ceiling`` returns its measurements (the command prints ``lines()``); a bad
+        precision is the library's typed error."""
+        from benchmark.errors import InputError
+
+        result = bench_ceiling.bench_ceiling("cpu", "fp32", repeats=1, batch=1, threads=1)
+        assert capsys.readouterr().out == ""
+        [fp32] = result.ceilings
+        assert fp32.precision == "fp32" and fp32.gflops > 0 and result.device == CPU
+        lines = result.lines()
+        assert lines[0] == result.cpu_line and lines[0].startswith("bf16 on this CPU: ")
+        head = f"conv ceiling fp32: {fp32.gflops:.1f} GFLOP/s ({fp32.best_shape}; "
+        assert lines[-1].startswith(head) and lines[-1].endswith("on cpu, 1 thread(s)")
+        with pytest.raises(InputError, match="fp8"):
+            bench_ceiling.bench_ceiling("cpu", "fp8")
+
 
 class TestPrecisionPlan:
     def test_default_without_bf16_support_says_why(self, monkeypatch):
@@ -71,7 +88,8 @@ class TestPrecisionPlan:
 
     @pytest.mark.parametrize("spec", ["", "fp16", "fp32,fp32", "fp32;bf16"])
     def test_bad_spec(self, spec):
-        with pytest.raises(ValueError, match="--precision"):
+        # a typed InputError naming the argument (not the command line's flag)
+        with pytest.raises(InputError, match=r"^precision .*: expected a comma list of distinct"):
             precision_plan(CPU, spec)
 
     def test_cpu_reason_matches_torch(self):

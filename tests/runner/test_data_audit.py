@@ -8,19 +8,20 @@ from pathlib import Path
 
 import pytest
 
-from benchmark.errors import UsageError
-from benchmark.runner.claims.data_audit import (
+from benchmark.errors import InputError
+from benchmark.runner.claims.data_audit import heading_cue_audit_markdown, heading_cue_summary
+from benchmark.runner.execute.audit import (
     check_cue_datasets,
     cue_dataset_plan,
     cue_dataset_roots,
-    heading_cue_audit_section,
-    heading_cue_summary,
+    heading_cue_rows,
 )
 
 
 @pytest.fixture(scope="module")
 def audit(smoke_dataset):
-    return heading_cue_audit_section(smoke_dataset, n_extra=1, quiet=True)
+    rows = heading_cue_rows(smoke_dataset, n_extra=1, quiet=True)
+    return heading_cue_audit_markdown(rows, n_extra=1), rows
 
 
 class TestHeadingCueReport:
@@ -58,7 +59,7 @@ class TestHeadingCueReport:
     def test_rerun_reuses_the_rendered_dataset(self, smoke_dataset, audit):
         manifest = smoke_dataset.parent / f"{smoke_dataset.name}-cue-s1" / "manifest.json"
         before = manifest.stat().st_mtime_ns
-        _, rows = heading_cue_audit_section(smoke_dataset, n_extra=1, quiet=True)
+        rows = heading_cue_rows(smoke_dataset, n_extra=1, quiet=True)
         assert manifest.stat().st_mtime_ns == before and rows == audit[1]
 
 
@@ -98,7 +99,7 @@ class TestCueDatasetsBeforeAnyWork:
     def test_an_earlier_simulators_dataset_is_one_usage_error_naming_it(self, tmp_path, data):
         stale = stale_copy(data, 2)
         before = (stale / "config.json").read_bytes()
-        with pytest.raises(UsageError) as raised:
+        with pytest.raises(InputError) as raised:
             check_cue_datasets(data, 2)
         message = str(raised.value)
         assert message.startswith(f"{stale} holds a heading-cue audit dataset of another")
@@ -108,10 +109,10 @@ class TestCueDatasetsBeforeAnyWork:
         assert not (tmp_path / "ds-cue-s1").exists()  # nothing rendered on the way
 
     def test_the_report_stage_says_the_same(self, data):
-        """Should one appear after the check, rendering the audit gives the same UsageError,
+        """Should one appear after the check, rendering the audit gives the same InputError,
         not the writer's ConfigMismatchError with a traceback."""
         stale_copy(data, 1)
-        with pytest.raises(UsageError, match="move it away or delete it"):
+        with pytest.raises(InputError, match="move it away or delete it"):
             cue_dataset_roots(data, 1, quiet=True)
 
     def test_no_pooled_datasets_nothing_to_check(self, data):

@@ -23,8 +23,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+import benchmark.runner.execute.audit as audit_module
 import benchmark.runner.execute.pool as pool_module
-import benchmark.runner.report.outputs as outputs_module
 from benchmark.cli import main
 from benchmark.data.swap import SATELLITE_MODES
 from benchmark.evaluation.constant import mean_rotation
@@ -67,8 +67,8 @@ def fake_unit(task: UnitTask) -> UnitResult:
     return UnitResult(task.key, True, metrics=metrics, seconds=1.0)
 
 
-def stub_audit(data_root):
-    return "# Heading-cue audit\n\n(stubbed in this test)\n", []
+def stub_audit(data_root, **kwargs):
+    return []  # no rows: the audit's datasets are not rendered in this test
 
 
 @pytest.fixture
@@ -78,7 +78,7 @@ def committed(tmp_path, monkeypatch):
     out = tmp_path / "reports"
     shutil.copytree(COMMITTED, out)
     monkeypatch.setattr(pool_module, "run_unit", fake_unit)
-    monkeypatch.setattr(outputs_module, "heading_cue_audit_section", stub_audit)
+    monkeypatch.setattr(audit_module, "heading_cue_rows", stub_audit)
     monkeypatch.chdir(tmp_path)
     earlier = json.loads((COMMITTED / "provenance.json").read_text())["git_commit"]
     return out, earlier
@@ -260,15 +260,15 @@ class TestReportStageFailure:
     ):
         """The heading-cue audit (which may render datasets) runs before the first report file
         is written: when it fails, every file of the earlier report keeps its bytes."""
-        from benchmark.errors import UsageError
+        from benchmark.errors import InputError
 
         out, _commit = committed
         before = {p.name: p.read_bytes() for p in out.iterdir()}
 
-        def failing_audit(data_root):
-            raise UsageError("audit dataset refused (test)")
+        def failing_audit(data_root, **kwargs):
+            raise InputError("audit dataset refused (test)")
 
-        monkeypatch.setattr(outputs_module, "heading_cue_audit_section", failing_audit)
+        monkeypatch.setattr(audit_module, "heading_cue_rows", failing_audit)
         assert reproduce(tmp_path, smoke_dataset) == 2
         assert "audit dataset refused (test)" in capsys.readouterr().err
         assert {p.name: p.read_bytes() for p in out.iterdir()} == before
@@ -282,7 +282,7 @@ class TestLiveTables:
         today's, so it stays live (no mark), its file rendered again from its rows says what it
         said, and the claims on it are decided again."""
         monkeypatch.setattr(pool_module, "run_unit", fake_unit)
-        monkeypatch.setattr(outputs_module, "heading_cue_audit_section", stub_audit)
+        monkeypatch.setattr(audit_module, "heading_cue_rows", stub_audit)
         monkeypatch.chdir(tmp_path)
         out = tmp_path / "reports"
         assert reproduce(tmp_path, smoke_dataset) == 0

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.models.device import Placement
 from benchmark.runner import ReproduceConfig, reproduce
 from benchmark.runner.execute.pool import ExecutorConfig
@@ -79,7 +79,7 @@ class TestRemoteCluster:
             profile="smoke", tracker="null", out=tmp_path / "r", workdir=tmp_path / "w",
             executor=ExecutorConfig(kind="ray", ray_address=REMOTE),
         )  # fmt: skip
-        with pytest.raises(UsageError, match=r"precision 'auto' with the remote Ray cluster"):
+        with pytest.raises(InputError, match=r"precision 'auto' with the remote Ray cluster"):
             reproduce(config)
         assert not (tmp_path / "r").exists() and not (tmp_path / "w").exists()
 
@@ -89,10 +89,10 @@ class TestRemoteCluster:
         remote = ExecutorConfig(kind="ray", ray_address=REMOTE)
         profile = _with_device(PROFILES["smoke"], "cuda:1", "bf16", remote)
         assert (profile.device, profile.precision) == ("cuda:1", "bf16")
-        with pytest.raises(UsageError, match="device"):
+        with pytest.raises(InputError, match="device"):
             _with_device(PROFILES["smoke"], "tpu", "bf16", remote)
         if not torch.cuda.is_available():  # a local run needs the device here
-            with pytest.raises(UsageError, match="no CUDA device"):
+            with pytest.raises(InputError, match="no CUDA device"):
                 _with_device(PROFILES["smoke"], "cuda:1", "fp32", ExecutorConfig())
 
 

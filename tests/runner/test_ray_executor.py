@@ -20,7 +20,7 @@ from interrupt_tools import ctrl_c_while_training
 
 from benchmark.cli import main
 from benchmark.commands import reproduce as reproduce_command
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.runner import ReproduceConfig
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor
 from benchmark.runner.execute.ray_executor import (
@@ -222,7 +222,7 @@ class TestWorkerKilled:
         assert len(list(markers.glob("attempt-*"))) == 1
         failed = results[victim.key]
         assert not failed.ok and failed.error.startswith("worker died on each of 1 attempt(s)")
-        assert "--max-retries 0" in failed.error and failed.metrics == {}
+        assert "max_retries 0" in failed.error and failed.metrics == {}
         assert results[other.key].ok and results[other.key].metrics["standard/test"]
 
 
@@ -299,12 +299,13 @@ class TestTrackingGuard:
                 "/abs/tracking-local"],
     )  # fmt: skip
     def test_file_store_with_a_cluster_is_refused_saying_why_and_the_fix(self, uri):
-        with pytest.raises(UsageError) as err:
+        with pytest.raises(InputError) as err:
             check_ray_tracking("10.0.0.5:6379", uri)
         text = str(err.value)
         assert uri in text and "10.0.0.5:6379" in text
         assert "lost" in text and "node" in text  # why
-        assert "--tracking-uri http://" in text and "mlflow server" in text  # the fix
+        assert "http://<that host>:5000" in text and "MLflow server" in text  # the fix
+        assert "tracker null" in text  # or track nothing
 
     @pytest.mark.parametrize("address", [None, "local", "127.0.0.1:6379", "localhost",
                                          "ray://127.0.0.1:10001", "[::1]:6379"])  # fmt: skip
@@ -326,7 +327,7 @@ class TestTrackingGuard:
         reproduce_command.add_executor_arguments(parser)
         args = parser.parse_args(["--ray-address", "10.0.0.5:6379"])
         args.workers = 2
-        with pytest.raises(UsageError, match="--ray-address only apply to --executor ray"):
+        with pytest.raises(InputError, match="executor ray_address only apply to kind 'ray'"):
             check_executor(reproduce_command.executor_config(args), None)
 
     @needs_ray
@@ -337,11 +338,11 @@ class TestTrackingGuard:
         config = reproduce_command.config_from(args)
         monkeypatch.delenv("MLFLOW_TRACKING_URI", raising=False)
         planned = planned_tracking_uri(config.tracker, config.tracking_uri)
-        with pytest.raises(UsageError, match=r"sqlite:///mlflow\.db"):
+        with pytest.raises(InputError, match=r"sqlite:///mlflow\.db"):
             check_executor(config.executor, planned)
         check_executor(config.executor, planned_tracking_uri("null", None))  # nothing tracked
         bad = dataclasses.replace(config.executor, gpus_per_unit=-1.0)
-        with pytest.raises(UsageError, match="--gpus-per-unit must be >= 0"):
+        with pytest.raises(InputError, match=r"executor\.gpus_per_unit must be >= 0"):
             check_executor(bad, None)
 
     def test_the_flags_become_the_frozen_config(self):
@@ -391,7 +392,7 @@ class TestTrackingGuard:
             "--data", str(tmp_path / "never-rendered"), "--workdir", str(tmp_path / "runs"),
         ])  # fmt: skip
         assert code == 2
-        assert "--tracking-uri http://" in capsys.readouterr().err
+        assert "track to http://<that host>:5000" in capsys.readouterr().err
         assert not (tmp_path / "never-rendered").exists()
 
 
@@ -401,12 +402,12 @@ class TestWithoutRay:
         monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
 
     def test_import_names_the_install_line(self, no_ray):
-        with pytest.raises(UsageError) as err:
+        with pytest.raises(InputError) as err:
             import_ray()
-        assert INSTALL_LINE in str(err.value) and "--executor ray" in str(err.value)
+        assert INSTALL_LINE in str(err.value) and "the Ray executor" in str(err.value)
 
     def test_executor_refuses_before_doing_anything(self, no_ray):
-        with pytest.raises(UsageError, match=r"pip install -e \"\.\[ray\]\""):
+        with pytest.raises(InputError, match=r"pip install -e \"\.\[ray\]\""):
             execute_units_ray([], lambda *_: None, True)
 
     @pytest.mark.skipif(not has_executor_flag(), reason="needs integration (reproduce --executor)")

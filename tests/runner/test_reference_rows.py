@@ -147,13 +147,15 @@ class TestSequenceReferences:
 
     @pytest.mark.slow
     def test_fused_beside_the_heads(self, tmp_path, smoke_dataset, counted):
+        from benchmark.runner.execute.non_learned import fuse_non_learned
         from benchmark.runner.report.sequence import non_learned_sequences, sequence_rows
         from benchmark.runner.report.tables import CONSTANT_LABEL
 
         spec = self.spec(tmp_path)
         refs = rr.evaluate_references([spec], smoke_dataset, tmp_path / "w", "smoke", quiet=True)
         assert sorted(counted) == [("geometry_oracle", "true")] * 2  # long/standard, standard/val
-        items = non_learned_sequences(spec, refs, smoke_dataset)
+        fused = fuse_non_learned([spec], refs, smoke_dataset, quiet=True)
+        items = non_learned_sequences(fused[spec.name])
         labels = [i.label for i in items]
         assert labels == [CONSTANT_LABEL, get_reference_class("geometry_oracle").label]
         assert not any(i.learned for i in items)

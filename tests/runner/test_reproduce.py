@@ -219,7 +219,7 @@ class TestReproduceSmoke:
             profile="smoke", data=smoke_dataset, out=tmp / "reports", workdir=tmp / "runs",
             tracker="local", quiet=True, executor=ExecutorConfig(workers=1),
         )  # fmt: skip
-        assert run_reproduction(config) == 0
+        assert run_reproduction(config).ok
         out = capsys.readouterr().out
         counts = re.search(r"(\d+) training runs \((\d+) already in the tracking store\)", out)
         assert counts and counts[1] == counts[2] and int(counts[1]) >= 33

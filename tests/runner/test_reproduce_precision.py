@@ -14,7 +14,7 @@ import torch
 
 from benchmark.cli import main
 from benchmark.models.precision_support import onednn_bf16_level
-from benchmark.runner.report import outputs as outputs_module
+from benchmark.runner.execute import audit as audit_module
 from tests.cpu_kinds import AVX2_ONLY, fake_cpu
 
 
@@ -63,9 +63,7 @@ class TestBf16SmokeReproduction:
     def test_units_train_in_bf16_and_are_tagged(self, tmp_path, smoke_dataset, monkeypatch):
         if onednn_bf16_level() != "native":
             monkeypatch.setenv("UAVBENCH_ALLOW_SLOW_BF16", "1")
-        monkeypatch.setattr(
-            outputs_module, "heading_cue_audit_section", lambda root: ("# Heading-cue audit\n", [])
-        )
+        monkeypatch.setattr(audit_module, "heading_cue_rows", lambda root, **kwargs: [])
         monkeypatch.chdir(tmp_path)  # the local tracking store lives in the working directory
         assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "bf16") == 0
         bf16 = unit_runs(tmp_path)

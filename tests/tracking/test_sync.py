@@ -211,7 +211,7 @@ def test_tracker_on_the_store_sees_local_runs_until_synced(tmp_path, monkeypatch
     from benchmark.tracking import create_tracker
 
     tracker = create_tracker("mlflow", workdir=tmp_path)
-    notice = capsys.readouterr().err
+    notice = capsys.readouterr().out  # status lines (benchmark.progress.status)
     uri = tracker.uri
     assert "4 runs (2 finished) exist ONLY in ./tracking-fallback" in notice
     assert f"uavbench sync --from ./tracking-fallback --to {uri}" in notice

@@ -269,8 +269,11 @@ class TestUiServes:
             env=env,
         )
         try:
-            line = proc.stdout.readline()  # printed once the server answers /health
-            assert line.startswith(f"MLflow UI: http://127.0.0.1:{port}"), line
+            # Status lines, in order: the empty store's note, "starting ...", then the URL,
+            # said once the server answers /health.
+            said = [proc.stdout.readline() for _ in range(3)]
+            assert "does not exist yet" in said[0] and said[1].startswith("starting"), said
+            assert said[2].startswith(f"MLflow UI: http://127.0.0.1:{port}"), said
             with urllib.request.urlopen(f"http://127.0.0.1:{port}/health", timeout=10) as resp:
                 assert resp.status == 200
             assert (tmp_path / "mlflow.db").is_file()  # the default store, in the cwd

@@ -18,7 +18,7 @@ from benchmark.bench.train_breakdown import KINDS
 from benchmark.commands import bench_train as command
 from benchmark.commands.bench import run_target
 from benchmark.data.dataset import CONTEXT_KEYS
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.models import precision_support
 from benchmark.models.flop_count import KINDS as KINDS_OF_FLOPS
 from benchmark.models.matching_ops import fft_size
@@ -104,6 +104,27 @@ class TestBenchTrain:
         assert line.startswith(f"bf16 on this CPU: {'native' if native else 'not native'} (")
         assert f"ATen ISA {torch.backends.cpu.get_cpu_capability()}," in line
         assert "fp32 conv ran " in line and "bf16 conv ran " in line
+
+    def test_library_returns_the_table_and_says_what_runs_through_status(self, capsys):
+        """``bench_train`` prints nothing: its opening lines go to ``progress.status`` and the
+        table is its result, whose lines hold the rows of the loops it returns."""
+        from benchmark.progress import status_to
+
+        argv = [*TINY, "--precision", "fp32", "--no-plain", "--no-base", "--no-ceiling"]
+        said: list[str] = []
+        with status_to(said.append):
+            result = bench.bench_train(command.parse(argv))
+        assert capsys.readouterr().out == ""
+        assert said[0].startswith("bench train: pd_re_net on googlenet") and "load" in said[0]
+        assert said[1].startswith("bf16 on this CPU: ")
+        lines = result.lines()
+        assert lines[0] == bench.HEADER and lines[-1] == f"end: {result.end_load}"
+        [model] = result.models
+        assert (model.name, model.size, model.width) == ("quick", 32, 0.1)
+        [loop] = model.loops
+        printed = rows("\n".join(lines))
+        assert set(printed) == {"ours fp32"} and loop.loop == "ours fp32"
+        assert float(printed["ours fp32"][0]) == pytest.approx(loop.pairs_per_s, abs=0.006)
 
     def test_base_row_only_where_the_optimiser_changed(self):
         cpu = torch.device("cpu")
@@ -215,12 +236,12 @@ class TestBenchTrain:
         ],
     )
     def test_bad_arguments(self, argv):
-        with pytest.raises(UsageError):
+        with pytest.raises(InputError):
             main(argv)
 
     @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the message without CUDA")
     def test_cuda_without_cuda_names_the_build(self):
-        with pytest.raises(UsageError, match="no CUDA device"):
+        with pytest.raises(InputError, match="no CUDA device"):
             main(["--device", "cuda"])
 
 

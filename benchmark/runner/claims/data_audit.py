@@ -1,4 +1,6 @@
-"""The reproduction's data audit: can the UAV image alone give the heading? (issue 9)
+"""The reproduction's data audit: can the UAV image alone give the heading? (issue 9) The words
+and the Markdown, from the audit's rows (``benchmark.runner.execute.audit.heading_cue_rows``, run
+before the report is written); nothing here reads an image or renders a dataset.
 
 A ridge probe on image-wide UAV statistics (``benchmark.analysis.heading_cue``: orientation
 histograms and colour balance, no spatial layout) is trained on a training split, its ridge chosen
@@ -16,132 +18,16 @@ splits only, at the next dataset seeds (``<data>-cue-s<seed>``, rendered once an
 
 from __future__ import annotations
 
-import json
-import sys
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from benchmark.errors import UsageError
+from benchmark.runner.execute.audit import CUE_EXTRA_SEEDS
 
-if TYPE_CHECKING:
-    from benchmark.data import DataProfile
-    from benchmark.data.writer import ConfigMismatchError
-
-# (train, val, tests): the paper's splits, then the towns family, where present in the dataset.
-AUDITS = (
-    ("standard/train", "standard/val", ("standard/test", "generalized/test")),
-    ("towns/train", "towns/val", ("towns/test", "towns/london")),
-)
 THRESHOLD = 0.85
-CUE_EXTRA_SEEDS = 4  # standard-only datasets pooled with the reproduction's for the verdict
 
 
-def cue_dataset_plan(data_root: Path, n_extra: int) -> list[tuple[Path, DataProfile, int]]:
-    """``[(root, profile, seed), ...]`` of the ``n_extra`` standard-only datasets pooled with
-    ``data_root`` (``<data_root>-cue-s<seed + k>``, next to it). Raises ValueError naming
-    ``config.json`` when the dataset's own profile and seed cannot be read."""
-    from benchmark.data import DataProfile
-
-    config_path = Path(data_root) / "config.json"
-    try:
-        config = json.loads(config_path.read_text())
-        profile, seed = (
-            DataProfile.from_dict(config["profile"]).standard_only(),
-            int(config["seed"]),
-        )
-    except (OSError, KeyError, ValueError, TypeError) as err:
-        raise ValueError(
-            f"{config_path}: cannot read the dataset's profile and seed ({err})"
-        ) from err
-    parent, name = Path(data_root).parent, Path(data_root).name
-    return [(parent / f"{name}-cue-s{seed + k}", profile, seed + k) for k in range(1, n_extra + 1)]
-
-
-def _audits_pooled(available: set[str], n_extra: int) -> bool:
-    """Whether the standard family is audited on the pooled datasets (it is in the dataset)."""
-    train, val, tests = AUDITS[0]
-    return n_extra > 0 and {train, val} <= available and any(t in available for t in tests)
-
-
-def _stale_cue_dataset(root: Path, err: ConfigMismatchError) -> UsageError:
-    if not err.differences:  # not a dataset at all: a file or a foreign directory
-        return UsageError(f"{root} (a heading-cue audit dataset's place): {err}")
-    return UsageError(
-        f"{root} holds a heading-cue audit dataset of another simulator or profile "
-        f"({err.summary}); move it away or delete it, and the next reproduce renders it again "
-        f"(about 2.5 min for quick on 2 cores)"
-    )
-
-
-def check_cue_datasets(data_root: Path, n_extra: int = CUE_EXTRA_SEEDS) -> None:
-    """Before any work: each audit dataset is absent, partial or complete for this code's
-    config, never another's (which the report stage could not render over). UsageError naming
-    the directory and the fix otherwise; touches nothing."""
-    from benchmark.data.dataset import list_splits
-    from benchmark.data.writer import ConfigMismatchError, check_output_dir, dataset_config
-
-    if not _audits_pooled(set(list_splits(data_root)), n_extra):
-        return
-    for root, profile, seed in cue_dataset_plan(data_root, n_extra):
-        try:
-            check_output_dir(root, dataset_config(profile, seed))
-        except ConfigMismatchError as err:
-            raise _stale_cue_dataset(root, err) from None
-
-
-def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> list[Path]:
-    """``[data_root, extra_1, ...]``: the dataset and ``n_extra`` standard-only datasets of its
-    profile at the next seeds, rendered next to it (reused when complete, resumed when not)."""
-    from benchmark.data.writer import ConfigMismatchError, simulate_dataset
-
-    roots = [Path(data_root)]
-    plan = cue_dataset_plan(data_root, n_extra)
-    for k, (root, profile, seed) in enumerate(plan, start=1):
-        if not quiet:
-            print(
-                f"heading-cue audit: dataset {k}/{n_extra} at {root} (standard splits, seed "
-                f"{seed})",
-                file=sys.stderr,
-                flush=True,
-            )
-        try:
-            simulate_dataset(root, profile, seed, workers=2, progress=not quiet)
-        except ConfigMismatchError as err:
-            raise _stale_cue_dataset(root, err) from None
-        roots.append(root)
-    return roots
-
-
-def _row(train: str, split: str, dataset: str, summary: dict[str, Any]) -> dict[str, Any]:
-    return {"train": train, "split": split, "dataset": dataset, **summary}
-
-
-def heading_cue_audit_section(
-    data_root: Path, n_extra: int = CUE_EXTRA_SEEDS, *, quiet: bool = False
-) -> tuple[str, list[dict[str, Any]]]:
-    """Markdown of the heading-cue audit on every family of splits the dataset holds, and its
-    rows ``{"train", "split", "dataset", "n", "flights", "probe_deg", "constant_deg", "ratio",
-    "ratio_lo", "ratio_hi"}`` (val rows included; ``dataset`` is a directory name or
-    ``"pooled"``). The standard family is also audited on ``n_extra`` more dataset seeds and
-    pooled (:func:`cue_dataset_roots`)."""
-    from benchmark.analysis.heading_cue import heading_cue_audit, pooled_heading_cue_audit
-    from benchmark.data.dataset import list_splits
-
-    available = set(list_splits(data_root))
-    rows: list[dict[str, Any]] = []
-    for index, (train, val, tests) in enumerate(AUDITS):
-        tests = tuple(t for t in tests if t in available)
-        if not ({train, val} <= available and tests):
-            continue
-        if index > 0 or not _audits_pooled(available, n_extra):
-            result = heading_cue_audit(data_root, train=train, val=val, test=list(tests))
-            rows += [_row(train, s, data_root.name, v) for s, v in result["splits"].items()]
-            continue
-        roots = cue_dataset_roots(data_root, n_extra, quiet=quiet)
-        pooled = pooled_heading_cue_audit(roots, train=train, val=val, test=list(tests))
-        for root, result in zip(roots, pooled["datasets"], strict=True):
-            rows += [_row(train, s, root.name, v) for s, v in result["splits"].items()]
-        rows += [_row(train, s, "pooled", v) for s, v in pooled["pooled"].items()]
+def heading_cue_audit_markdown(rows: list[dict[str, Any]], n_extra: int = CUE_EXTRA_SEEDS) -> str:
+    """Markdown of the heading-cue audit's ``rows`` (:func:`~benchmark.runner.execute.audit.
+    heading_cue_rows`; ``n_extra`` the extra datasets it pooled)."""
     lines = [
         "## Data audit: heading from the UAV image alone",
         "",
@@ -172,7 +58,7 @@ def heading_cue_audit_section(
         )
     if not rows:
         lines.append("| - | (the dataset has none of the audited splits) | | | | | | |")
-    return "\n".join(lines) + "\n", rows
+    return "\n".join(lines) + "\n"
 
 
 def heading_cue_verdict(ratio: float, lo: float, hi: float) -> str:

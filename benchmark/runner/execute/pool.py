@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from benchmark.errors import UsageError
+from benchmark.errors import InputError
 from benchmark.progress import Progress
 from benchmark.runner.execute import heartbeat
 from benchmark.runner.execute.ray_executor import (
@@ -47,12 +47,7 @@ class ExecutorConfig:
     max_retries: int | None = None
 
 
-RAY_ONLY_FLAGS = {
-    "ray_address": "--ray-address",
-    "cpus_per_unit": "--cpus-per-unit",
-    "gpus_per_unit": "--gpus-per-unit",
-    "max_retries": "--max-retries",
-}
+RAY_ONLY_FIELDS = ("ray_address", "cpus_per_unit", "gpus_per_unit", "max_retries")
 
 
 def check_executor(config: ExecutorConfig, tracking_uri: str | None) -> None:
@@ -61,11 +56,11 @@ def check_executor(config: ExecutorConfig, tracking_uri: str | None) -> None:
     resources out of range, a node-local tracking store (``tracking_uri``: where the units will
     log; None: nothing is logged) with a cluster."""
     if config.kind not in EXECUTORS:
-        raise UsageError(f"executor must be one of {EXECUTORS}, got {config.kind!r}")
+        raise InputError(f"executor must be one of {EXECUTORS}, got {config.kind!r}")
     if config.kind != "ray":
-        given = [flag for name, flag in RAY_ONLY_FLAGS.items() if getattr(config, name)]
+        given = [name for name in RAY_ONLY_FIELDS if getattr(config, name)]
         if given:
-            raise UsageError(f"{', '.join(given)} only apply to --executor ray")
+            raise InputError(f"executor {', '.join(given)} only apply to kind 'ray'")
         return
     import_ray()
     resolve_resources(config.cpus_per_unit, config.gpus_per_unit, config.max_retries)

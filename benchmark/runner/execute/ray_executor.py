@@ -29,15 +29,14 @@ from __future__ import annotations
 
 import os
 import platform
-import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
 from urllib.parse import urlsplit
 
-from benchmark.errors import UsageError
-from benchmark.progress import Progress
+from benchmark.errors import InputError
+from benchmark.progress import Progress, status
 from benchmark.runner.execute import heartbeat
 from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 
@@ -56,8 +55,8 @@ OnDone = Callable[[object, UnitResult], None]
 def resolve_resources(
     cpus: float | None, gpus: float | None, retries: int | None
 ) -> tuple[float, float, int]:
-    """``--cpus-per-unit``, ``--gpus-per-unit``, ``--max-retries`` with their defaults filled in
-    (None: not given), checked."""
+    """``ExecutorConfig.cpus_per_unit``, ``gpus_per_unit``, ``max_retries`` with their defaults
+    filled in (None: not given), checked."""
     cpus = DEFAULT_CPUS_PER_UNIT if cpus is None else cpus
     gpus = DEFAULT_GPUS_PER_UNIT if gpus is None else gpus
     retries = DEFAULT_MAX_RETRIES if retries is None else retries
@@ -67,21 +66,21 @@ def resolve_resources(
 
 def _check_resources(cpus: float, gpus: float, retries: int) -> None:
     if not cpus > 0:
-        raise UsageError(f"--cpus-per-unit must be > 0, got {cpus:g}")
+        raise InputError(f"executor.cpus_per_unit must be > 0, got {cpus:g}")
     if not gpus >= 0:
-        raise UsageError(f"--gpus-per-unit must be >= 0, got {gpus:g}")
+        raise InputError(f"executor.gpus_per_unit must be >= 0, got {gpus:g}")
     if retries < 0:
-        raise UsageError(f"--max-retries must be >= 0, got {retries}")
+        raise InputError(f"executor.max_retries must be >= 0, got {retries}")
 
 
 # ----------------------------------------------------------------------------- guards
 def import_ray() -> ModuleType:
-    """The ``ray`` module, or a :class:`UsageError` (exit 2) with the install line."""
+    """The ``ray`` module, or a :class:`InputError` (exit 2) with the install line."""
     try:
         import ray
     except ImportError as err:
-        raise UsageError(
-            f"--executor ray needs the optional dependency ray ({err}); install it with: "
+        raise InputError(
+            f"the Ray executor needs the optional dependency ray ({err}); install it with: "
             f"{INSTALL_LINE}"
         ) from err
     return ray
@@ -110,14 +109,12 @@ def check_ray_tracking(address: str | None, tracking_uri: str | None) -> None:
     ``tracking_uri`` None or "" (nothing logged) always passes."""
     if is_local_address(address) or not tracking_uri or not is_node_local_uri(tracking_uri):
         return
-    raise UsageError(
-        f"--executor ray --ray-address {address} cannot track to {tracking_uri}: that store is a "
-        "file, and each unit's run is logged by the node that trains it, into a file of that "
-        "node's own disk, so the runs would be lost (the driver and the UI never see them). Run "
-        "an MLflow server every node reaches, e.g. `mlflow server --host 0.0.0.0 --port 5000 "
-        "--backend-store-uri sqlite:///mlflow.db --artifacts-destination ./mlartifacts`, and "
-        "pass --tracking-uri http://<that host>:5000 (`uavbench ui --tracking-uri http://...` "
-        "then lists the runs; `uavbench ui` alone serves on 127.0.0.1 only), or --tracker null"
+    raise InputError(
+        f"the Ray cluster at {address} cannot track to {tracking_uri}: that store is a file, and "
+        "each unit's run is logged by the node that trains it, into a file of that node's own "
+        "disk, so the runs would be lost (the driver and the UI never see them). Run an MLflow "
+        "server every node reaches (docs/gpu-and-cluster.md shows the command) and track to "
+        "http://<that host>:5000, or track nothing (tracker null)"
     )
 
 
@@ -231,7 +228,7 @@ def _manifest_digest(root: str) -> str:
     try:
         return manifest_sha256(root)
     except OSError as err:
-        raise UsageError(f"dataset {Path(root).absolute()} not readable: {err}") from err
+        raise InputError(f"dataset {Path(root).absolute()} not readable: {err}") from err
 
 
 def connect_ray(address: str | None = None, num_cpus: int | None = None) -> bool:
@@ -258,13 +255,12 @@ def connect_ray(address: str | None = None, num_cpus: int | None = None) -> bool
                 ray.shutdown()  # what did start of this attempt
                 if attempt == 2:
                     raise RuntimeError(f"could not start a local Ray (twice): {err}") from err
-                print(f"warning: starting a local Ray failed ({err}); trying once more",
-                      file=sys.stderr)  # fmt: skip
+                status(f"warning: starting a local Ray failed ({err}); trying once more")
     else:
         try:
             ray.init(address=address, **common)
         except (ConnectionError, TimeoutError, RuntimeError) as err:
-            raise UsageError(f"cannot connect to the Ray cluster at {address}: {err}") from err
+            raise InputError(f"cannot connect to the Ray cluster at {address}: {err}") from err
     return True
 
 
@@ -276,12 +272,12 @@ def _check_nodes(ray, cpus: float, gpus: float, *, fatal: bool) -> None:
         return
     have = "; ".join(f"CPU {r.get('CPU', 0):g}, GPU {r.get('GPU', 0):g}" for r in nodes) or "none"
     message = (
-        f"no Ray node has --cpus-per-unit {cpus:g} and --gpus-per-unit {gpus:g} free to give "
+        f"no Ray node has cpus_per_unit {cpus:g} and gpus_per_unit {gpus:g} free to give "
         f"(nodes: {have})"
     )
     if fatal:
-        raise UsageError(message)
-    print(f"warning: {message}; the units wait until such a node joins", file=sys.stderr)
+        raise InputError(message)
+    status(f"warning: {message}; the units wait until such a node joins")
 
 
 def _fetch(ray, ref, key: str, submitted: float, max_retries: int) -> UnitResult:
@@ -296,7 +292,7 @@ def _fetch(ray, ref, key: str, submitted: float, max_retries: int) -> UnitResult
     except ray.exceptions.RayError as err:  # WorkerCrashedError, NodeDiedError, OutOfMemoryError
         attempts = max_retries + 1
         error = (
-            f"worker died on each of {attempts} attempt(s) (--max-retries {max_retries}): "
+            f"worker died on each of {attempts} attempt(s) (max_retries {max_retries}): "
             f"{type(err).__name__}: {_first_line(err)}"
         )
     return UnitResult(key, False, seconds=time.monotonic() - submitted, error=error)

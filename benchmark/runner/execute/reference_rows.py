@@ -46,7 +46,6 @@ import math
 import multiprocessing
 import os
 import signal
-import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +53,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.progress import Progress
+from benchmark.progress import Progress, status
 from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_filename, worker_init
 from benchmark.runner.plan.specs import TableSpec
 from benchmark.runner.plan.units import val_split_for
@@ -123,14 +122,20 @@ def strided_rows(flights: Iterable[object], stride: int) -> list[int]:
     return rows
 
 
+# ``benchmark/references/`` modules that compute nothing a reference row reads: the report of
+# ``uavbench reference`` (one reference, one split, formatted for the command line).
+_NOT_EVALUATION = frozenset({"report.py"})
+
+
 def _code_digest() -> str:
-    """sha256 of the references' source (``benchmark/references/*.py``, by name): a change of
-    any reference evaluates again."""
+    """sha256 of the references' source (``benchmark/references/*.py`` but
+    :data:`_NOT_EVALUATION`, by name): a change of any reference evaluates again."""
     import benchmark.references as package
 
     h = hashlib.sha256()
     for path in sorted(Path(package.__file__).parent.glob("*.py")):
-        h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
+        if path.name not in _NOT_EVALUATION:
+            h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
 
 
@@ -483,8 +488,8 @@ def evaluate_references(
         if chunks:
             _run(chunks, tasks, out, processes, quiet, (manifest, code))
         elif not quiet:
-            print(f"references: {len(tasks)} evaluation(s) read back from "
-                  f"{Path(workdir) / REFERENCE_DIR}", file=sys.stderr)  # fmt: skip
+            status(f"references: {len(tasks)} evaluation(s) read back from "
+                   f"{Path(workdir) / REFERENCE_DIR}")  # fmt: skip
     finally:
         _dataset.cache_clear()  # the images of this process's evaluations are not kept
     return out
@@ -544,8 +549,7 @@ def _run(
             first = (str(err).strip().splitlines() or [""])[0][:300]
             out.errors[key] = f"{type(err).__name__}: {first}"
             parts.pop(key, None)
-            print(f"reference {key[0]} {eval_key(*key[1:])} failed: {out.errors[key]}",
-                  file=sys.stderr)  # fmt: skip
+            status(f"reference {key[0]} {eval_key(*key[1:])} failed: {out.errors[key]}")
         else:
             parts.setdefault(key, []).append((chunk.rows[0], result))
             if len(parts[key]) == expected[key]:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import platform
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,35 +25,33 @@ import torch
 from benchmark.evaluation.metrics import horizontal_metrics
 from benchmark.progress import Progress
 from benchmark.runner.claims.all_claims import evaluate_claims, render_claims
-from benchmark.runner.claims.data_audit import heading_cue_audit_section, heading_cue_summary
+from benchmark.runner.claims.data_audit import heading_cue_audit_markdown, heading_cue_summary
 from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claims
 from benchmark.runner.claims.evidence import Claim
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.claims.ranking import ranking_markdown
 from benchmark.runner.claims.spread import prediction_paths
+from benchmark.runner.execute.non_learned import NonLearnedFusion
 from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
     constant_baseline,
     describe_references,
-    evaluate_references,
     reference_labels,
     reference_note,
     reference_rows,
 )
 from benchmark.runner.execute.worker import SATELLITE_MODES, UnitResult, eval_key
 from benchmark.runner.plan.partial import (
-    DEFAULT_STALE,
     STALE_COLUMN,
     EarlierTable,
     MergePlan,
     in_spec_order,
     mark_earlier_files,
-    plan_merge,
 )
 from benchmark.runner.plan.repro_profiles import ReproProfile
 from benchmark.runner.plan.specs import TableSpec, default_spec_dir
-from benchmark.runner.plan.units import Unit
+from benchmark.runner.plan.units import CONFIRMS, Unit
 from benchmark.runner.report.costs import cost_table
 from benchmark.runner.report.intervals import row_interval
 from benchmark.runner.report.logbook import Logbook
@@ -71,7 +70,6 @@ from benchmark.runner.report.tables import (
     summarize,
 )
 from benchmark.runner.report.training import relabel_note, shown_labels, table_protocol
-from benchmark.sim import CONFIRMS
 
 # Our metrics the paper does not report, shown under each table; summarised with the rest, so a
 # metric added here also gets its interval.
@@ -159,6 +157,30 @@ def constant_rows(
 RESULTS_FLOAT_FORMAT = "%.6g"
 
 
+@dataclass(frozen=True)
+class ReportInputs:
+    """What the report reads besides the units' results, all computed by the reproduction before
+    the first file is written (``benchmark.runner.reproduction``), so that writing computes
+    nothing: the constant predictor's rows and per-frame tables (:func:`constant_rows`), the
+    non-learned references' evaluations (``execute.reference_rows.evaluate_references``, the
+    constant's frames included), the heading-cue audit's rows (``execute.audit``) and the
+    non-learned rows fused along the flights per sequence spec (``execute.non_learned``)."""
+
+    constant_rows: list[dict]
+    constant_frames: dict[tuple[str, str], pd.DataFrame]
+    references: ReferenceResults
+    audit_rows: list[dict]
+    non_learned: dict[str, list[NonLearnedFusion]]
+
+
+def validation_splits(frame: pd.DataFrame) -> dict[str, str]:
+    """``{training split: its validation split}`` of the units measured on one
+    (:func:`results_frame`'s ``role == "val"`` rows): the constant predictor gets validation
+    rows only where trained models have them too."""
+    val = frame[frame["role"] == "val"] if len(frame) else frame
+    return dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
+
+
 def write_reports(
     specs: list[TableSpec],
     units: list[Unit],
@@ -171,10 +193,12 @@ def write_reports(
     workdir: Path | None = None,
     quiet: bool = False,
     remeasure_costs: bool = False,
-    stale: str = DEFAULT_STALE,
-    merge: MergePlan | None = None,
+    *,
+    merge: MergePlan,
+    inputs: ReportInputs,
 ) -> list[Path]:
-    """Write every report file under ``out``; return their paths.
+    """Write every report file under ``out`` from the units' ``results`` and the ``inputs``
+    computed before (:class:`ReportInputs`); return their paths.
 
     ``workdir`` (the reproduction's, holding ``units/<key>/``) gives the per-frame predictions
     for the flight x seed bootstrap intervals and the per-unit digests of ``provenance.md``, and
@@ -183,10 +207,10 @@ def write_reports(
     only (it says so).
 
     A reproduction of some tables only (``--only``) merges with what an earlier one wrote to
-    ``out`` (``merge``, default :func:`~benchmark.runner.plan.partial.plan_merge` with ``stale``):
-    the other tables whose units are today's and whose predictions are in ``workdir`` are kept,
-    rendered again from their rows and decided again with the re-run ones; the others, from an
-    earlier run, are kept as written and marked in their files, ``results.csv`` (``stale_from``),
+    ``out`` (``merge``, planned by :func:`~benchmark.runner.plan.partial.plan_merge` before any
+    work): the other tables whose units are today's and whose predictions are in ``workdir`` are
+    kept, rendered again from their rows and decided again with the re-run ones; the others, from
+    an earlier run, are kept as written and marked in their files, ``results.csv`` (``stale_from``),
     the README and ``provenance.json``, their claims not re-decided (``stale="keep"``), or
     removed with their files (``"drop"``). Every file of ``out``, ``results.csv`` and the README
     then describe the same tables. A progress line (stderr, unless ``quiet``) names the table
@@ -194,16 +218,11 @@ def write_reports(
     out.mkdir(parents=True, exist_ok=True)
     paper = load_paper(default_spec_dir().parent / "paper_tables.csv")
     frame = results_frame(units, results)
-    # Validation rows of the constant predictor only where trained models have them too.
-    val = frame[frame["role"] == "val"] if len(frame) else frame
-    val_of = dict(zip(val.get("train_split", []), val.get("split", []), strict=True))
-    baseline_rows, constant_frames = constant_rows(specs, data_root, val_of)
-    # The non-learned references (issue 21): once per split, cached in the work directory; a
-    # failed frame gets the pose of its table's constant row.
-    references = evaluate_references(specs, data_root, workdir, profile.name, quiet)
-    references.constants.update(constant_frames)
+    baseline_rows, constant_frames = inputs.constant_rows, inputs.constant_frames
+    # The non-learned references (issue 21): a failed frame has its table's constant pose.
+    references = inputs.references
     ref_rows = pd.DataFrame(reference_rows(specs, references))
-    plan = merge or plan_merge(out, specs, profile, data_root, workdir, mode=stale)
+    plan = merge
     kept_specs, kept_units = plan.live, plan.live_units
     parts = (frame, pd.DataFrame(baseline_rows), ref_rows, plan.rows())
     everything = _as_written(
@@ -215,9 +234,8 @@ def write_reports(
             references,
         )
     )
-    # The audit may render its datasets: done before the first file is written, so that its
-    # failure leaves the report directory as it was.
-    audit_md, audit_rows = heading_cue_audit_section(data_root)
+    audit_rows = inputs.audit_rows
+    audit_md = heading_cue_audit_markdown(audit_rows)
     written = [out / "results.csv"]
     everything.to_csv(written[0], index=False, float_format=RESULTS_FLOAT_FORMAT)
     metrics = [m for m in REPORT_METRICS if m in everything.columns]
@@ -258,7 +276,7 @@ def write_reports(
                 text += extra_metrics_table(spec, summary, EXTRA_METRICS, shown)
             elif spec.kind == "sequence":  # every head fused along its flights (issue 39)
                 text, figures, _ = sequence_report(
-                    spec, planned, workdir, out, references, data_root
+                    spec, planned, workdir, out, inputs.non_learned.get(spec.name, [])
                 )
                 paths += figures
             elif spec.kind == "sweep":

@@ -24,10 +24,10 @@ import numpy as np
 import pandas as pd
 
 from benchmark.evaluation.paired import median_bootstrap, pooled_bootstrap
-from benchmark.runner.execute.reference_rows import ReferenceResults, dataset_splits
+from benchmark.runner.execute.non_learned import CONSTANT, NonLearnedFusion
 from benchmark.runner.execute.worker import sequence_paths, volume_sequence_paths
 from benchmark.runner.plan.specs import TableSpec
-from benchmark.runner.plan.units import Unit, val_split_for
+from benchmark.runner.plan.units import Unit
 from benchmark.runner.report.tables import CONSTANT_LABEL
 
 MODES = ("frame", "filter", "smooth")
@@ -94,49 +94,18 @@ def _stacked(label: str, split: str, frames: list[pd.DataFrame], **flags: bool) 
     )  # fmt: skip
 
 
-def non_learned_sequences(
-    spec: TableSpec, references: ReferenceResults, data_root: Path
-) -> list[SequenceErrors]:
-    """The constant predictor and every reference of ``spec`` fused along the flights of each of
-    its splits exactly as a regression head is (``fuse_estimates``: the calibrated density
-    around each frame's estimate, fitted on the same estimator's frames of the training split's
-    validation split). A reference's failed frames carry the constant predictor's pose, as in
-    every table. One "seed" each (they are deterministic); a row whose validation or split
-    frames were not evaluated is left out."""
-    from benchmark.data import PairDataset, odometry_noise
-    from benchmark.evaluation.sequence_eval import STRESS_SCALE, fuse_estimates
-    from benchmark.references import get_reference_class
-
-    val = val_split_for(spec.train_split, dataset_splits(data_root))
-    if val is None:
-        return []
-    rows: list[tuple[str, str | None, bool]] = [(CONSTANT_LABEL, None, False)]
-    for name in spec.references:
-        cls = get_reference_class(name)
-        given = any("E" in v.columns for v in getattr(cls, "given_values", ()))
-        rows.append((cls.label, name, given))
-
-    def frames_of(name: str | None, split: str) -> pd.DataFrame | None:
-        if name is None:
-            return references.constant(spec.train_split, split)
-        return references.table_frame(name, split, "true", spec.train_split)
-
+def non_learned_sequences(fused: list[NonLearnedFusion]) -> list[SequenceErrors]:
+    """The constant predictor's and the references' fused rows
+    (:func:`~benchmark.runner.execute.non_learned.fuse_non_learned`, computed before the report)
+    as :class:`SequenceErrors`, one "seed" each, in their order."""
     out = []
-    for split in spec.all_eval_splits():
-        data = PairDataset(data_root, split)
-        profile = data.manifest["profile"]
-        area = float(np.prod(np.asarray(profile["sat_footprint_m"], np.float64)))
-        for label, name, given in rows:
-            frame, val_frame = frames_of(name, split), frames_of(name, val)
-            if frame is None or val_frame is None:
-                continue
-            _, table = fuse_estimates(
-                frame, val_frame, data.poses, data.sat_table, odometry_noise(profile),
-                split=split, val_split=val, seed=int(data.manifest["seed"]), area_m2=area,
-                stress_scale=STRESS_SCALE if split.startswith("long/") else None,
-            )  # fmt: skip
-            table = table.sort_values(["odometry", "mode", "index"], kind="stable")
-            out.append(_stacked(label, split, [table], learned=False, position_given=given))
+    for item in fused:
+        label = CONSTANT_LABEL if item.row == CONSTANT else str(item.label)
+        table = item.table.sort_values(["odometry", "mode", "index"], kind="stable")
+        out.append(
+            _stacked(label, item.split, [table], learned=False,
+                     position_given=item.position_given)
+        )  # fmt: skip
     return out
 
 
@@ -293,15 +262,15 @@ def sequence_report(
     units: list[Unit],
     workdir: Path | None,
     out: Path,
-    references: ReferenceResults | None = None,
-    data_root: Path | None = None,
+    non_learned: list[NonLearnedFusion] | None = None,
 ) -> tuple[str, list[Path], pd.DataFrame]:
     """``(markdown, [figure path], table rows)`` of a ``kind: sequence`` spec; with
-    ``references`` and ``data_root``, the constant predictor and the spec's references fused
-    beside the heads (:func:`non_learned_sequences`), in the table and not in the figure."""
+    ``non_learned`` (the constant predictor and the spec's references fused before the report),
+    those rows beside the heads (:func:`non_learned_sequences`), in the table and not in the
+    figure."""
     items = load_sequences(spec, units, workdir) if workdir is not None else []
-    if items and references is not None and data_root is not None:
-        items += non_learned_sequences(spec, references, data_root)
+    if items and non_learned:
+        items += non_learned_sequences(non_learned)
     table = sequence_rows(items)
     png = out / f"{spec.name}.png"
     learned = [i for i in items if i.learned]
