@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 from benchmark.errors import InputError
 from benchmark.locks import LockBusyError, work_lock
-from benchmark.progress import format_duration, status
+from benchmark.progress import Progress, format_duration, status
 from benchmark.runner.execute.audit import check_cue_datasets
 from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
 from benchmark.runner.execute.ray_executor import is_local_address
@@ -381,7 +381,9 @@ def _run_locked(
         run_executor(config.executor, rest, on_done, config.quiet, units_log_to)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
-        inputs = _report_inputs(specs, units, results, profile, (data_root, workdir), merge, config)
+        inputs = _report_inputs(
+            specs, units, results, profile, (data_root, out, workdir), merge, config, logbook
+        )
         written = _write_reports(
             specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge,
             inputs,
@@ -443,27 +445,31 @@ def _report_inputs(
     units: list[Unit],
     results: dict[str, UnitResult],
     profile: ReproProfile,
-    paths: tuple[Path, Path],
+    paths: tuple[Path, Path, Path],
     merge: MergePlan,
     config: ReproduceConfig,
+    logbook: Logbook,
 ) -> ReportInputs:
     """The report stage's work, before any report file is written (a failure leaves the report
     directory as it was): the constant predictor on every table's splits, the non-learned
     references (cached in the work directory; in processes of their own), the heading-cue
     audit (renders its extra datasets where missing) and the non-learned rows of the sequence
-    tables fused along the flights (``executor.workers`` processes)."""
-    from benchmark.data.format import DatasetError
+    tables fused along the flights (``executor.workers`` processes), the provenance digests
+    (every checkpoint's weights, every prediction file) and Table 6's measurements (cached in
+    ``<workdir>/costs``; a new one logged to ``logbook``)."""
+    from benchmark.data.format import DatasetError, read_manifest
     from benchmark.runner.execute.audit import heading_cue_rows
+    from benchmark.runner.execute.costs import measure_costs
     from benchmark.runner.execute.non_learned import fuse_non_learned
-    from benchmark.runner.execute.reference_rows import evaluate_references
+    from benchmark.runner.execute.provenance import collect_provenance
+    from benchmark.runner.execute.reference_rows import constant_rows, evaluate_references
     from benchmark.runner.report.outputs import (
         ReportInputs,
-        constant_rows,
         results_frame,
         validation_splits,
     )
 
-    data_root, workdir = paths
+    data_root, out, workdir = paths
     workers, quiet = max(1, config.executor.workers), config.quiet
     try:
         val_of = validation_splits(results_frame(units, results))
@@ -472,9 +478,25 @@ def _report_inputs(
         references.constants.update(frames)
         audit = heading_cue_rows(data_root, quiet=quiet)
         fused = fuse_non_learned([*specs, *merge.live], references, data_root, workers, quiet)
+        done = {u.key: UnitResult(u.key, True) for u in merge.live_units} | results
+        # A shared encoder that ran in an earlier invocation is in no result of this one, but
+        # its weights made every feature its heads read: digested whenever one of them is.
+        needed = {k for u in [*units, *merge.live_units] if u.key in done and done[u.key].ok
+                  for k in u.needs}  # fmt: skip
+        done |= {k: UnitResult(k, True) for k in needed if k not in done}
+        provenance = collect_provenance([*units, *merge.live_units], done, data_root, workdir, out)
+        costs = {}
+        cost_specs = [s for s in specs if s.kind == "cost"]
+        input_size = int(read_manifest(data_root)["image_size"]) if cost_specs else 0
+        for spec in cost_specs:  # Table 6: cached per model and machine in <workdir>/costs
+            with Progress(1, "costs", unit="table", enabled=not quiet) as bar:
+                costs[spec.name] = measure_costs(
+                    spec, profile, input_size, logbook, workdir / "costs", bar=bar
+                )
+                bar.update(1)
     except DatasetError as err:
         raise _data_error(data_root, profile, 0, err) from None
-    return ReportInputs(rows, frames, references, audit, fused)
+    return ReportInputs(rows, frames, references, audit, fused, provenance, costs)
 
 
 def _write_reports(

@@ -12,17 +12,18 @@ import torch
 from benchmark.models.info import model_info
 from benchmark.models.model_config import ModelConfig
 from benchmark.progress import Progress
-from benchmark.runner.plan.repro_profiles import get_repro_profile
-from benchmark.runner.plan.specs import load_specs
-from benchmark.runner.report.costs import (
+from benchmark.runner.execute.costs import (
     cached_measure,
     cost_configs,
     cost_identity,
     cost_key,
     cost_rows,
-    cost_table,
     measure,
+    measure_costs,
 )
+from benchmark.runner.plan.repro_profiles import get_repro_profile
+from benchmark.runner.plan.specs import load_specs
+from benchmark.runner.report.costs import cost_table
 
 CFG = ModelConfig(attitude="re_net_r", variant="/", width=0.25, input_size=32)
 
@@ -140,7 +141,7 @@ class TestCostTable:
     def test_rows_from_the_cache_logged_once_with_progress(self, tmp_path):
         spec = load_specs(None, ["table6"])[0]
         profile = get_repro_profile("smoke")
-        # Fill the cache as a first run would have (the same identities cost_table computes).
+        # Fill the cache as a first run would have (the same identities measure_costs computes).
         configs = cost_configs(spec, 32, profile.width, profile.name)
         assert len(configs) == 2 * len(spec.rows)
         assert {c.input_size for *_, c in configs} == {224, 32}
@@ -151,7 +152,8 @@ class TestCostTable:
         stream = io.StringIO()
         logbook = FakeLogbook()
         with Progress(3, "report", stream=stream) as bar:
-            text = cost_table(spec, profile, 32, logbook, tmp_path, bar=bar)
+            rows = measure_costs(spec, profile, 32, logbook, tmp_path, bar=bar)
+        text = cost_table(spec, rows, tmp_path)
         assert logbook.logged == []  # read, not measured (a measurement is logged), not re-logged
         assert len(list(tmp_path.glob("*.json"))) == 4
         lines = stream.getvalue().splitlines()

@@ -9,6 +9,7 @@ import json
 import pytest
 import torch
 
+from benchmark.runner.execute.provenance import collect_provenance, state_dict_sha256
 from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import load_specs
@@ -16,10 +17,8 @@ from benchmark.runner.plan.units import plan_units
 from benchmark.runner.report.provenance import (
     VOLATILE,
     Difference,
-    collect_provenance,
     compare_provenance,
     flatten,
-    state_dict_sha256,
     write_provenance,
 )
 

@@ -58,6 +58,8 @@ from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_fil
 from benchmark.runner.plan.specs import TableSpec
 from benchmark.runner.plan.units import val_split_for
 
+CONSTANT_LABEL = "Constant (train mean)"  # the constant predictor's rows in every table
+
 __all__ = [
     "MAX_PROCESSES",
     "PROFILE_STRIDE",
@@ -231,6 +233,39 @@ def constant_baseline(
     if flights is not None:
         frame = frame.assign(flight=list(flights))
     return summary, frame
+
+
+def constant_rows(
+    specs: list[TableSpec], data_root: Path, val_of: dict[str, str] | None = None
+) -> tuple[list[dict], dict[tuple[str, str], pd.DataFrame]]:
+    """The constant predictor's results rows of every table spec (its test splits and, for each
+    training split in ``val_of``, that validation split) and its per-frame tables keyed
+    ``(train split, split)``."""
+    val_of = val_of or {}
+    rows, frames = [], {}
+    summaries: dict[tuple[str, str], dict[str, float]] = {}
+    for spec in specs:
+        if spec.kind != "table":
+            continue
+        splits = [(s, spec.train_split_for(s), "test") for s in spec.all_eval_splits()]
+        for train in dict.fromkeys(t for _, t, _ in splits):
+            val = val_of.get(train)
+            if val is not None and val not in spec.all_eval_splits():
+                splits.append((val, train, "val"))
+        for split, train, role in splits:
+            if (train, split) not in summaries:
+                summaries[train, split], frames[train, split] = constant_baseline(
+                    data_root, train, split
+                )
+            row = {
+                "table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None,
+                "split": split, "satellite_input": "none", "train_split": train, "role": role,
+                "seed": 0,
+            }  # fmt: skip
+            # It reads no image: its error with the swapped satellite image is the same.
+            for satellite in SATELLITE_MODES:
+                rows.append({**row, "satellite": satellite, **summaries[train, split]})
+    return rows, frames
 
 
 def with_fallback(frame: pd.DataFrame, constant: pd.DataFrame | None) -> pd.DataFrame | None:

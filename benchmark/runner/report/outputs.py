@@ -16,11 +16,11 @@ import os
 import platform
 import time
 from dataclasses import dataclass
+from importlib.metadata import version as _version
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import torch
 
 from benchmark.evaluation.metrics import horizontal_metrics
 from benchmark.progress import Progress
@@ -32,10 +32,10 @@ from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
 from benchmark.runner.claims.ranking import ranking_markdown
 from benchmark.runner.claims.spread import prediction_paths
+from benchmark.runner.execute.costs import CostRow
 from benchmark.runner.execute.non_learned import NonLearnedFusion
 from benchmark.runner.execute.reference_rows import (
     ReferenceResults,
-    constant_baseline,
     describe_references,
     reference_labels,
     reference_note,
@@ -56,7 +56,6 @@ from benchmark.runner.report.costs import cost_table
 from benchmark.runner.report.intervals import row_interval
 from benchmark.runner.report.logbook import Logbook
 from benchmark.runner.report.provenance import (
-    collect_provenance,
     provenance_summary,
     write_provenance,
 )
@@ -120,39 +119,6 @@ def results_frame(units: list[Unit], results: dict[str, UnitResult]) -> pd.DataF
     return pd.DataFrame(rows)
 
 
-def constant_rows(
-    specs: list[TableSpec], data_root: Path, val_of: dict[str, str] | None = None
-) -> tuple[list[dict], dict[tuple[str, str], pd.DataFrame]]:
-    """The constant predictor's results rows of every table spec (its test splits and, for each
-    training split in ``val_of``, that validation split) and its per-frame tables keyed
-    ``(train split, split)``."""
-    val_of = val_of or {}
-    rows, frames = [], {}
-    summaries: dict[tuple[str, str], dict[str, float]] = {}
-    for spec in specs:
-        if spec.kind != "table":
-            continue
-        splits = [(s, spec.train_split_for(s), "test") for s in spec.all_eval_splits()]
-        for train in dict.fromkeys(t for _, t, _ in splits):
-            val = val_of.get(train)
-            if val is not None and val not in spec.all_eval_splits():
-                splits.append((val, train, "val"))
-        for split, train, role in splits:
-            if (train, split) not in summaries:
-                summaries[train, split], frames[train, split] = constant_baseline(
-                    data_root, train, split
-                )
-            row = {
-                "table": spec.name, "label": CONSTANT_LABEL, "paper_model": "", "x": None,
-                "split": split, "satellite_input": "none", "train_split": train, "role": role,
-                "seed": 0,
-            }  # fmt: skip
-            # It reads no image: its error with the swapped satellite image is the same.
-            for satellite in SATELLITE_MODES:
-                rows.append({**row, "satellite": satellite, **summaries[train, split]})
-    return rows, frames
-
-
 # Six significant digits: what results.csv stores and what every table is rendered from.
 RESULTS_FLOAT_FORMAT = "%.6g"
 
@@ -161,16 +127,21 @@ RESULTS_FLOAT_FORMAT = "%.6g"
 class ReportInputs:
     """What the report reads besides the units' results, all computed by the reproduction before
     the first file is written (``benchmark.runner.reproduction``), so that writing computes
-    nothing: the constant predictor's rows and per-frame tables (:func:`constant_rows`), the
+    nothing: the constant predictor's rows and per-frame tables
+    (``execute.reference_rows.constant_rows``), the
     non-learned references' evaluations (``execute.reference_rows.evaluate_references``, the
-    constant's frames included), the heading-cue audit's rows (``execute.audit``) and the
-    non-learned rows fused along the flights per sequence spec (``execute.non_learned``)."""
+    constant's frames included), the heading-cue audit's rows (``execute.audit``), the
+    non-learned rows fused along the flights per sequence spec (``execute.non_learned``), the
+    provenance record (``execute.provenance``: the units' weight and prediction digests) and
+    Table 6's measurements (``execute.costs``)."""
 
     constant_rows: list[dict]
     constant_frames: dict[tuple[str, str], pd.DataFrame]
     references: ReferenceResults
     audit_rows: list[dict]
     non_learned: dict[str, list[NonLearnedFusion]]
+    provenance: dict  # execute.provenance.collect_provenance of today's and the kept live units
+    costs: dict[str, list[CostRow]]  # per cost spec: execute.costs.measure_costs's rows
 
 
 def validation_splits(frame: pd.DataFrame) -> dict[str, str]:
@@ -192,7 +163,6 @@ def write_reports(
     invocations: list[dict] | None = None,
     workdir: Path | None = None,
     quiet: bool = False,
-    remeasure_costs: bool = False,
     *,
     merge: MergePlan,
     inputs: ReportInputs,
@@ -202,7 +172,7 @@ def write_reports(
 
     ``workdir`` (the reproduction's, holding ``units/<key>/``) gives the per-frame predictions
     for the flight x seed bootstrap intervals and the per-unit digests of ``provenance.md``, and
-    holds the Table 6 cache (``costs/``; ``remeasure_costs`` measures again). Without it the cells
+    holds the Table 6 cache (``costs/``, named in its note). Without it the cells
     keep the Student-t interval over seeds and the provenance records the dataset and software
     only (it says so).
 
@@ -242,7 +212,6 @@ def write_reports(
     # Validation columns in every table once any model was measured on a validation split.
     show_val = bool(len(frame) and (frame["role"] == "val").any())
     summaries: dict[str, pd.DataFrame] = {}
-    input_size = _input_size(data_root)
     cost_cache = Path(workdir) / "costs" if workdir is not None else None
 
     def resolve(part: pd.DataFrame) -> dict | None:
@@ -287,9 +256,7 @@ def write_reports(
                     paths.append(png)
                     text += f"\n![{spec.name}]({png.name})\n"
             else:
-                text = cost_table(
-                    spec, profile, input_size, logbook, cost_cache, remeasure_costs, bar
-                )
+                text = cost_table(spec, inputs.costs.get(spec.name, []), cost_cache)
             if spec.kind != "cost":
                 text = _with_protocol(text, table_protocol(spec.name, planned, shown))
             md_path.write_text(text + failed_section(spec.name, units, results))
@@ -314,10 +281,7 @@ def write_reports(
             md.write_text(md.read_text() + section)
     (out / "heading_cue.md").write_text(audit_md)
     written.append(out / "heading_cue.md")
-    kept_results = {u.key: UnitResult(u.key, True) for u in kept_units if u.key not in results}
-    record = collect_provenance(
-        [*units, *kept_units], {**kept_results, **results}, data_root, workdir, out
-    )
+    record = dict(inputs.provenance)
     if plan.kept:  # where the tables kept from an earlier run come from, and their digests
         record["earlier_tables"] = {t.name: t.record() for t in plan.kept}
         record["earlier_units"] = plan.earlier_units
@@ -453,12 +417,6 @@ def _with_stale_column(frame: pd.DataFrame) -> pd.DataFrame:
     return frame[[*columns[:at], STALE_COLUMN, *columns[at:]]]
 
 
-def _input_size(data_root: Path) -> int:
-    from benchmark.data.format import read_manifest
-
-    return int(read_manifest(Path(data_root))["image_size"])
-
-
 def _with_protocol(text: str, sentence: str) -> str:
     """``text`` with ``sentence`` as a paragraph under its title line."""
     if not sentence:
@@ -509,7 +467,7 @@ def _readme(
         f"# uavbench reproduction: profile `{profile.name}`",
         "",
         f"Written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} on {platform.node()} "
-        f"({cpu}, {os.cpu_count()} cores, torch {torch.__version__}).",
+        f"({cpu}, {os.cpu_count()} cores, torch {_version('torch')}).",
         "",
         "Invocations that produced these results (wall time: simulation, training and "
         "evaluation, before the reports):",

@@ -30,10 +30,9 @@ import pandas as pd
 from benchmark.evaluation.metrics import seed_interval
 from benchmark.runner.claims.evidence import N_BOOT as CLAIMS_N_BOOT
 from benchmark.runner.claims.satellite import MIN_RISE_DEG
-from benchmark.runner.execute.reference_rows import fails_text, failure_percent
+from benchmark.runner.execute.reference_rows import CONSTANT_LABEL, fails_text, failure_percent
 from benchmark.runner.plan.specs import TableSpec
 
-CONSTANT_LABEL = "Constant (train mean)"  # the constant predictor's rows
 METRIC_LABELS: dict[str, str] = {
     "dE_m": "δE (m)",
     "dN_m": "δN (m)",
