@@ -20,7 +20,12 @@ from benchmark.runner.claims.fusion import (
     fusion_gain_claim,
     uncertainty_gain_claim,
 )
-from benchmark.runner.report.sequence import SequenceErrors, oracle_distance, sequence_rows
+from benchmark.runner.report.sequence import (
+    SequenceErrors,
+    exact_yaw_geodesic_deg,
+    oracle_distance,
+    sequence_rows,
+)
 
 N_FLIGHTS, PER_FLIGHT = 20, 8
 FLIGHT = np.repeat(np.arange(N_FLIGHTS), PER_FLIGHT)
@@ -51,6 +56,39 @@ class TestSequenceRows:
         assert (rows.loc["filter", "gain_dphi_deg_lo"], rows.loc["filter", "gain_dphi_deg_hi"]) == (
             pytest.approx(lo), pytest.approx(hi))  # fmt: skip
         assert np.isnan(rows.loc["frame"].get("gain_dphi_deg", np.nan))
+
+
+class TestExactYawCeiling:
+    def test_geodesic_against_the_rotation_module(self):
+        import torch
+
+        from benchmark.geometry import euler_to_rotmat, geodesic_distance
+
+        rng = np.random.default_rng(3)
+        n = 200
+        yaw = rng.uniform(-np.pi, np.pi, n)
+        pitch, roll = rng.uniform(-1.2, 0.2, n), rng.uniform(-0.5, 0.5, n)
+        pitch_hat, roll_hat = pitch + rng.normal(0, 0.2, n), roll + rng.normal(0, 0.2, n)
+        t = lambda x: torch.as_tensor(x, dtype=torch.float64)  # noqa: E731
+        reference = np.degrees(geodesic_distance(
+            euler_to_rotmat(t(yaw), t(pitch_hat), t(roll_hat)),
+            euler_to_rotmat(t(yaw), t(pitch), t(roll)),
+        ).numpy())  # fmt: skip
+        ours = exact_yaw_geodesic_deg(pitch_hat, roll_hat, pitch, roll)
+        np.testing.assert_allclose(ours, reference, atol=1e-9)
+        assert np.all(exact_yaw_geodesic_deg(pitch, roll, pitch, roll) < 1e-6)
+
+    def test_cell_is_the_fraction_within_10_deg(self):
+        e = errors(20.0, 4)
+        modes = {m: {"dpsi_deg": e, "dphi_deg": e, "horizontal_m": e}
+                 for m in ("frame", "filter", "smooth")}  # fmt: skip
+        exact = np.abs(np.random.default_rng(5).normal(8.0, 4.0, e.shape))
+        item = SequenceErrors("A", "long/towns", {"data": modes}, FLIGHT, np.zeros(N),
+                              exact_yaw_dphi=exact)  # fmt: skip
+        rows = sequence_rows([item]).set_index("mode")
+        np.testing.assert_allclose(rows["acc10_exact_yaw"], (exact <= 10).mean())  # every mode
+        bare = SequenceErrors("B", "long/towns", {"data": modes}, FLIGHT, np.zeros(N))
+        assert np.isnan(sequence_rows([bare])["acc10_exact_yaw"]).all()
 
 
 class TestOracleDistance:
