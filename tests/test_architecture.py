@@ -74,15 +74,21 @@ def source_files() -> list[Path]:
     return sorted([*ROOT.glob("benchmark/**/*.py"), *ROOT.glob("baselines/*.py")])
 
 
-def imports_of(path: Path) -> list[str]:
-    """Absolute module names imported anywhere in ``path`` (inside functions too)."""
+def imports_of_any(path: Path) -> list[str]:
+    """Every absolute module name imported anywhere in ``path`` (inside functions too), ours or
+    not."""
     names = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             names += [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
             names.append(node.module)
-    return [n for n in names if package_of(n) is not None or n == "benchmark"]
+    return names
+
+
+def imports_of(path: Path) -> list[str]:
+    """Our absolute module names imported anywhere in ``path`` (inside functions too)."""
+    return [n for n in imports_of_any(path) if package_of(n) is not None or n == "benchmark"]
 
 
 def rel(path: Path) -> str:
@@ -551,17 +557,6 @@ def test_claims_and_report_do_no_work(path):
         f"{rel(path)} reaches {found}: the work runs before the claims and the report "
         "(benchmark/runner/reproduction.py: execute room); they read its results"
     )
-
-
-def imports_of_any(path: Path) -> list[str]:
-    """Every absolute module name imported in ``path``, ours or not."""
-    names = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
-        if isinstance(node, ast.Import):
-            names += [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names.append(node.module)
-    return names
 
 
 def test_the_writer_is_called_with_its_inputs_by_the_orchestration():
