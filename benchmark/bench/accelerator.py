@@ -131,7 +131,7 @@ def bench_lines(
         base=False,
         ceiling_batch=2 if config.fast else None,
     )
-    results, ceilings = bench.measure(size, width, train, device, precisions)
+    results, ceilings, _ = bench.measure_profiled(size, width, train, device, precisions)
     by = {r.precision: r for r in results}
     lines = []
     for r in results:

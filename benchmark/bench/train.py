@@ -327,21 +327,6 @@ class StepProfile:
         ]
 
 
-def measure(
-    size: int,
-    width: float,
-    config: TrainBenchConfig,
-    device: torch.device,
-    precisions: Sequence[str],
-    encoders: Sequence[str] = ("googlenet",),
-) -> tuple[list[LoopResult], dict[str, float]]:
-    """Time the loops of one model side by side, every encoder's in the same rounds;
-    ``(loops, ceiling GFLOP/s per precision)`` (:func:`measure_profiled` without the
-    profiles)."""
-    results, ceilings, _ = measure_profiled(size, width, config, device, precisions, encoders)
-    return results, ceilings
-
-
 def measure_profiled(
     size: int,
     width: float,
