@@ -115,12 +115,13 @@ class YawPosterior:
 @dataclass(frozen=True)
 class PositionPosterior:
     """Per-sample position posteriors: ``log_density (B, K, n_east, n_north)`` per m^2,
-    ``map (B, K, 2)`` and ``mean (B, K, 2)`` (E, N) metres, and ``escaped (B, K)``: the mass
-    fraction that left the grid in the transition into sample k (the filter's; 0 at k = 0)."""
+    ``map (B, K, 2)`` and ``mean (B, K, 2)`` (E, N) metres (None when not asked for: it costs
+    an exp of the whole posterior), and ``escaped (B, K)``: the mass fraction that left the grid
+    in the transition into sample k (the filter's; 0 at k = 0)."""
 
     log_density: Tensor
     map: Tensor
-    mean: Tensor
+    mean: Tensor | None
     escaped: Tensor
 
 
@@ -202,11 +203,13 @@ def _yaw_estimates(log_density: Tensor, grid: CircularGrid) -> YawPosterior:
 
 
 def _position_estimates(
-    log_density: Tensor, escaped: Tensor, grid: PlanarGrid
+    log_density: Tensor, escaped: Tensor, grid: PlanarGrid, mean: bool = True
 ) -> PositionPosterior:
     east, north = grid.centres(log_density.dtype, log_density.device)
-    p = exp_floored(log_density) * grid.cell
-    mean = torch.stack([(p.sum(-1) * east).sum(-1), (p.sum(-2) * north).sum(-1)], dim=-1)
+    expectation = None
+    if mean:
+        p = exp_floored(log_density) * grid.cell
+        expectation = torch.stack([(p.sum(-1) * east).sum(-1), (p.sum(-2) * north).sum(-1)], dim=-1)
     flat = torch.argmax(log_density.flatten(-2), dim=-1)
     i, j = flat // grid.n_north, flat % grid.n_north
     pad = torch.nn.functional.pad(log_density, (1, 1, 1, 1), value=-math.inf)
@@ -223,7 +226,7 @@ def _position_estimates(
         ],
         dim=-1,
     )
-    return PositionPosterior(log_density, top, mean, escaped)
+    return PositionPosterior(log_density, top, expectation, escaped)
 
 
 @dataclass(frozen=True)
@@ -361,10 +364,14 @@ def filter_and_smooth_yaw(
 
 
 def filter_and_smooth_position(
-    flights: PositionFlights, grid: PlanarGrid, outlier_weight: float = 0.3
+    flights: PositionFlights, grid: PlanarGrid, outlier_weight: float = 0.3, mean: bool = True
 ) -> tuple[PositionPosterior, PositionPosterior]:
     """``(filter_position, smooth_position)`` from one forward pass (bit-identical to the two
-    calls)."""
+    calls). ``mean=False``: the posteriors' ``mean`` is None (the MAP alone; the rest is
+    bit-identical)."""
     f, s, escaped = _fuse_both(flights, grid, _position_carry(grid, flights), outlier_weight)
     assert s is not None
-    return _position_estimates(f, escaped, grid), _position_estimates(s, escaped, grid)
+    return (
+        _position_estimates(f, escaped, grid, mean),
+        _position_estimates(s, escaped, grid, mean),
+    )

@@ -211,13 +211,19 @@ def _position_grid(footprint: np.ndarray, spacing: float) -> PlanarGrid:
 
 
 def fuse_split(
-    frames: SplitFrames, noise: OdometryNoise, settings: FusionSettings | None = None
+    frames: SplitFrames,
+    noise: OdometryNoise,
+    settings: FusionSettings | None = None,
+    position: bool = True,
 ) -> pd.DataFrame:
     """Per-frame, filtered and smoothed estimates and errors of every pair of ``frames``.
 
     Returns one row per (pair, mode), columns ``index, flight, sample, t_s, mode, yaw_hat_deg,
     E_hat_m, N_hat_m, dpsi_deg, dphi_deg, horizontal_m`` (``sample`` the position in its flight,
-    ``t_s`` seconds since its first sample), rows ordered by mode, then flight and time."""
+    ``t_s`` seconds since its first sample), rows ordered by mode, then flight and time.
+    ``position=False`` fuses the heading only: the filtered and smoothed rows' ``E_hat_m``,
+    ``N_hat_m`` and ``horizontal_m`` are NaN (the position grid is most of the cost, and the
+    heading's columns are bit-identical either way: its fusion never reads a position)."""
     settings = settings or FusionSettings()
     grid = CircularGrid(settings.yaw_bins)
     if frames.yaw_beliefs.shape[1] != grid.n_bins:
@@ -227,6 +233,7 @@ def fuse_split(
         )
     rows = flight_rows(frames.flight, frames.time_s)
     observed = _observed(rows)
+    K = observed.shape[1]
     dyaw, dxy, dt = _steps(frames, rows)
     beliefs = _padded(frames.yaw_beliefs, rows, 0.0)
     yaw_in = YawFlights(beliefs, dyaw, _yaw_sigma(noise, dt, settings.horizon), observed)
@@ -237,7 +244,10 @@ def fuse_split(
     d, cov = _navigation_steps(
         dxy, yaw_filter.map[:, :-1], yaw_filter.resultant[:, :-1], noise, settings.horizon
     )
-    position_filter, position_smooth = _fuse_positions(frames, rows, observed, d, cov, settings)
+    if position:
+        position_filter, position_smooth = _fuse_positions(frames, rows, observed, d, cov, settings)
+    else:
+        position_filter = position_smooth = torch.full_like(d[:, :1].expand(-1, K, -1), math.nan)
     estimates = {
         "frame": (_padded(frames.yaw_hat, rows, 0.0), _padded(frames.position_hat, rows, 0.0)),
         "filter": (yaw_filter.map, position_filter),
@@ -271,7 +281,10 @@ def _fuse_positions(
                 cov[batch, : K - 1],
                 observed[batch, :K],
             )
-            posteriors = filter_and_smooth_position(flights, grid, settings.outlier_weight)
+            # the MAP is the estimate; the posterior mean (an exp of every cell) is not read
+            posteriors = filter_and_smooth_position(
+                flights, grid, settings.outlier_weight, mean=False
+            )
             for m, post in enumerate(posteriors):
                 out[m, batch, :K] = post.map
     return out[0], out[1]

@@ -676,3 +676,12 @@ class TestFilterAndSmooth:
         for both, alone in pairs:
             for name in ("log_density", "map", "mean", "escaped"):
                 assert torch.equal(getattr(both, name), getattr(alone, name))
+
+    def test_position_without_the_mean(self):
+        grid, _, _, flights = synthetic_position_flights(6, B=2, K=8)
+        full = filter_and_smooth_position(flights, grid)
+        bare = filter_and_smooth_position(flights, grid, mean=False)
+        for a, b in zip(full, bare, strict=True):
+            assert b.mean is None
+            for name in ("log_density", "map", "escaped"):
+                assert torch.equal(getattr(a, name), getattr(b, name))

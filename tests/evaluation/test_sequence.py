@@ -119,6 +119,18 @@ class TestFuseSplit:
         d = np.linalg.norm(frames.position_hat - frames.position, axis=1)
         np.testing.assert_allclose(frame["horizontal_m"].to_numpy(), d, atol=1e-9)
 
+    def test_heading_only_leaves_the_heading_bit_identical(self):
+        frames = synthetic_split(n_flights=3, samples=12)
+        full, heading = fuse_split(frames, NOISE), fuse_split(frames, NOISE, position=False)
+        assert list(full.columns) == list(heading.columns)
+        for col in ("index", "flight", "sample", "t_s", "mode", "yaw_hat_deg", "dpsi_deg",
+                    "dphi_deg"):  # fmt: skip
+            assert full[col].equals(heading[col]), col
+        fused = heading["mode"] != "frame"
+        for col in ("E_hat_m", "N_hat_m", "horizontal_m"):
+            assert heading.loc[fused, col].isna().all()
+            assert heading.loc[~fused, col].equals(full.loc[~fused, col])  # the head's own
+
     def test_perfect_beliefs_and_exact_odometry_give_the_truth(self):
         zero = OdometryNoise(0.0, 0.0, 0.0, 0.0)
         frames = synthetic_split(n_flights=2, samples=10, outliers=0.0, kappa=400.0, noise=zero)

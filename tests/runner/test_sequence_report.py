@@ -210,3 +210,142 @@ class TestFusionClaims:
         assert fusion_claims(Evidence(FakeStore({}, []), 100)) == []
         claims = fusion_claims(Evidence(store_with({"A": 5.0}, GAIN + LONG), 100))
         assert [c.kind for c in claims] == ["fusion"] * 3
+
+
+class TestPitchRollOfTheBestHead:
+    """A ``pitch_roll: best_on_val`` volume row: the head is chosen on standard/val only, and
+    δφ is the volume's fused yaw with that head's pitch and roll, scored against the rotation
+    module."""
+
+    SPLIT = "long/towns"
+    SEEDS = (0, 1)
+
+    def spec(self):
+        from pathlib import Path
+
+        from benchmark.runner.plan.specs import RowSpec, TableSpec
+
+        matching = {"encoder": "matching", "encoder_options": {"grey_gradient": True}}
+        rows = (
+            RowSpec("A", "", {"attitude": "matrix_fisher"}),
+            RowSpec("B", "", {"attitude": "re_net_r"}),
+            RowSpec("Control", "", {"attitude": "pd_re_net", "satellite_input": "blank"}),
+            RowSpec("Gravity", "", {"attitude": "re_net_svd", "encoder": "matching",
+                                    "encoder_options": {"protocol": "gravity_aided"}}),
+            RowSpec("V", "", {"attitude": "pd_re_net", **matching}, beliefs="volume",
+                    pitch_roll="best_on_val"),
+        )  # fmt: skip
+        return TableSpec("seq", "t", "sequence", Path("seq.yaml"), rows,
+                         eval_splits=(self.SPLIT,))  # fmt: skip
+
+    def build(self, tmp_path, val: dict[str, float], test: dict[str, float], missing=()):
+        """Units of every row per seed on encoder ``enc-<seed>``; a head's val (test) CSV has
+        pitch and roll errors of ``val[label]`` (``test[label]``) degrees each; the volume unit
+        writes its fusion table. ``missing``: (label, seed) without a validation file."""
+        import pandas as pd
+
+        from benchmark.models.model_config import ModelConfig
+        from benchmark.runner.execute.worker import eval_key, eval_paths, volume_sequence_paths
+        from benchmark.runner.plan.units import Unit
+        from benchmark.training.config import PretrainedConfig, TrainConfig
+
+        spec, units = self.spec(), []
+        rng = np.random.default_rng(7)
+        truth = pd.DataFrame({"index": np.arange(N), "yaw_deg": rng.uniform(-180, 180, N),
+                              "pitch_deg": rng.uniform(-60, 0, N),
+                              "roll_deg": rng.uniform(-10, 10, N)})  # fmt: skip
+        for job in spec.jobs():
+            for seed in self.SEEDS:
+                key = f"{job.label}-{seed}"
+                model = {"encoder": "matching", **job.row.model}
+                cfg = TrainConfig(
+                    seed=seed,
+                    model=ModelConfig(**model),
+                    pretrained=PretrainedConfig(checkpoint=f"enc-{seed}.pt", key=f"enc-{seed}"),
+                )
+                units.append(Unit(key, cfg, [job]))
+                unit_dir = tmp_path / "units" / key
+                for split, err in (("standard/val", val), (self.SPLIT, test)):
+                    if job.label not in err or ((job.label, seed) in missing and "val" in split):
+                        continue
+                    sign = rng.choice([-1.0, 1.0], (N, 2))
+                    frame = truth.assign(
+                        yaw_hat_deg=truth["yaw_deg"],
+                        pitch_hat_deg=truth["pitch_deg"] + sign[:, 0] * err[job.label],
+                        roll_hat_deg=truth["roll_deg"] + sign[:, 1] * err[job.label],
+                        dtheta_deg=err[job.label],
+                        dgamma_deg=err[job.label],
+                    )
+                    path = eval_paths(unit_dir, eval_key(split, "true"))[0]
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    frame.to_csv(path, index=False)
+                if job.beliefs == "volume":
+                    yaw_hat = truth["yaw_deg"] + rng.normal(0, 5, N)
+                    fused = pd.DataFrame({
+                        "odometry": "data", "index": np.arange(N), "flight": FLIGHT,
+                        "sample": np.arange(N) % PER_FLIGHT, "t_s": 2.0 * (np.arange(N) % 8),
+                        "mode": "frame", "yaw_hat_deg": yaw_hat, "E_hat_m": 0.0, "N_hat_m": 0.0,
+                        "dpsi_deg": np.abs(yaw_hat - truth["yaw_deg"]), "dphi_deg": -1.0,
+                        "horizontal_m": 3.0,
+                    })  # fmt: skip
+                    path = volume_sequence_paths(unit_dir, self.SPLIT)[0]
+                    path.parent.mkdir(parents=True, exist_ok=True)
+                    fused.to_csv(path, index=False)
+        return spec, units, truth
+
+    def test_chosen_on_validation_never_on_test(self, tmp_path):
+        from benchmark.runner.report.sequence import best_pitch_roll_head
+
+        # B is better on standard/val, A on the test split; the blank control and the
+        # gravity-aided head (another protocol) are better still but never candidates
+        val = {"A": 3.0, "B": 1.0, "Control": 0.1, "Gravity": 0.1, "V": 8.0}
+        test = {"A": 0.5, "B": 4.0, "V": 8.0}
+        spec, units, _ = self.build(tmp_path, val, test)
+        volume = [u for u in units if u.key.startswith("V-")]
+        label, by_seed = best_pitch_roll_head(spec, units, tmp_path, volume)
+        assert label == "B"
+        assert {v: u.key for v, u in by_seed.items()} == {"V-0": "B-0", "V-1": "B-1"}
+
+    def test_a_row_without_every_seed_is_no_candidate(self, tmp_path):
+        from benchmark.runner.report.sequence import best_pitch_roll_head
+
+        val, test = {"A": 3.0, "B": 1.0, "V": 8.0}, {"A": 3.0, "B": 1.0}
+        spec, units, _ = self.build(tmp_path, val, test, missing={("B", 1)})
+        volume = [u for u in units if u.key.startswith("V-")]
+        assert best_pitch_roll_head(spec, units, tmp_path, volume)[0] == "A"
+
+    def test_dphi_is_the_fused_yaw_with_the_chosen_pitch_and_roll(self, tmp_path):
+        import torch
+
+        from benchmark.geometry import euler_to_rotmat, geodesic_distance
+        from benchmark.runner.report.sequence import load_sequences
+
+        val, test = {"A": 3.0, "B": 1.0, "V": 8.0}, {"A": 0.5, "B": 4.0, "V": 8.0}
+        spec, units, truth = self.build(tmp_path, val, test)
+        (item,) = load_sequences(spec, units, tmp_path)
+        assert item.label == "V (B)"
+        import pandas as pd
+
+        from benchmark.runner.execute.worker import eval_key, eval_paths, volume_sequence_paths
+
+        t = lambda x: torch.as_tensor(np.radians(np.asarray(x, np.float64)))  # noqa: E731
+        for row, seed in enumerate(self.SEEDS):
+            fused = pd.read_csv(volume_sequence_paths(tmp_path / "units" / f"V-{seed}",
+                                                      self.SPLIT)[0])  # fmt: skip
+            head = pd.read_csv(eval_paths(tmp_path / "units" / f"B-{seed}",
+                                          eval_key(self.SPLIT, "true"))[0])  # fmt: skip
+            reference = np.degrees(geodesic_distance(
+                euler_to_rotmat(t(fused["yaw_hat_deg"]), t(head["pitch_hat_deg"]),
+                                t(head["roll_hat_deg"])),
+                euler_to_rotmat(t(truth["yaw_deg"]), t(truth["pitch_deg"]),
+                                t(truth["roll_deg"])),
+            ).numpy())  # fmt: skip
+            got = item.errors["data"]["frame"]
+            np.testing.assert_allclose(got["dphi_deg"][row], reference, atol=1e-7)
+            np.testing.assert_array_equal(got["dpsi_deg"][row], fused["dpsi_deg"])  # the volume's
+            assert item.exact_yaw_dphi is not None  # from B's pitch and roll: 4° off each way
+            np.testing.assert_allclose(
+                item.exact_yaw_dphi[row],
+                exact_yaw_geodesic_deg(*(np.radians(head[c].to_numpy()) for c in (
+                    "pitch_hat_deg", "roll_hat_deg", "pitch_deg", "roll_deg"))),
+            )  # fmt: skip

@@ -200,6 +200,23 @@ class TestLoadSpec:
         named = text.replace("beliefs: volume}", "encoder: matching, beliefs: volume}")
         assert load_spec(write(tmp_path, "t1", named)).rows[0].beliefs == "volume"
 
+    def test_pitch_roll_is_a_volume_rows_choice(self, tmp_path):
+        text = GOOD.replace("kind: table", "kind: sequence")
+        volume = "attitude: pd_re_net, encoder: matching, beliefs: volume"
+        best = text.replace("attitude: pd_re_net}", volume + ", pitch_roll: best_on_val}")
+        spec = load_spec(write(tmp_path, "t1", best))
+        assert spec.rows[0].pitch_roll == "best_on_val"
+        assert spec.jobs()[0].pitch_roll == "best_on_val"
+        assert load_spec(write(tmp_path, "t1", text)).rows[0].pitch_roll == "own"
+        path = write(tmp_path, "t1", text.replace("attitude: pd_re_net}",
+                                                  volume + ", pitch_roll: test}"))  # fmt: skip
+        with pytest.raises(SpecError, match=r"pitch_roll must be one of \('own', 'best_on_val'\)"):
+            load_spec(path)
+        head = text.replace("attitude: pd_re_net}", "attitude: pd_re_net, pitch_roll: best_on_val}")
+        with pytest.raises(SpecError, match="is for a beliefs: volume row") as info:
+            load_spec(write(tmp_path, "t1", head))
+        assert "t1.yaml" in str(info.value)
+
     def test_placeholder_outside_sweep(self, tmp_path):
         path = write(
             tmp_path,

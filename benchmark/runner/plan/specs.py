@@ -63,6 +63,9 @@ from benchmark.models.model_config import SATELLITE_INPUTS, ModelConfig, parse_s
 KINDS = ("table", "sweep", "cost", "sequence")
 # What a ``kind: sequence`` row fuses (``RowSpec.beliefs``).
 BELIEF_SOURCES = ("head", "volume")
+# Where a ``beliefs: volume`` row takes its pitch and roll (``RowSpec.pitch_roll``): "own" the
+# head of its own unit; "best_on_val" the spec's head row with the lowest validation error.
+PITCH_ROLL_SOURCES = ("own", "best_on_val")
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
 
@@ -105,6 +108,11 @@ class RowSpec:
     # pose volume; its heads give only pitch and roll). Not part of the model: a volume row and
     # a head row of the same model share their unit.
     beliefs: str = "head"
+    # Where a volume row's pitch and roll come from (:data:`PITCH_ROLL_SOURCES`): "own" (its
+    # unit's head) or "best_on_val" (the spec's head row, on the same shared encoder and
+    # protocol, with the lowest mean δθ + δγ on the validation split; chosen there, never on a
+    # test split). Not part of the model either.
+    pitch_roll: str = "own"
 
     def __hash__(self) -> int:  # the model dict is not hashable; its repr is
         return hash(repr(self))
@@ -166,6 +174,7 @@ class Job:
     eval_splits: tuple[str, ...]
     fuse: bool = False  # a ``kind: sequence`` job: its splits are fused along their flights
     beliefs: str = "head"  # what it fuses (``RowSpec.beliefs``)
+    pitch_roll: str = "own"  # a volume row's pitch and roll (``RowSpec.pitch_roll``)
 
 
 @dataclass(frozen=True)
@@ -212,6 +221,7 @@ class TableSpec:
                         ),
                         fuse=self.kind == "sequence",
                         beliefs=row.beliefs,
+                        pitch_roll=row.pitch_roll,
                     )
                 )
         return out
@@ -295,6 +305,10 @@ def _row_from(raw: Any, source: Path, index: int) -> RowSpec:
             raise SpecError(f"{where}: missing field {required!r}")
     if raw.get("beliefs", "head") not in BELIEF_SOURCES:
         raise SpecError(f"{where}: beliefs must be one of {BELIEF_SOURCES}, got {raw['beliefs']!r}")
+    if raw.get("pitch_roll", "own") not in PITCH_ROLL_SOURCES:
+        raise SpecError(
+            f"{where}: pitch_roll must be one of {PITCH_ROLL_SOURCES}, got {raw['pitch_roll']!r}"
+        )
     if raw.get("satellite_input", "image") not in SATELLITE_INPUTS:
         raise SpecError(
             f"{where}: satellite_input must be one of {SATELLITE_INPUTS}, "
@@ -401,6 +415,11 @@ def load_spec(path: str | Path) -> TableSpec:
             raise SpecError(
                 f"{path}: rows[{index}] ({row.label!r}): beliefs: {row.beliefs} is for a "
                 f"kind: sequence spec (what its rows fuse); kind {raw['kind']!r} fuses nothing"
+            )
+        if row.pitch_roll != "own" and row.beliefs != "volume":
+            raise SpecError(
+                f"{path}: rows[{index}] ({row.label!r}): pitch_roll: {row.pitch_roll} is for a "
+                f"beliefs: volume row (a head row's pitch and roll are its own)"
             )
         if row.beliefs == "volume" and row.model.get("encoder") is None:
             raise SpecError(

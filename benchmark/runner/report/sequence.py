@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
 
 from benchmark.evaluation.paired import median_bootstrap, pooled_bootstrap
+from benchmark.models.matching_options import MatchingOptions
 from benchmark.runner.execute.non_learned import CONSTANT, NonLearnedFusion
 from benchmark.runner.execute.worker import (
     eval_key,
@@ -73,17 +75,110 @@ def load_sequences(spec: TableSpec, units: list[Unit], workdir: Path) -> list[Se
             key=lambda u: u.cfg.seed,
         )  # fmt: skip
         where = volume_sequence_paths if job.beliefs == "volume" else sequence_paths
+        label, attitude_from = job.label, {u.key: u for u in mine}
+        if getattr(job, "pitch_roll", "own") == "best_on_val":
+            chosen = best_pitch_roll_head(spec, units, workdir, mine)
+            if chosen is None:
+                continue  # no head row on the same encoder has validation numbers for every seed
+            label, attitude_from = f"{job.label} ({chosen[0]})", chosen[1]
         for split in job.eval_splits:
             found = [u for u in mine if where(workdir / "units" / u.key, split)[0].is_file()]
             frames = [_read(where(workdir / "units" / u.key, split)[0]) for u in found]
+            if frames and label != job.label:  # δφ with the chosen head's pitch and roll
+                frames = [
+                    _with_pitch_roll(f, workdir / "units" / attitude_from[u.key].key, split)
+                    for u, f in zip(found, frames, strict=True)
+                ]
+                if any(f is None for f in frames):
+                    continue
             if frames:
                 blank = job.row.get("satellite_input") == "blank"
-                item = _stacked(job.label, split, frames, control=blank)
-                exact = [_exact_yaw_dphi(workdir / "units" / u.key, split, f)
+                item = _stacked(label, split, frames, control=blank)
+                exact = [_exact_yaw_dphi(workdir / "units" / attitude_from[u.key].key, split, f)
                          for u, f in zip(found, frames, strict=True)]  # fmt: skip
                 if all(e is not None for e in exact):
                     item = dataclasses.replace(item, exact_yaw_dphi=np.stack(exact))
                 out.append(item)
+    return out
+
+
+def _protocol(unit: Unit) -> str:
+    model = unit.cfg.model
+    if model.encoder != "matching":
+        return ""
+    return MatchingOptions.from_flat(model.encoder_options).loss.protocol
+
+
+def best_pitch_roll_head(
+    spec: TableSpec, units: list[Unit], workdir: Path, volume_units: list[Unit]
+) -> tuple[str, dict[str, Unit]] | None:
+    """The head row of ``spec`` whose pitch and roll a ``pitch_roll: best_on_val`` volume row
+    takes: among the rows that fuse a head's beliefs with the satellite image, on the shared
+    encoder and with the protocol of ``volume_units`` (one per seed), the one with the lowest
+    mean δθ + δγ on its units' validation split, averaged over the seeds (spec order breaks a
+    tie). Chosen on the validation split only: no test number enters. ``(label, {volume unit
+    key: that seed's head unit})``, or None when no row has validation numbers for every seed."""
+    seeds = {int(u.cfg.seed): u for u in volume_units}
+    best: tuple[float, str, dict[str, Unit]] | None = None
+    for job in spec.jobs():
+        if job.beliefs != "head" or job.row.get("satellite_input") == "blank":
+            continue
+        by_seed: dict[str, Unit] = {}
+        scores = []
+        for u in units:
+            volume = seeds.get(int(u.cfg.seed))
+            if (
+                volume is None
+                or volume.key in by_seed
+                or not any(j.table == spec.name and j.label == job.label for j in u.jobs)
+            ):
+                continue
+            key = u.cfg.pretrained.key if u.cfg.pretrained.enabled else None
+            if key is None or key != volume.cfg.pretrained.key or _protocol(u) != _protocol(volume):
+                continue
+            path = eval_paths(workdir / "units" / u.key, eval_key(str(u.val_split), "true"))[0]
+            if u.val_split is None or not path.is_file():
+                continue
+            val = pd.read_csv(path, usecols=["dtheta_deg", "dgamma_deg"])
+            by_seed[volume.key] = u
+            scores.append(float(val["dtheta_deg"].mean() + val["dgamma_deg"].mean()))
+        if len(by_seed) == len(seeds) and (best is None or float(np.mean(scores)) < best[0]):
+            best = (float(np.mean(scores)), job.label, by_seed)
+    return None if best is None else (best[1], best[2])
+
+
+def attitude_geodesic_deg(
+    yaw_hat: np.ndarray,
+    pitch_hat: np.ndarray,
+    roll_hat: np.ndarray,
+    yaw: np.ndarray,
+    pitch: np.ndarray,
+    roll: np.ndarray,
+) -> np.ndarray:
+    """Geodesic distance (degrees) between ``Rz(yaw_hat) Rx(pitch_hat) Ry(roll_hat)`` and the
+    true ``Rz(yaw) Rx(pitch) Ry(roll)`` (paper Eq. 1; radians, ``(N,)`` each -> ``(N,)``): the
+    intrinsic z-x'-y'' sequence of scipy's ``from_euler("ZXY")``."""
+    estimate = Rotation.from_euler("ZXY", np.stack([yaw_hat, pitch_hat, roll_hat], axis=-1))
+    truth = Rotation.from_euler("ZXY", np.stack([yaw, pitch, roll], axis=-1))
+    return np.degrees((estimate.inv() * truth).magnitude())
+
+
+def _with_pitch_roll(fused: pd.DataFrame, unit_dir: Path, split: str) -> pd.DataFrame | None:
+    """``fused`` (a volume fusion table, sorted by :func:`_read`) with ``dphi_deg`` scored
+    again: its fused yaw with the pitch and roll of the head unit at ``unit_dir`` on the same
+    frames (its evaluation of ``split``). None when that evaluation is absent."""
+    path = eval_paths(unit_dir, eval_key(split, "true"))[0]
+    if not path.is_file():
+        return None
+    cols = ["index", "yaw_deg", "pitch_deg", "pitch_hat_deg", "roll_deg", "roll_hat_deg"]
+    at = pd.read_csv(path, usecols=cols).set_index("index").loc[fused["index"].to_numpy()]
+    rad = np.radians
+    out = fused.copy()
+    out["dphi_deg"] = attitude_geodesic_deg(
+        rad(fused["yaw_hat_deg"].to_numpy(np.float64)),
+        *(rad(at[c].to_numpy(np.float64)) for c in ("pitch_hat_deg", "roll_hat_deg", "yaw_deg",
+                                                     "pitch_deg", "roll_deg")),
+    )  # fmt: skip
     return out
 
 
