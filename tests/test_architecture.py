@@ -559,7 +559,28 @@ def test_claims_and_report_do_no_work(path):
     )
 
 
+# The report prints numbers computed before it (claims.report_numbers): no report module reaches a
+# function that computes an interval, a bootstrap or a verdict.
+NUMBER_FUNCTIONS = {
+    "summarize", "row_interval", "cell_interval", "frame_interval", "seed_flight_bootstrap",
+    "median_bootstrap", "pooled_bootstrap", "paired_bootstrap", "spearman_bootstrap",
+    "sequence_rows", "load_sequences", "sequence_numbers", "evaluate_claims", "report_numbers",
+}  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "path", [p for p in FILES if rel(p).startswith("benchmark/runner/report/")], ids=rel
+)
+def test_the_report_computes_no_number(path):
+    found = sorted(imported_names(path) & NUMBER_FUNCTIONS)
+    assert not found, (
+        f"{rel(path)} imports {found}: the report renders numbers computed before it is written "
+        "(benchmark/runner/claims/report_numbers.py, run by benchmark/runner/reproduction.py)"
+    )
+
+
 def test_the_writer_is_called_with_its_inputs_by_the_orchestration():
     # one function strings the work together: the reproduction computes the report's inputs
     source = (ROOT / "benchmark/runner/reproduction.py").read_text()
     assert "def _report_inputs(" in source and "inputs=inputs" in source
+    assert "def _report_numbers(" in source and "numbers=numbers" in source

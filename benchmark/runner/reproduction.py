@@ -44,7 +44,7 @@ from benchmark.runner.plan.units import Unit, plan_units
 from benchmark.runner.report.logbook import Logbook, write_config
 
 if TYPE_CHECKING:
-    from benchmark.runner.report.outputs import ReportInputs
+    from benchmark.runner.claims.report_numbers import ReportInputs, ReportNumbers
     from benchmark.tracking import Tracker
 
 
@@ -384,9 +384,12 @@ def _run_locked(
         inputs = _report_inputs(
             specs, units, results, profile, (data_root, out, workdir), merge, config, logbook
         )
+        numbers = _report_numbers(
+            specs, units, results, profile, (data_root, out, workdir), merge, config, inputs
+        )
         written = _write_reports(
             specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge,
-            inputs,
+            inputs, numbers,
         )  # fmt: skip
     except KeyboardInterrupt:
         run_status = RunStatus.KILLED
@@ -458,16 +461,16 @@ def _report_inputs(
     (every checkpoint's weights, every prediction file) and Table 6's measurements (cached in
     ``<workdir>/costs``; a new one logged to ``logbook``)."""
     from benchmark.data.format import DatasetError, read_manifest
+    from benchmark.runner.claims.report_numbers import (
+        ReportInputs,
+        results_frame,
+        validation_splits,
+    )
     from benchmark.runner.execute.audit import heading_cue_rows
     from benchmark.runner.execute.costs import measure_costs
     from benchmark.runner.execute.non_learned import fuse_non_learned
     from benchmark.runner.execute.provenance import collect_provenance
     from benchmark.runner.execute.reference_rows import constant_rows, evaluate_references
-    from benchmark.runner.report.outputs import (
-        ReportInputs,
-        results_frame,
-        validation_splits,
-    )
 
     data_root, out, workdir = paths
     workers, quiet = max(1, config.executor.workers), config.quiet
@@ -499,12 +502,39 @@ def _report_inputs(
     return ReportInputs(rows, frames, references, audit, fused, provenance, costs)
 
 
+def _report_numbers(
+    specs: list,
+    units: list[Unit],
+    results: dict[str, UnitResult],
+    profile: ReproProfile,
+    paths: tuple[Path, Path, Path],
+    merge: MergePlan,
+    config: ReproduceConfig,
+    inputs: ReportInputs,
+) -> ReportNumbers:
+    """Every number of the report, before any report file is written: the rows of
+    ``results.csv``, the tables' flight x seed intervals (``executor.workers`` processes) and the
+    claims (``claims.report_numbers``)."""
+    from benchmark.data.format import DatasetError
+    from benchmark.runner.claims.report_numbers import report_numbers
+
+    data_root, _, workdir = paths
+    try:
+        return report_numbers(
+            specs, units, results, data_root, workdir, merge=merge, inputs=inputs,
+            workers=max(1, config.executor.workers), quiet=config.quiet,
+        )  # fmt: skip
+    except DatasetError as err:
+        raise _data_error(data_root, profile, 0, err) from None
+
+
 def _write_reports(
-    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan, inputs
+    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan, inputs, numbers
 ) -> list[Path]:
-    """``outputs.write_reports`` with the merge planned before training and the inputs computed
-    by :func:`_report_inputs`; a dataset damaged while the units ran (their results are kept in
-    the store) is one line with the fix instead of a traceback."""
+    """``outputs.write_reports`` with the merge planned before training, the inputs computed
+    by :func:`_report_inputs` and the numbers by :func:`_report_numbers`: it only writes. A
+    dataset damaged while the units ran (their results are kept in the store) is one line with
+    the fix instead of a traceback."""
     from benchmark.data.format import DatasetError
     from benchmark.runner.report.outputs import write_reports
 
@@ -512,7 +542,7 @@ def _write_reports(
     try:
         return write_reports(
             specs, units, results, profile, data_root, out, logbook, invocations,
-            workdir=workdir, merge=merge, inputs=inputs,
+            workdir=workdir, merge=merge, inputs=inputs, numbers=numbers,
         )  # fmt: skip
     except DatasetError as err:
         raise _data_error(data_root, profile, 0, err) from None

@@ -13,6 +13,7 @@ import benchmark.tracking
 from benchmark.runner.claims.earlier import EarlierTableError, MergedFrameStore, mark_earlier_claims
 from benchmark.runner.claims.evidence import NOT_RUN, Claim, safe_claim
 from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.claims.report_numbers import results_frame
 from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.partial import (
     BANNER_BEGIN,
@@ -28,7 +29,6 @@ from benchmark.runner.plan.partial import (
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import load_specs
 from benchmark.runner.plan.units import plan_units
-from benchmark.runner.report.outputs import results_frame
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
 SPLITS += [f"height{h}/{p}" for h in (600, 800, 1000, 1200, 1400) for p in ("train", "test")]

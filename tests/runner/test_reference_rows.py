@@ -19,11 +19,12 @@ from benchmark.evaluation.paired import swap_effect
 from benchmark.references import get_reference_class, list_references
 from benchmark.runner.claims.all_claims import evaluate_claims
 from benchmark.runner.claims.findings import findings_markdown
+from benchmark.runner.claims.report_numbers import REPORT_METRICS
 from benchmark.runner.claims.spread import FRAME_METRICS, read_frames
+from benchmark.runner.claims.table_intervals import summarize
 from benchmark.runner.execute import reference_rows as rr
 from benchmark.runner.plan.specs import SpecError, default_spec_dir, load_spec
-from benchmark.runner.report.outputs import REPORT_METRICS
-from benchmark.runner.report.tables import NO_VAL, markdown_table, summarize
+from benchmark.runner.report.tables import NO_VAL, markdown_table
 
 STD = "standard/test"
 TABLES = ("table1", "table2", "towns", "extended")
@@ -147,8 +148,8 @@ class TestSequenceReferences:
 
     @pytest.mark.slow
     def test_fused_beside_the_heads(self, tmp_path, smoke_dataset, counted):
+        from benchmark.runner.claims.sequence_errors import non_learned_sequences, sequence_rows
         from benchmark.runner.execute.non_learned import fuse_non_learned
-        from benchmark.runner.report.sequence import non_learned_sequences, sequence_rows
         from benchmark.runner.report.tables import CONSTANT_LABEL
 
         spec = self.spec(tmp_path)
@@ -321,7 +322,7 @@ class TestRenderedRows:
         assert "`standard/test` not run" in note  # the two others: no record
 
     def test_cells_get_the_flight_bootstrap_of_the_reference_frames(self):
-        from benchmark.runner.report.intervals import reference_interval
+        from benchmark.runner.claims.table_intervals import reference_interval
 
         rng = np.random.default_rng(0)
         frame = pd.DataFrame({"index": range(60), "flight": np.repeat(np.arange(12), 5),
@@ -345,7 +346,7 @@ class TestRenderedRows:
         a model's with one seed (``N_BOOT`` replicates), not the cached flight bootstrap."""
         from benchmark.runner.claims.evidence import N_BOOT
         from benchmark.runner.claims.spread import seed_flight_bootstrap
-        from benchmark.runner.report.intervals import row_interval
+        from benchmark.runner.claims.table_intervals import row_interval
 
         _spec, results = table1_references
         name, train = "gravity_template", "standard/train"

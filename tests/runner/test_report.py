@@ -16,23 +16,24 @@ import pandas as pd
 import pytest
 
 from benchmark.evaluation.paired import paired_bootstrap
+from benchmark.runner.claims.report_numbers import (
+    EXTRA_METRICS,
+    REPORT_METRICS,
+    results_frame,
+    with_horizontal_errors,
+)
 from benchmark.runner.claims.spread import (
     FLIGHT_BOOT,
     cell_interval,
     read_frames,
     seed_flight_bootstrap,
 )
+from benchmark.runner.claims.table_intervals import summarize
 from benchmark.runner.execute.reference_rows import ReferenceResults
 from benchmark.runner.execute.worker import UnitResult
 from benchmark.runner.plan.repro_profiles import get_repro_profile
 from benchmark.runner.plan.specs import default_spec_dir, load_specs
 from benchmark.runner.plan.units import plan_units
-from benchmark.runner.report.outputs import (
-    EXTRA_METRICS,
-    REPORT_METRICS,
-    results_frame,
-    with_horizontal_errors,
-)
 from benchmark.runner.report.sweeps import (
     series_label,
     sweep_figure,
@@ -47,7 +48,6 @@ from benchmark.runner.report.tables import (
     markdown_table,
     paper_value,
     pick,
-    summarize,
 )
 
 SPLITS = ["standard/train", "standard/val", "standard/test", "generalized/test"]
@@ -458,7 +458,7 @@ class TestSwapEffectInterval:
         from benchmark.runner.claims.evidence import N_BOOT, Evidence
         from benchmark.runner.claims.frame_errors import FrameStore
         from benchmark.runner.claims.satellite import swap_rise
-        from benchmark.runner.report.intervals import row_interval
+        from benchmark.runner.claims.table_intervals import row_interval
         from benchmark.runner.report.tables import swap_probe_table
 
         specs, units, results, _errors, workdir = synthetic
@@ -586,3 +586,29 @@ class TestWhatWasTrainedAndThePaper:
         assert (f"δψ yaw (°): constant 76.37–98.83, paper {low:.2f}–{high:.2f} ({reached} of 6 "
                 "paper numbers at or above the constant's on their split)") in text  # fmt: skip
         assert "every median is named so" in text
+
+
+class TestReportNumbers:
+    """Every number of the report is computed before it is written, the intervals as work items
+    in a spawn pool: the same numbers with one process or two."""
+
+    def test_the_same_with_any_number_of_workers(self, synthetic):
+        from benchmark.runner.claims.report_numbers import ReportInputs, report_numbers
+        from benchmark.runner.plan.partial import MergePlan
+
+        specs, units, results, _, workdir = synthetic
+        inputs = ReportInputs([], {}, ReferenceResults(), [], {}, {}, {})
+        merge = MergePlan(run=list(specs))
+        one, two = (
+            report_numbers(specs, units, results, workdir.parent / "data", workdir, merge=merge,
+                           inputs=inputs, workers=w, quiet=True)
+            for w in (1, 2)
+        )  # fmt: skip
+        assert set(one.summaries) == {s.name for s in specs}
+        for name, summary in one.summaries.items():
+            pd.testing.assert_frame_equal(summary, two.summaries[name])
+        pd.testing.assert_frame_equal(one.everything, two.everything)
+        assert one.claims_md == two.claims_md and one.findings_md == two.findings_md
+        # the flight x seed bootstrap replaced the Student-t interval over seeds
+        table1 = one.summaries["table1"]
+        assert (table1.loc[table1["role"] == "test", "interval"] != "seed t").all()

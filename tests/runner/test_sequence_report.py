@@ -3,6 +3,8 @@ per-frame errors whose answers are known."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -20,12 +22,12 @@ from benchmark.runner.claims.fusion import (
     fusion_gain_claim,
     uncertainty_gain_claim,
 )
-from benchmark.runner.report.sequence import (
+from benchmark.runner.claims.sequence_errors import (
     SequenceErrors,
     exact_yaw_geodesic_deg,
-    oracle_distance,
     sequence_rows,
 )
+from benchmark.runner.report.sequence import oracle_distance
 
 N_FLIGHTS, PER_FLIGHT = 20, 8
 FLIGHT = np.repeat(np.arange(N_FLIGHTS), PER_FLIGHT)
@@ -294,7 +296,7 @@ class TestPitchRollOfTheBestHead:
         return spec, units, truth
 
     def test_chosen_on_validation_never_on_test(self, tmp_path):
-        from benchmark.runner.report.sequence import best_pitch_roll_head
+        from benchmark.runner.claims.sequence_errors import best_pitch_roll_head
 
         # B is better on standard/val, A on the test split; the blank control and the
         # gravity-aided head (another protocol) are better still but never candidates
@@ -306,8 +308,22 @@ class TestPitchRollOfTheBestHead:
         assert label == "B"
         assert {v: u.key for v, u in by_seed.items()} == {"V-0": "B-0", "V-1": "B-1"}
 
+    def test_its_own_head_when_no_head_row_reads_its_encoder(self, tmp_path):
+        from benchmark.runner.claims.sequence_errors import OWN_HEAD, best_pitch_roll_head
+        from benchmark.training.config import PretrainedConfig
+
+        val, test = {"A": 3.0, "B": 1.0, "V": 8.0}, {"A": 3.0, "B": 1.0}
+        spec, units, _ = self.build(tmp_path, val, test)
+        # every unit trained end to end (no shared encoder): no head reads the volume's encoder
+        for u in units:
+            u.cfg = dataclasses.replace(u.cfg, pretrained=PretrainedConfig())
+        volume = [u for u in units if u.key.startswith("V-")]
+        label, by_seed = best_pitch_roll_head(spec, units, tmp_path, volume)
+        assert label == OWN_HEAD and {k: u.key for k, u in by_seed.items()} == {
+            "V-0": "V-0", "V-1": "V-1"}  # fmt: skip
+
     def test_a_row_without_every_seed_is_no_candidate(self, tmp_path):
-        from benchmark.runner.report.sequence import best_pitch_roll_head
+        from benchmark.runner.claims.sequence_errors import best_pitch_roll_head
 
         val, test = {"A": 3.0, "B": 1.0, "V": 8.0}, {"A": 3.0, "B": 1.0}
         spec, units, _ = self.build(tmp_path, val, test, missing={("B", 1)})
@@ -318,7 +334,7 @@ class TestPitchRollOfTheBestHead:
         import torch
 
         from benchmark.geometry import euler_to_rotmat, geodesic_distance
-        from benchmark.runner.report.sequence import load_sequences
+        from benchmark.runner.claims.sequence_errors import load_sequences
 
         val, test = {"A": 3.0, "B": 1.0, "V": 8.0}, {"A": 0.5, "B": 4.0, "V": 8.0}
         spec, units, truth = self.build(tmp_path, val, test)

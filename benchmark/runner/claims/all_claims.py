@@ -42,8 +42,8 @@ def evaluate_claims(
     """Every claim, in the report's order (1-10 the paper's, then the satellite claims, then which
     representation wins each test split of the beyond-the-paper ``extended`` table).
 
-    ``summaries`` (per-table mean summaries, ``benchmark.runner.report.tables.summarize``) are kept
-    for the report's context; every verdict is computed from ``frames``' per-frame errors.
+    ``summaries`` (per-table mean summaries, ``claims.table_intervals.summarize``) are kept for
+    the report's context; every verdict is computed from ``frames``' per-frame errors.
     ``confirms`` (test split -> confirmation split, ``benchmark.sim.CONFIRMS``): each claim is
     decided again, by the same rules and models, on the confirmation draw's frames
     (:meth:`FrameStore.confirmation`) into its ``confirmation``; the ranking claims test the pair

@@ -14,8 +14,6 @@ order and with any number of workers). The report reads the tables only
 
 from __future__ import annotations
 
-import concurrent.futures as cf
-import multiprocessing
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -23,9 +21,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.progress import Progress
 from benchmark.runner.execute.reference_rows import ReferenceResults, dataset_splits
-from benchmark.runner.execute.worker import worker_init
+from benchmark.runner.execute.work_pool import map_work
 from benchmark.runner.plan.specs import TableSpec
 from benchmark.runner.plan.units import val_split_for
 
@@ -123,22 +120,11 @@ def fuse_non_learned(
     order (split, row) of the spec, the constant predictor first. ``references`` holds the
     references' frames and the constant predictor's (``ReferenceResults.constants``)."""
     jobs = _jobs(specs, references, data_root)
-    results: list[NonLearnedFusion | None] = [None] * len(jobs)
-    with Progress(len(jobs), "fuse non-learned", unit="row", enabled=not quiet) as bar:
-        if workers <= 1 or len(jobs) <= 1:
-            for i, job in enumerate(jobs):
-                results[i] = _fuse(job)
-                bar.update(1, postfix=f"{job.row} {job.split}")
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            with cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=worker_init) as pool:
-                futures = {pool.submit(_fuse, job): i for i, job in enumerate(jobs)}
-                for future in cf.as_completed(futures):
-                    i = futures[future]
-                    results[i] = future.result()
-                    bar.update(1, postfix=f"{jobs[i].row} {jobs[i].split}")
+    results = map_work(
+        _fuse, jobs, workers, label="fuse non-learned", name=lambda j: f"{j.row} {j.split}",
+        quiet=quiet,
+    )  # fmt: skip
     out: dict[str, list[NonLearnedFusion]] = {}
     for job, result in zip(jobs, results, strict=True):
-        assert result is not None
         out.setdefault(job.spec, []).append(result)
     return out

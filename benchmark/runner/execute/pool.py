@@ -126,7 +126,7 @@ def execute_units(
                 signal.signal(signal.SIGINT, previous)
             _wait_reporting(futures, on_done, bar, [task for _, task in todo], submitted)
         except BaseException:
-            _stop_pool(pool)
+            stop_pool(pool)
             raise
         pool.shutdown(wait=True)
 
@@ -154,7 +154,7 @@ def _wait_reporting(
         line.show([(futures[f].title, dirs[futures[f].key]) for f in pending])
 
 
-def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+def stop_pool(pool: cf.ProcessPoolExecutor) -> None:
     """Cancel what has not started and terminate the workers (they may be mid-training)."""
     processes = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)

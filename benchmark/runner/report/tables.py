@@ -6,7 +6,7 @@ satellite mode and seed; metric columns named as in ``reports/paper_tables.csv``
 satellite-swap probe: another place's image); the ``swap`` rows of trained models also hold the
 paired swap effect ``swap_<dpsi|dphi>_diff_deg`` with each seed's 95% flight-bootstrap interval
 ``swap_<e>_boot_lo_deg`` / ``_hi_deg`` (the tables show the claims' joint flight x seed interval
-instead: ``benchmark.runner.report.intervals``). ``satellite_input`` is ``image``, ``blank`` (the
+instead: ``claims.table_intervals``). ``satellite_input`` is ``image``, ``blank`` (the
 UAV-only control) or ``none`` (the constant predictor); ``train_split`` the split a row was
 trained on; ``role`` is ``test`` or ``val`` (the unit's validation split, on which choices are
 made; the tables show it beside the test numbers).
@@ -20,16 +20,15 @@ the value.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from benchmark.evaluation.metrics import seed_interval
 from benchmark.runner.claims.evidence import N_BOOT as CLAIMS_N_BOOT
 from benchmark.runner.claims.satellite import MIN_RISE_DEG
+from benchmark.runner.claims.table_intervals import SWAP_EFFECTS
 from benchmark.runner.execute.reference_rows import CONSTANT_LABEL, fails_text, failure_percent
 from benchmark.runner.plan.specs import TableSpec
 
@@ -52,60 +51,11 @@ METRIC_LABELS: dict[str, str] = {
     "size_MB": "size (MB)",
     "MFLOPs": "MFLOPs",
 }
-GROUP_KEYS = [
-    "table", "label", "paper_model", "x", "split", "satellite", "satellite_input", "train_split",
-    "role",
-]  # fmt: skip
 # Metrics shown on the validation split beside the test numbers (those of a spec's metrics).
 VAL_METRICS = ("dpsi_deg", "dphi_deg", "dE_m", "dN_m")
 NO_VAL = "–"  # a model whose training split has no validation split (the height splits)
-SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))
-# The swap effect's interval: the claims' joint flight x seed bootstrap, given by ``resolve``
-# (``benchmark.runner.report.intervals``); the mean of the seeds' own bounds is none.
-SWAP_BOUNDS = tuple(f"swap_{e}_boot_{end}_deg" for e, _ in SWAP_EFFECTS for end in ("lo", "hi"))
 ONE_FLIGHT = "one flight: no interval"
 NO_INTERVAL = "no interval (no per-frame errors)"
-
-
-def interval95(values: np.ndarray) -> tuple[float, float, float]:
-    """``(mean, low, high)`` over the finite values: Student-t 95% interval of the mean (NaN
-    bounds for one value, all NaN for none)."""
-    values = np.asarray(values, dtype=float)
-    values = values[np.isfinite(values)]
-    if len(values) == 0:
-        return math.nan, math.nan, math.nan
-    interval = seed_interval(values, 0.95)
-    return interval.mean, interval.low, interval.high
-
-
-Resolver = Callable[[pd.DataFrame], "dict[str, float | str] | None"]
-
-
-def summarize(
-    results: pd.DataFrame, metrics: list[str], resolve: Resolver | None = None
-) -> pd.DataFrame:
-    """One row per (table, label, x, split, satellite, ..., role): ``<m>`` (mean over seeds),
-    ``<m>_lo``, ``<m>_hi`` (95% Student-t interval over seeds), ``n_seeds`` and ``interval``
-    (``seed t`` or ``none``). ``resolve(part)``, given a row's results (one per seed), may return
-    better bounds (``<m>_lo``/``<m>_hi``, ``interval``, ``n_flights``) that replace these, e.g.
-    :func:`benchmark.runner.report.intervals.row_interval`. The swap effect's bounds
-    (:data:`SWAP_BOUNDS`) of several seeds are left empty unless ``resolve`` gives them: a mean
-    of the seeds' own interval bounds is no interval."""
-    rows = []
-    keys = [k for k in GROUP_KEYS if k in results.columns]
-    for group, part in results.groupby(keys, dropna=False, sort=False):
-        row = dict(zip(keys, group, strict=True))
-        row["n_seeds"] = int(part["seed"].nunique()) if "seed" in part else len(part)
-        for m in metrics:
-            if m in part:
-                row[m], row[f"{m}_lo"], row[f"{m}_hi"] = interval95(part[m].to_numpy())
-        row["interval"] = "seed t" if row["n_seeds"] > 1 else "none"
-        if row["n_seeds"] > 1:
-            row.update({k: math.nan for k in SWAP_BOUNDS if k in row})
-        better = resolve(part) if resolve is not None else None
-        row.update(better or {})
-        rows.append(row)
-    return pd.DataFrame(rows)
 
 
 def format_value(mean: float, lo: float, hi: float, digits: int = 2) -> str:

@@ -1,4 +1,7 @@
-"""The intervals of a table row: its cells and, on a ``swap`` row, the satellite-swap effect.
+"""The numbers of a table row with their intervals (:func:`summarize`): its cells and, on a
+``swap`` row, the satellite-swap effect (:func:`row_interval`). Functions of results, computed
+before the report is written (``benchmark.runner.claims.report_numbers``); the report renders
+them.
 
 Cells: the flight x seed bootstrap of ``benchmark.runner.claims.spread`` (a model's predictions
 CSVs, the constant predictor's per-frame table, a reference's frames in its table).
@@ -9,16 +12,19 @@ the same frames, then :data:`~benchmark.runner.claims.evidence.N_BOOT` replicate
 the flights and the seeds together (``spread.seed_flight_bootstrap`` of the per-seed rises, seed
 0: the claims' draws). A table and a claim about the same model and split therefore print the
 same interval; the seeds' own flight-bootstrap bounds (``results.csv``) are never averaged into
-one (``benchmark.runner.report.tables.summarize``).
+one (:func:`summarize`).
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from benchmark.evaluation.metrics import seed_interval
 from benchmark.evaluation.paired import SWAP_ERRORS
 from benchmark.runner.claims.evidence import N_BOOT
 from benchmark.runner.claims.spread import (
@@ -30,6 +36,16 @@ from benchmark.runner.claims.spread import (
     seed_flight_bootstrap,
 )
 from benchmark.runner.execute.reference_rows import ReferenceResults
+
+GROUP_KEYS = [
+    "table", "label", "paper_model", "x", "split", "satellite", "satellite_input", "train_split",
+    "role",
+]  # fmt: skip
+# Rows of a table: one per group of results rows (the seeds of one model on one split).
+SWAP_EFFECTS = (("dpsi", "δψ"), ("dphi", "δφ"))  # (error, its symbol in the tables)
+# The swap effect's interval: the claims' joint flight x seed bootstrap, given by ``resolve``
+# (:func:`row_interval`); the mean of the seeds' own bounds is none.
+SWAP_BOUNDS = tuple(f"swap_{e}_boot_{end}_deg" for e, _ in SWAP_EFFECTS for end in ("lo", "hi"))
 
 
 def swap_interval(true: pd.DataFrame, swap: pd.DataFrame) -> dict[str, float]:
@@ -129,7 +145,7 @@ def row_interval(
     constant_frames: dict[tuple[str, str], pd.DataFrame],
     references: ReferenceResults,
 ) -> dict | None:
-    """Everything :func:`~benchmark.runner.report.tables.summarize` may replace for one table row
+    """Everything :func:`summarize` may replace for one table row
     (``part``: its results rows): the cells' bounds, and on a ``swap`` row the swap effect's
     (:func:`model_swap_interval`, :func:`reference_swap_interval`); None when neither has
     per-frame errors."""
@@ -143,3 +159,44 @@ def row_interval(
     else:
         effect = model_swap_interval(part, workdir)
     return {**(out or {}), **effect} if effect else out
+
+
+def interval95(values: np.ndarray) -> tuple[float, float, float]:
+    """``(mean, low, high)`` over the finite values: Student-t 95% interval of the mean (NaN
+    bounds for one value, all NaN for none)."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if len(values) == 0:
+        return math.nan, math.nan, math.nan
+    interval = seed_interval(values, 0.95)
+    return interval.mean, interval.low, interval.high
+
+
+Resolver = Callable[[pd.DataFrame], "dict[str, float | str] | None"]
+
+
+def summarize(
+    results: pd.DataFrame, metrics: list[str], resolve: Resolver | None = None
+) -> pd.DataFrame:
+    """One row per (table, label, x, split, satellite, ..., role): ``<m>`` (mean over seeds),
+    ``<m>_lo``, ``<m>_hi`` (95% Student-t interval over seeds), ``n_seeds`` and ``interval``
+    (``seed t`` or ``none``). ``resolve(part)``, given a row's results (one per seed), may return
+    better bounds (``<m>_lo``/``<m>_hi``, ``interval``, ``n_flights``) that replace these, e.g.
+    :func:`row_interval`. The swap effect's bounds
+    (:data:`SWAP_BOUNDS`) of several seeds are left empty unless ``resolve`` gives them: a mean
+    of the seeds' own interval bounds is no interval."""
+    rows = []
+    keys = [k for k in GROUP_KEYS if k in results.columns]
+    for group, part in results.groupby(keys, dropna=False, sort=False):
+        row = dict(zip(keys, group, strict=True))
+        row["n_seeds"] = int(part["seed"].nunique()) if "seed" in part else len(part)
+        for m in metrics:
+            if m in part:
+                row[m], row[f"{m}_lo"], row[f"{m}_hi"] = interval95(part[m].to_numpy())
+        row["interval"] = "seed t" if row["n_seeds"] > 1 else "none"
+        if row["n_seeds"] > 1:
+            row.update({k: math.nan for k in SWAP_BOUNDS if k in row})
+        better = resolve(part) if resolve is not None else None
+        row.update(better or {})
+        rows.append(row)
+    return pd.DataFrame(rows)
