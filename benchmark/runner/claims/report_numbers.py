@@ -213,9 +213,10 @@ def _with_stale_column(frame: pd.DataFrame) -> pd.DataFrame:
 class ReportNumbers:
     """What :func:`report_numbers` computed: ``everything`` (the rows of ``results.csv``, as
     written), ``show_val`` (a model was measured on a validation split: every table shows its
-    columns), ``summaries`` (per table of today's and the kept live specs: its cells with their
-    intervals, ``summarize``), ``sequences`` (per ``kind: sequence`` spec) and the claims with
-    the findings and the claims table generated from them."""
+    columns), ``summaries`` (per table of today's and the kept live specs but the sequence
+    tables: its cells with their intervals, ``summarize``), ``sequences`` (per ``kind:
+    sequence`` spec: its own numbers) and the claims with the findings and the claims table
+    generated from them."""
 
     everything: pd.DataFrame
     show_val: bool
@@ -296,8 +297,10 @@ def report_numbers(
         if spec.kind == "sequence" and workdir is not None
         for split in spec.all_eval_splits()
     ]
-    # the sequence splits first: the longest items, so the pool ends together
-    items = [*sequence_items, *(("summary", name, "") for name in every_spec)]
+    # A sequence table prints its own numbers (the sequence items), not a summary of its rows;
+    # the sequence splits first: the longest items, so the pool ends together.
+    summary_items = [("summary", n, "") for n, s in every_spec.items() if s.kind != "sequence"]
+    items = [*sequence_items, *summary_items]
     state = {
         "everything": everything, "metrics": metrics, "workdir": workdir,
         "frames": inputs.constant_frames, "references": references, "specs": every_spec,
