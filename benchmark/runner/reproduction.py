@@ -381,16 +381,11 @@ def _run_locked(
         run_executor(config.executor, rest, on_done, config.quiet, units_log_to)
         invocation.end("failed" if failures else "finished")
         invocations = relevant_invocations(workdir, keys, invocation.id)
-        inputs = _report_inputs(
-            specs, units, results, profile, (data_root, out, workdir), merge, config, logbook
-        )
-        numbers = _report_numbers(
-            specs, units, results, profile, (data_root, out, workdir), merge, config, inputs
-        )
-        written = _write_reports(
-            specs, units, results, profile, (data_root, out, workdir), logbook, invocations, merge,
-            inputs, numbers,
-        )  # fmt: skip
+        stage = _ReportStage(specs, units, results, profile, (data_root, out, workdir), merge,
+                             config)  # fmt: skip
+        inputs = _report_inputs(stage, logbook)
+        numbers = _report_numbers(stage, inputs)
+        written = _write_reports(stage, logbook, invocations, inputs, numbers)
     except KeyboardInterrupt:
         run_status = RunStatus.KILLED
         invocation.end("interrupted")
@@ -443,16 +438,22 @@ def _with_shared_encoders(
     return shared + todo
 
 
-def _report_inputs(
-    specs: list,
-    units: list[Unit],
-    results: dict[str, UnitResult],
-    profile: ReproProfile,
-    paths: tuple[Path, Path, Path],
-    merge: MergePlan,
-    config: ReproduceConfig,
-    logbook: Logbook,
-) -> ReportInputs:
+@dataclass(frozen=True)
+class _ReportStage:
+    """What the report stage's three steps (:func:`_report_inputs`, :func:`_report_numbers`,
+    :func:`_write_reports`) read: today's specs and units, their results, the profile, the
+    ``(data_root, out, workdir)`` paths, the merge with an earlier report and the configuration."""
+
+    specs: list
+    units: list[Unit]
+    results: dict[str, UnitResult]
+    profile: ReproProfile
+    paths: tuple[Path, Path, Path]
+    merge: MergePlan
+    config: ReproduceConfig
+
+
+def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
     """The report stage's work, before any report file is written (a failure leaves the report
     directory as it was): the constant predictor on every table's splits, the non-learned
     references (cached in the work directory; in processes of their own), the heading-cue
@@ -472,8 +473,9 @@ def _report_inputs(
     from benchmark.runner.execute.provenance import collect_provenance
     from benchmark.runner.execute.reference_rows import constant_rows, evaluate_references
 
-    data_root, out, workdir = paths
-    workers, quiet = max(1, config.executor.workers), config.quiet
+    specs, units, results, profile = stage.specs, stage.units, stage.results, stage.profile
+    merge, (data_root, out, workdir) = stage.merge, stage.paths
+    workers, quiet = max(1, stage.config.executor.workers), stage.config.quiet
     try:
         val_of = validation_splits(results_frame(units, results))
         rows, frames = constant_rows(specs, data_root, val_of)
@@ -502,34 +504,29 @@ def _report_inputs(
     return ReportInputs(rows, frames, references, audit, fused, provenance, costs)
 
 
-def _report_numbers(
-    specs: list,
-    units: list[Unit],
-    results: dict[str, UnitResult],
-    profile: ReproProfile,
-    paths: tuple[Path, Path, Path],
-    merge: MergePlan,
-    config: ReproduceConfig,
-    inputs: ReportInputs,
-) -> ReportNumbers:
+def _report_numbers(stage: _ReportStage, inputs: ReportInputs) -> ReportNumbers:
     """Every number of the report, before any report file is written: the rows of
     ``results.csv``, the tables' flight x seed intervals (``executor.workers`` processes) and the
     claims (``claims.report_numbers``)."""
     from benchmark.data.format import DatasetError
     from benchmark.runner.claims.report_numbers import report_numbers
 
-    data_root, _, workdir = paths
+    data_root, _, workdir = stage.paths
     try:
         return report_numbers(
-            specs, units, results, data_root, workdir, merge=merge, inputs=inputs,
-            workers=max(1, config.executor.workers), quiet=config.quiet,
+            stage.specs, stage.units, stage.results, data_root, workdir, merge=stage.merge,
+            inputs=inputs, workers=max(1, stage.config.executor.workers), quiet=stage.config.quiet,
         )  # fmt: skip
     except DatasetError as err:
-        raise _data_error(data_root, profile, 0, err) from None
+        raise _data_error(data_root, stage.profile, 0, err) from None
 
 
 def _write_reports(
-    specs, units, results, profile, paths, logbook, invocations, merge: MergePlan, inputs, numbers
+    stage: _ReportStage,
+    logbook: Logbook,
+    invocations: list[dict],
+    inputs: ReportInputs,
+    numbers: ReportNumbers,
 ) -> list[Path]:
     """``outputs.write_reports`` with the merge planned before training, the inputs computed
     by :func:`_report_inputs` and the numbers by :func:`_report_numbers`: it only writes. A
@@ -538,14 +535,14 @@ def _write_reports(
     from benchmark.data.format import DatasetError
     from benchmark.runner.report.outputs import write_reports
 
-    data_root, out, workdir = paths
+    data_root, out, workdir = stage.paths
     try:
         return write_reports(
-            specs, units, results, profile, data_root, out, logbook, invocations,
-            workdir=workdir, merge=merge, inputs=inputs, numbers=numbers,
+            stage.specs, stage.units, stage.results, stage.profile, data_root, out, logbook,
+            invocations, workdir=workdir, merge=stage.merge, inputs=inputs, numbers=numbers,
         )  # fmt: skip
     except DatasetError as err:
-        raise _data_error(data_root, profile, 0, err) from None
+        raise _data_error(data_root, stage.profile, 0, err) from None
 
 
 def browse_hint(kind: str, tracker: Tracker) -> str:

@@ -27,7 +27,11 @@ from benchmark.runner.claims.earlier import MergedFrameStore, mark_earlier_claim
 from benchmark.runner.claims.evidence import Claim
 from benchmark.runner.claims.findings import findings_markdown
 from benchmark.runner.claims.frame_errors import FrameStore
-from benchmark.runner.claims.sequence_errors import SequenceTable, sequence_numbers
+from benchmark.runner.claims.sequence_errors import (
+    SequenceTable,
+    pitch_roll_choices,
+    sequence_numbers,
+)
 from benchmark.runner.claims.spread import prediction_paths
 from benchmark.runner.claims.table_intervals import row_interval, summarize
 from benchmark.runner.execute.costs import CostRow
@@ -248,9 +252,11 @@ def _summary(name: str) -> pd.DataFrame:
 
 
 def _sequence(name: str, split: str) -> SequenceTable:
-    spec = _STATE["specs"][name]
+    spec, choices = _STATE["specs"][name], _STATE["choices"][name]
     non_learned = _STATE["non_learned"].get(name, [])
-    return sequence_numbers(spec, _STATE["units"], _STATE["workdir"], non_learned, (split,))
+    return sequence_numbers(
+        spec, _STATE["units"], _STATE["workdir"], non_learned, (split,), choices
+    )
 
 
 def _item(item: tuple[str, str, str]) -> pd.DataFrame | SequenceTable:
@@ -301,10 +307,15 @@ def report_numbers(
     # the sequence splits first: the longest items, so the pool ends together.
     summary_items = [("summary", n, "") for n, s in every_spec.items() if s.kind != "sequence"]
     items = [*sequence_items, *summary_items]
+    choices = {  # made once: every split of a sequence table reads the same
+        name: pitch_roll_choices(spec, planned, workdir)
+        for name, spec in every_spec.items()
+        if spec.kind == "sequence" and workdir is not None
+    }
     state = {
         "everything": everything, "metrics": metrics, "workdir": workdir,
         "frames": inputs.constant_frames, "references": references, "specs": every_spec,
-        "units": planned, "non_learned": inputs.non_learned,
+        "units": planned, "non_learned": inputs.non_learned, "choices": choices,
     }  # fmt: skip
     done = map_work(
         _item, items, workers, label="intervals", name=lambda i: " ".join(i[1:]).strip(),

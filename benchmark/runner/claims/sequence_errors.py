@@ -64,22 +64,48 @@ def _read(path: Path) -> pd.DataFrame:
     return pd.read_csv(path).sort_values(["odometry", "mode", "index"], kind="stable")
 
 
+# Whose pitch and roll a ``best_on_val`` volume row takes: ``(label, {volume unit key: head
+# unit})`` (:func:`best_pitch_roll_head`), None when no candidate has validation numbers.
+PitchRollChoice = tuple[str, dict[str, Unit]] | None
+
+
+def _planned(spec: TableSpec, units: list[Unit], label: str) -> list[Unit]:
+    """The units of row ``label`` of ``spec``, in seed order."""
+    return sorted((u for u in units if _plans(u, spec.name, label)), key=lambda u: u.cfg.seed)
+
+
+def pitch_roll_choices(
+    spec: TableSpec, units: list[Unit], workdir: Path
+) -> dict[str, PitchRollChoice]:
+    """The choice of every ``pitch_roll: best_on_val`` row of ``spec``, by label: made once per
+    report (every split of the row reads the same one)."""
+    return {
+        job.label: best_pitch_roll_head(spec, units, workdir, _planned(spec, units, job.label))
+        for job in spec.jobs()
+        if job.pitch_roll == "best_on_val"
+    }
+
+
 def load_sequences(
-    spec: TableSpec, units: list[Unit], workdir: Path, splits: tuple[str, ...] | None = None
+    spec: TableSpec,
+    units: list[Unit],
+    workdir: Path,
+    splits: tuple[str, ...] | None = None,
+    choices: dict[str, PitchRollChoice] | None = None,
 ) -> list[SequenceErrors]:
     """Every (row, split) of ``spec`` whose units' sequence files exist, seeds stacked; only the
-    ``splits`` given (None: all)."""
+    ``splits`` given (None: all); ``choices``: :func:`pitch_roll_choices` (None: made here)."""
+    if choices is None:
+        choices = pitch_roll_choices(spec, units, workdir)
     out = []
     for job in spec.jobs():
-        mine = sorted(
-            (u for u in units if _plans(u, spec.name, job.label)), key=lambda u: u.cfg.seed
-        )
+        mine = _planned(spec, units, job.label)
         where = volume_sequence_paths if job.beliefs == "volume" else sequence_paths
         label, attitude_from = job.label, {u.key: u for u in mine}
-        if getattr(job, "pitch_roll", "own") == "best_on_val":
-            chosen = best_pitch_roll_head(spec, units, workdir, mine)
+        if job.pitch_roll == "best_on_val":
+            chosen = choices.get(job.label)
             if chosen is None:
-                continue  # no head row on the same encoder has validation numbers for every seed
+                continue  # no candidate has validation numbers for every seed
             label, attitude_from = f"{job.label} ({chosen[0]})", chosen[1]
         for split in job.eval_splits:
             if splits is not None and split not in splits:
@@ -337,12 +363,14 @@ def sequence_numbers(
     workdir: Path | None,
     non_learned: list[NonLearnedFusion] | None = None,
     splits: tuple[str, ...] | None = None,
+    choices: dict[str, PitchRollChoice] | None = None,
 ) -> SequenceTable:
     """The :class:`SequenceTable` of ``spec`` from its units' fusion files under ``workdir``
     (none without it); with ``non_learned`` (the constant predictor and the spec's references
     fused before, ``execute.non_learned``) those rows beside the heads
-    (:func:`non_learned_sequences`). ``splits``: only these (a work item of its own each)."""
-    items = load_sequences(spec, units, workdir, splits) if workdir is not None else []
+    (:func:`non_learned_sequences`). ``splits``: only these (a work item of its own each);
+    ``choices``: :func:`pitch_roll_choices`, made once for every split (None: made here)."""
+    items = load_sequences(spec, units, workdir, splits, choices) if workdir is not None else []
     if items and non_learned:
         mine = [n for n in non_learned if splits is None or n.split in splits]
         items += non_learned_sequences(mine)
