@@ -280,7 +280,8 @@ def report_numbers(
     """Every number of the report of ``specs`` (and of the tables ``merge`` keeps live) from
     the units' ``results``, their per-frame predictions under ``workdir`` (without it the cells
     keep the Student-t interval over seeds and no claim is decided) and ``inputs``. The tables'
-    intervals run as work items in ``workers`` processes; the claims, which read them, after."""
+    intervals run as work items in ``workers`` processes; the claims after them, in this process
+    (decided on the per-frame errors; the summaries are passed along for context)."""
     frame = results_frame(units, results)
     references = inputs.references
     parts = (frame, pd.DataFrame(inputs.constant_rows),
