@@ -456,9 +456,9 @@ class _ReportStage:
 def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
     """The report stage's work, before any report file is written (a failure leaves the report
     directory as it was): the constant predictor on every table's splits, the non-learned
-    references (cached in the work directory; in processes of their own), the heading-cue
-    audit (renders its extra datasets where missing) and the non-learned rows of the sequence
-    tables fused along the flights (``executor.workers`` processes), the provenance digests
+    references (cached in the work directory), the heading-cue audit (renders its extra
+    datasets where missing) and the non-learned rows of the sequence tables fused along the
+    flights, each in ``executor.workers`` processes, the provenance digests
     (every checkpoint's weights, every prediction file) and Table 6's measurements (cached in
     ``<workdir>/costs``; a new one logged to ``logbook``)."""
     from benchmark.data.format import DatasetError, read_manifest
@@ -479,9 +479,11 @@ def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
     try:
         val_of = validation_splits(results_frame(units, results))
         rows, frames = constant_rows(specs, data_root, val_of)
-        references = evaluate_references(specs, data_root, workdir, profile.name, quiet)
+        references = evaluate_references(
+            specs, data_root, workdir, profile.name, quiet, max_processes=workers
+        )
         references.constants.update(frames)
-        audit = heading_cue_rows(data_root, quiet=quiet)
+        audit = heading_cue_rows(data_root, workers=workers, quiet=quiet)
         fused = fuse_non_learned([*specs, *merge.live], references, data_root, workers, quiet)
         done = {u.key: UnitResult(u.key, True) for u in merge.live_units} | results
         # A shared encoder that ran in an earlier invocation is in no result of this one, but

@@ -237,6 +237,30 @@ class TestEvaluateAndCache:
             got = {m: v for m, v in parts.summaries[k].items() if m not in timings}
             assert got == pytest.approx({m: v for m, v in summary.items() if m not in timings})
 
+    def test_the_reproductions_workers_bound_the_processes(
+        self, tmp_path, smoke_dataset, monkeypatch
+    ):
+        spec = oracle_spec(tmp_path)
+        monkeypatch.setattr(rr, "PARALLEL_MIN_FRAMES", 0)  # any number of frames takes the pool
+        monkeypatch.setattr(rr.os, "cpu_count", lambda: 8)
+        pools = []
+
+        def inline_pool(chunks, processes, collect, bar):  # runs here, records its size
+            pools.append(processes)
+            for chunk in chunks:
+                collect(chunk, rr.run_chunk(chunk))
+
+        monkeypatch.setattr(rr, "_run_pool", inline_pool)
+        kwargs = {"quiet": True, "chunk_frames": 1}  # a chunk per frame: more than 3 chunks
+        one = rr.evaluate_references([spec], smoke_dataset, None, "smoke", max_processes=1,
+                                     **kwargs)  # fmt: skip
+        assert pools == []  # one process: this one
+        three = rr.evaluate_references([spec], smoke_dataset, None, "smoke", max_processes=3,
+                                       **kwargs)  # fmt: skip
+        assert pools == [3]
+        for key, frame in one.frames.items():
+            pd.testing.assert_frame_equal(frame, three.frames[key])
+
     def test_an_error_costs_the_rows_not_the_report(self, tmp_path, smoke_dataset, monkeypatch):
         def broken(reference, dataset, **kwargs):
             raise RuntimeError("cv2 exploded\nsecond line")

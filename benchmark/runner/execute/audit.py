@@ -86,9 +86,12 @@ def check_cue_datasets(data_root: Path, n_extra: int = CUE_EXTRA_SEEDS) -> None:
             raise _stale_cue_dataset(root, err) from None
 
 
-def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> list[Path]:
+def cue_dataset_roots(
+    data_root: Path, n_extra: int, *, workers: int = 2, quiet: bool = False
+) -> list[Path]:
     """``[data_root, extra_1, ...]``: the dataset and ``n_extra`` standard-only datasets of its
-    profile at the next seeds, rendered next to it (reused when complete, resumed when not)."""
+    profile at the next seeds, rendered next to it by ``workers`` processes (the same bytes with
+    any number: ``benchmark.data.writer``; reused when complete, resumed when not)."""
     from benchmark.data.writer import ConfigMismatchError, simulate_dataset
 
     roots = [Path(data_root)]
@@ -99,7 +102,7 @@ def cue_dataset_roots(data_root: Path, n_extra: int, *, quiet: bool = False) -> 
                 f"heading-cue audit: dataset {k}/{n_extra} at {root} (standard splits, seed {seed})"
             )
         try:
-            simulate_dataset(root, profile, seed, workers=2, progress=not quiet)
+            simulate_dataset(root, profile, seed, workers=workers, progress=not quiet)
         except ConfigMismatchError as err:
             raise _stale_cue_dataset(root, err) from None
         roots.append(root)
@@ -111,13 +114,13 @@ def _row(train: str, split: str, dataset: str, summary: dict[str, Any]) -> dict[
 
 
 def heading_cue_rows(
-    data_root: Path, n_extra: int = CUE_EXTRA_SEEDS, *, quiet: bool = False
+    data_root: Path, n_extra: int = CUE_EXTRA_SEEDS, *, workers: int = 2, quiet: bool = False
 ) -> list[dict[str, Any]]:
     """The heading-cue audit on every family of splits the dataset holds: rows ``{"train",
     "split", "dataset", "n", "flights", "probe_deg", "constant_deg", "ratio", "ratio_lo",
     "ratio_hi"}`` (val rows included; ``dataset`` is a directory name or ``"pooled"``). The
     standard family is also audited on ``n_extra`` more dataset seeds and pooled
-    (:func:`cue_dataset_roots`, which renders them where missing)."""
+    (:func:`cue_dataset_roots`, which renders them where missing with ``workers`` processes)."""
     from benchmark.analysis.heading_cue import heading_cue_audit, pooled_heading_cue_audit
     from benchmark.data.dataset import list_splits
 
@@ -131,7 +134,7 @@ def heading_cue_rows(
             result = heading_cue_audit(data_root, train=train, val=val, test=list(tests))
             rows += [_row(train, s, data_root.name, v) for s, v in result["splits"].items()]
             continue
-        roots = cue_dataset_roots(data_root, n_extra, quiet=quiet)
+        roots = cue_dataset_roots(data_root, n_extra, workers=workers, quiet=quiet)
         pooled = pooled_heading_cue_audit(roots, train=train, val=val, test=list(tests))
         for root, result in zip(roots, pooled["datasets"], strict=True):
             rows += [_row(train, s, root.name, v) for s, v in result["splits"].items()]

@@ -29,9 +29,10 @@ reads the frames.
 Cost (measured on the quick dataset, 96 px, one core: about 50 ms a frame for the oracle, 75-100
 ms for the template, 30-35 ms for feature + PnP): the 3,480 frames of the quick tables' test
 splits, each with the true and the swapped image, take about 19 CPU-minutes for the three. They
-run in :data:`MAX_PROCESSES` spawned processes (about 10 minutes on 2 cores, after the training,
-when the cores are free), in chunks of :data:`CHUNK_FRAMES` frames (the progress moves and both
-processes stay busy to the end), on every frame: the rows hold the models' frames and a paired
+run in the reproduction's ``--workers`` spawned processes (default :data:`MAX_PROCESSES`; about
+10 minutes on 2 cores, after the training, when the cores are free), in chunks of
+:data:`CHUNK_FRAMES` frames (the progress moves and both processes stay busy to the end), on
+every frame: the rows hold the models' frames and a paired
 comparison with a model needs no alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
 ``stride``-th frame of each flight instead (every flight kept; the table note says so).
 """
@@ -477,13 +478,15 @@ def evaluate_references(
     quiet: bool = False,
     processes: int | None = None,
     chunk_frames: int = CHUNK_FRAMES,
+    max_processes: int = MAX_PROCESSES,
 ) -> ReferenceResults:
     """Evaluate (or read back from ``workdir``'s cache) every reference of ``specs`` on every
     test split of the tables that list it, true and swapped satellite image.
 
     ``profile``: the reproduction profile's name (its frame stride, :data:`PROFILE_STRIDE`);
-    ``processes``: worker processes (default: up to :data:`MAX_PROCESSES` and the CPU count when
-    at least :data:`PARALLEL_MIN_FRAMES` frames are to be evaluated, else this process), given
+    ``processes``: worker processes (default: up to ``max_processes`` (the reproduction's
+    ``--workers``) and the CPU count when at least :data:`PARALLEL_MIN_FRAMES` frames are to be
+    evaluated, else this process), given
     chunks of ``chunk_frames`` frames. Without ``workdir`` nothing is cached. A progress bar
     (stderr) unless ``quiet``. An evaluation that raises is reported (``errors``, stderr) and its
     rows are left out; the others go on."""
@@ -521,7 +524,7 @@ def evaluate_references(
             for i in range(0, len(rows), chunk_frames)
         ]
         if chunks:
-            _run(chunks, tasks, out, processes, quiet, (manifest, code))
+            _run(chunks, tasks, out, processes, quiet, (manifest, code), max_processes)
         elif not quiet:
             status(f"references: {len(tasks)} evaluation(s) read back from "
                    f"{Path(workdir) / REFERENCE_DIR}")  # fmt: skip
@@ -537,6 +540,7 @@ def _run(
     processes: int | None,
     quiet: bool,
     stamp: tuple[str, str],
+    max_processes: int = MAX_PROCESSES,
 ) -> None:
     """Evaluate ``chunks`` (here or in a spawn pool) and record each finished task in ``out``:
     its CSV, then its JSON record (``stamp``: dataset manifest and code digest)."""
@@ -545,7 +549,8 @@ def _run(
     n_frames = sum(len(c.rows) for c in chunks)
     if processes is None:
         cpus = os.cpu_count() or 1
-        processes = min(MAX_PROCESSES, cpus, len(chunks)) if n_frames >= PARALLEL_MIN_FRAMES else 1
+        many = n_frames >= PARALLEL_MIN_FRAMES
+        processes = max(1, min(max_processes, cpus, len(chunks))) if many else 1
     expected = {}
     for c in chunks:
         expected[c.task.key] = expected.get(c.task.key, 0) + 1
