@@ -584,3 +584,50 @@ def test_the_writer_is_called_with_its_inputs_by_the_orchestration():
     source = (ROOT / "benchmark/runner/reproduction.py").read_text()
     assert "def _report_inputs(" in source and "inputs=inputs" in source
     assert "def _report_numbers(" in source and "numbers=numbers" in source
+
+
+# Issue 41 item 1: the references' evaluations and the audit's datasets are work items the
+# units' executor runs (pool or Ray), not a pool of their own: in the runner only the executor
+# starts processes, and the orchestration hands the report stage's work to it.
+POOL_MODULES = ("benchmark/runner/execute/pool.py", "benchmark/runner/execute/work_pool.py")
+
+
+def starts_processes(path: Path) -> bool:
+    """Whether ``path`` makes a process pool or a multiprocessing context."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Call):
+            func = node.func
+            name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
+            if name in ("ProcessPoolExecutor", "get_context", "Pool"):
+                return True
+    return False
+
+
+@pytest.mark.parametrize(
+    "path", [p for p in FILES if rel(p).startswith("benchmark/runner/")], ids=rel
+)
+def test_only_the_executor_starts_processes_in_the_runner(path):
+    if rel(path) in POOL_MODULES:
+        return
+    assert not starts_processes(path), (
+        f"{rel(path)} starts processes of its own: hand its work to the executor as work items "
+        "(benchmark/runner/execute/work_items.py, run by pool.run_work_items: pool or Ray)"
+    )
+
+
+def test_the_report_stage_work_goes_through_the_executor():
+    source = (ROOT / "benchmark/runner/reproduction.py").read_text()
+    names = imported_names(ROOT / "benchmark/runner/reproduction.py")
+    assert {"run_work_items", "plan_references", "cue_dataset_items"} <= names
+    assert "evaluate_references" not in names and "evaluate_references(" not in source
+
+
+def test_starts_processes_finds_a_pool(tmp_path):
+    # the checker itself, on the pool the references ran in before issue 41 (it must fail there)
+    probe = tmp_path / "probe.py"
+    probe.write_text("ctx = multiprocessing.get_context('spawn')\n")
+    assert starts_processes(probe)
+    probe.write_text("pool = cf.ProcessPoolExecutor(2)\n")
+    assert starts_processes(probe)
+    probe.write_text("context = 'spawn'\n")
+    assert not starts_processes(probe)

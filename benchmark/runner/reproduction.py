@@ -23,7 +23,12 @@ from benchmark.errors import InputError
 from benchmark.locks import LockBusyError, work_lock
 from benchmark.progress import Progress, format_duration, status
 from benchmark.runner.execute.audit import check_cue_datasets
-from benchmark.runner.execute.pool import ExecutorConfig, check_executor, run_executor
+from benchmark.runner.execute.pool import (
+    ExecutorConfig,
+    check_executor,
+    run_executor,
+    run_work_items,
+)
 from benchmark.runner.execute.ray_executor import is_local_address
 from benchmark.runner.execute.worker import (
     UnitResult,
@@ -45,6 +50,7 @@ from benchmark.runner.report.logbook import Logbook, write_config
 
 if TYPE_CHECKING:
     from benchmark.runner.claims.report_numbers import ReportInputs, ReportNumbers
+    from benchmark.runner.execute.reference_rows import ReferenceResults
     from benchmark.tracking import Tracker
 
 
@@ -383,7 +389,8 @@ def _run_locked(
         invocations = relevant_invocations(workdir, keys, invocation.id)
         stage = _ReportStage(specs, units, results, profile, (data_root, out, workdir), merge,
                              config)  # fmt: skip
-        inputs = _report_inputs(stage, logbook)
+        references = _report_work(stage)
+        inputs = _report_inputs(stage, logbook, references)
         numbers = _report_numbers(stage, inputs)
         written = _write_reports(stage, logbook, invocations, inputs, numbers)
     except KeyboardInterrupt:
@@ -453,12 +460,49 @@ class _ReportStage:
     config: ReproduceConfig
 
 
-def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
+def _report_work(stage: _ReportStage) -> ReferenceResults:
+    """The report stage's work items, run by the units' executor (``executor.workers``
+    processes, or Ray tasks): the non-learned references' evaluations not yet cached in
+    ``<workdir>/references`` (chunks of frames) and the heading-cue audit's extra datasets not
+    yet rendered. The references' results (cached ones included); the datasets are on disk. A
+    dataset that failed to render is rendered again by the audit itself (it resumes), which
+    then raises if it still fails."""
+    from benchmark.data.format import DatasetError
+    from benchmark.runner.execute.audit import cue_dataset_items
+    from benchmark.runner.execute.reference_rows import plan_references
+    from benchmark.runner.execute.work_items import ItemOutcome, WorkItem
+
+    (data_root, _, workdir), config = stage.paths, stage.config
+    try:
+        references = plan_references(stage.specs, data_root, workdir, stage.profile.name)
+        renders = cue_dataset_items(data_root)
+    except DatasetError as err:
+        raise _data_error(data_root, stage.profile, 0, err) from None
+    datasets = {item.key for item in renders}
+    items = [*references.items(), *renders]
+    if references.tasks and not config.quiet:
+        status(references.describe(max(1, config.executor.workers)))
+
+    def on_done(item: WorkItem, outcome: ItemOutcome) -> None:
+        if item.key in datasets:
+            if not outcome.ok:
+                status(f"{item.title} failed ({outcome.error}); the audit renders it again")
+            return
+        references.collect(item, outcome)
+
+    run_work_items(config.executor, items, on_done, config.quiet, label="report work",
+                   unit="pair")  # fmt: skip
+    return references.results()
+
+
+def _report_inputs(
+    stage: _ReportStage, logbook: Logbook, references: ReferenceResults
+) -> ReportInputs:
     """The report stage's work, before any report file is written (a failure leaves the report
-    directory as it was): the constant predictor on every table's splits, the non-learned
-    references (cached in the work directory), the heading-cue audit (renders its extra
-    datasets where missing) and the non-learned rows of the sequence tables fused along the
-    flights, each in ``executor.workers`` processes, the provenance digests
+    directory as it was), after :func:`_report_work` (``references``: its results): the constant
+    predictor on every table's splits, the heading-cue audit (its extra datasets rendered by
+    then) and the non-learned rows of the sequence tables fused along the flights, in
+    ``executor.workers`` processes, the provenance digests
     (every checkpoint's weights, every prediction file) and Table 6's measurements (cached in
     ``<workdir>/costs``; a new one logged to ``logbook``)."""
     from benchmark.data.format import DatasetError, read_manifest
@@ -471,7 +515,7 @@ def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
     from benchmark.runner.execute.costs import measure_costs
     from benchmark.runner.execute.non_learned import fuse_non_learned
     from benchmark.runner.execute.provenance import collect_provenance
-    from benchmark.runner.execute.reference_rows import constant_rows, evaluate_references
+    from benchmark.runner.execute.reference_rows import constant_rows
 
     specs, units, results, profile = stage.specs, stage.units, stage.results, stage.profile
     merge, (data_root, out, workdir) = stage.merge, stage.paths
@@ -479,9 +523,6 @@ def _report_inputs(stage: _ReportStage, logbook: Logbook) -> ReportInputs:
     try:
         val_of = validation_splits(results_frame(units, results))
         rows, frames = constant_rows(specs, data_root, val_of)
-        references = evaluate_references(
-            specs, data_root, workdir, profile.name, quiet, max_processes=workers
-        )
         references.constants.update(frames)
         audit = heading_cue_rows(data_root, workers=workers, quiet=quiet)
         fused = fuse_non_learned([*specs, *merge.live], references, data_root, workers, quiet)

@@ -20,6 +20,7 @@ from benchmark.runner.execute.heartbeat import (
     running_status,
     write_heartbeat,
 )
+from benchmark.runner.execute.work_items import Entry
 
 
 class TestWriteAndRead:
@@ -83,7 +84,8 @@ class TestPoolWaitReporting:
         step = threading.Event()
         stream = io.StringIO()
         units = {key: SimpleNamespace(key=key, title=f"unit {key}") for key in ("fast", "slow")}
-        tasks = [SimpleNamespace(key=key, unit_dir=tmp_path / key) for key in units]
+        entries = {key: Entry(unit, key, unit.title, heartbeat_dir=tmp_path / key)
+                   for key, unit in units.items()}  # fmt: skip
 
         # Generous timeouts: on a loaded 2-core machine the driver's poll may lag by seconds, and
         # a unit that moved on without its step would skip a line the ticker waits for.
@@ -99,7 +101,7 @@ class TestPoolWaitReporting:
         finished = []
         with cf.ThreadPoolExecutor(2) as executor, Progress(2, "reproduce", stream=stream) as bar:
             submitted = time.time()
-            futures = {executor.submit(train, key): unit for key, unit in units.items()}
+            futures = {executor.submit(train, key): entries[key] for key in units}
 
             missed: list[str] = []  # the ticker's failures, asserted in the test's own thread
 
@@ -115,9 +117,7 @@ class TestPoolWaitReporting:
 
             ticker = threading.Thread(target=tick)
             ticker.start()
-            pool._wait_reporting(
-                futures, lambda u, r: finished.append((u.key, r)), bar, tasks, submitted
-            )
+            pool._wait_reporting(futures, lambda u, r: finished.append((u.key, r)), bar, submitted)
             ticker.join()
         assert not missed, missed
         assert sorted(finished) == [("fast", "fast"), ("slow", "slow")]

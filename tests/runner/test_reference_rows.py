@@ -244,20 +244,20 @@ class TestEvaluateAndCache:
         monkeypatch.setattr(rr, "PARALLEL_MIN_FRAMES", 0)  # any number of frames takes the pool
         monkeypatch.setattr(rr.os, "cpu_count", lambda: 8)
         pools = []
+        inline = rr.execute_items
 
-        def inline_pool(chunks, processes, collect, bar):  # runs here, records its size
+        def inline_pool(items, processes, on_done, quiet, *args):  # runs here, records its size
             pools.append(processes)
-            for chunk in chunks:
-                collect(chunk, rr.run_chunk(chunk))
+            inline(items, 1, on_done, quiet, *args)
 
-        monkeypatch.setattr(rr, "_run_pool", inline_pool)
+        monkeypatch.setattr(rr, "execute_items", inline_pool)
         kwargs = {"quiet": True, "chunk_frames": 1}  # a chunk per frame: more than 3 chunks
         one = rr.evaluate_references([spec], smoke_dataset, None, "smoke", max_processes=1,
                                      **kwargs)  # fmt: skip
-        assert pools == []  # one process: this one
+        assert pools == [1]  # one process: this one
         three = rr.evaluate_references([spec], smoke_dataset, None, "smoke", max_processes=3,
                                        **kwargs)  # fmt: skip
-        assert pools == [3]
+        assert pools == [1, 3]
         for key, frame in one.frames.items():
             pd.testing.assert_frame_equal(frame, three.frames[key])
 

@@ -102,7 +102,7 @@ class ReportInputs:
     the first file is written (``benchmark.runner.reproduction``), so that writing computes
     nothing: the constant predictor's rows and per-frame tables
     (``execute.reference_rows.constant_rows``), the
-    non-learned references' evaluations (``execute.reference_rows.evaluate_references``, the
+    non-learned references' evaluations (``execute.reference_rows.plan_references``: work items, the
     constant's frames included), the heading-cue audit's rows (``execute.audit``), the
     non-learned rows fused along the flights per sequence spec (``execute.non_learned``), the
     provenance record (``execute.provenance``: the units' weight and prediction digests) and

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 from benchmark.errors import InputError
 from benchmark.progress import status
+from benchmark.runner.execute.work_items import WorkItem
 
 if TYPE_CHECKING:
     from benchmark.data import DataProfile
@@ -107,6 +108,42 @@ def cue_dataset_roots(
             raise _stale_cue_dataset(root, err) from None
         roots.append(root)
     return roots
+
+
+def render_cue_dataset(where: tuple[str, DataProfile, int]) -> str:
+    """Render (or resume, or confirm) one of the audit's extra datasets, ``(root, profile,
+    seed)`` of :func:`cue_dataset_plan`, in this process (a work item: the executor runs several
+    at once); its root. The same bytes as :func:`cue_dataset_roots` renders."""
+    from benchmark.data.writer import ConfigMismatchError, simulate_dataset
+
+    root, profile, seed = where
+    try:
+        simulate_dataset(Path(root), profile, seed, workers=1, progress=False)
+    except ConfigMismatchError as err:
+        raise _stale_cue_dataset(Path(root), err) from None
+    return root
+
+
+def cue_dataset_items(data_root: Path, n_extra: int = CUE_EXTRA_SEEDS) -> list[WorkItem]:
+    """The audit's extra datasets not yet complete, each a work item (:func:`render_cue_dataset`)
+    for the reproduction's executor; none when the dataset has no standard family to pool.
+    InputError (before any work) when one holds another config's dataset."""
+    from benchmark.data.dataset import list_splits
+    from benchmark.data.writer import ConfigMismatchError, check_output_dir, dataset_config
+
+    if not _audits_pooled(set(list_splits(data_root)), n_extra):
+        return []
+    items = []
+    for root, profile, seed in cue_dataset_plan(data_root, n_extra):
+        try:
+            state = check_output_dir(root, dataset_config(profile, seed))
+        except ConfigMismatchError as err:
+            raise _stale_cue_dataset(root, err) from None
+        if state != "complete":
+            items.append(WorkItem(f"cue-dataset-s{seed}", f"heading-cue dataset seed {seed}",
+                                  render_cue_dataset, (str(root), profile, seed),
+                                  data_root=str(data_root)))  # fmt: skip
+    return items
 
 
 def _row(train: str, split: str, dataset: str, summary: dict[str, Any]) -> dict[str, Any]:

@@ -3,7 +3,8 @@
 The contract every executor keeps (see also :mod:`benchmark.runner.execute.ray_executor`): ``todo``
 holds ``(unit, UnitTask)`` pairs; each task runs :func:`benchmark.runner.execute.worker.run_unit`
 somewhere and ``on_done(unit, UnitResult)`` is called in this (driver) process, in order of
-completion.
+completion. Work items (``execute.work_items``: the references' chunks, the audit's datasets)
+go the same way through :func:`run_work_items`: ``on_done(item, ItemOutcome)``.
 """
 
 from __future__ import annotations
@@ -14,16 +15,19 @@ import signal
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from benchmark.errors import InputError
 from benchmark.progress import Progress
 from benchmark.runner.execute import heartbeat
 from benchmark.runner.execute.ray_executor import (
     check_ray_tracking,
+    execute_items_ray,
     execute_units_ray,
     import_ray,
     resolve_resources,
 )
+from benchmark.runner.execute.work_items import Entry, ItemOutcome, WorkItem, item_entries, run_item
 from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 from benchmark.runner.plan.units import Unit
 
@@ -97,20 +101,80 @@ def run_executor(
     )
 
 
+def run_work_items(
+    config: ExecutorConfig,
+    items: list[WorkItem],
+    on_done: Callable[[WorkItem, ItemOutcome], None],
+    quiet: bool,
+    *,
+    label: str = "work",
+    unit: str = "item",
+) -> None:
+    """Run ``items`` with the executor ``config`` chose, as the units run: ``workers`` processes
+    of the pool, or Ray tasks (a local Ray, or the cluster at ``ray_address``: each item then
+    runs on whichever node has room, and must find its files on a shared file system).
+    ``on_done(item, outcome)`` here, in order of completion; an item that raises is an outcome
+    with its error, and the others go on."""
+    if not items:
+        return
+    if config.kind == "pool":
+        execute_items(items, config.workers, on_done, quiet, label, unit)
+        return
+    # An item needs no GPU (references and rendering run on CPUs): the GPUs stay with the units.
+    cpus, _, retries = resolve_resources(
+        config.cpus_per_unit, config.gpus_per_unit, config.max_retries
+    )
+    local = config.ray_address is None or config.ray_address == "local"
+    execute_items_ray(items, on_done, quiet, address=config.ray_address, cpus_per_item=cpus,
+                      max_retries=retries, label=label, unit=unit,
+                      num_cpus=max(1, round(config.workers * cpus)) if local else None)  # fmt: skip
+
+
 def execute_units(
     todo: list[tuple[Unit, UnitTask]], workers: int, on_done: OnDone, quiet: bool
 ) -> None:
     """Run tasks inline (``workers == 1``) or in a spawn pool; ``on_done(unit, result)`` in order of
-    completion, in this process.
+    completion, in this process. While none completes, the progress line names the units being
+    trained and their epoch (their heartbeats)."""
+    entries = [Entry(unit, task, unit.title, data_root=str(task.cfg.data.root),
+                     heartbeat_dir=task.unit_dir) for unit, task in todo]  # fmt: skip
+    _pool_loop(entries, run_unit, workers, on_done, quiet, "reproduce", "run")
+
+
+def execute_items(
+    items: list[WorkItem],
+    workers: int,
+    on_done: Callable[[WorkItem, ItemOutcome], None],
+    quiet: bool,
+    label: str = "work",
+    unit: str = "item",
+) -> None:
+    """Run work items inline (``workers == 1``) or in a spawn pool of ``workers`` processes;
+    ``on_done(item, outcome)`` in order of completion, in this process; the progress counts
+    the items' sizes in ``unit``."""
+    _pool_loop(item_entries(items), run_item, workers, on_done, quiet, label, unit)
+
+
+def _pool_loop(
+    entries: list[Entry],
+    fn: Callable[[Any], Any],
+    workers: int,
+    on_done: Callable[[Any, Any], None],
+    quiet: bool,
+    label: str,
+    unit: str,
+) -> None:
+    """``on_done(entry.handle, fn(entry.payload))`` for every entry, inline or in a spawn pool.
 
     Ctrl-C: pool workers ignore SIGINT (``execute.worker_init``); this process stops them
     (SIGTERM) and re-raises, so the user sees one message, not a traceback per worker."""
-    with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
-        if workers == 1 or len(todo) <= 1:
-            for unit, task in todo:
-                bar.update(0, postfix=f"running {unit.title}")
-                on_done(unit, run_unit(task))
-                bar.update(1, postfix=f"done {unit.title}")
+    total = sum(e.size for e in entries)
+    with Progress(total, label, unit=unit, enabled=not quiet) as bar:
+        if workers == 1 or len(entries) <= 1:
+            for entry in entries:
+                bar.update(0, postfix=f"running {entry.name}")
+                on_done(entry.handle, fn(entry.payload))
+                bar.update(entry.size, postfix=f"done {entry.name}")
             return
         ctx = multiprocessing.get_context("spawn")
         pool = cf.ProcessPoolExecutor(workers, mp_context=ctx, initializer=worker_init)
@@ -121,10 +185,10 @@ def execute_units(
             previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
             submitted = time.time()
             try:
-                futures = {pool.submit(run_unit, task): unit for unit, task in todo}
+                futures = {pool.submit(fn, entry.payload): entry for entry in entries}
             finally:
                 signal.signal(signal.SIGINT, previous)
-            _wait_reporting(futures, on_done, bar, [task for _, task in todo], submitted)
+            _wait_reporting(futures, on_done, bar, submitted)
         except BaseException:
             stop_pool(pool)
             raise
@@ -132,10 +196,9 @@ def execute_units(
 
 
 def _wait_reporting(
-    futures: dict[cf.Future, Unit],
-    on_done: OnDone,
+    futures: dict[cf.Future, Entry],
+    on_done: Callable[[Any, Any], None],
     bar: Progress,
-    tasks: list[UnitTask],
     submitted: float,
 ) -> None:
     """``on_done`` for each future as it completes; while none completes, every
@@ -143,15 +206,15 @@ def _wait_reporting(
     (``heartbeat.running_status`` of the heartbeats written since ``submitted``, a
     ``time.time()`` taken before the futures were submitted), drawn when that changed."""
     line = heartbeat.RunningLine(bar, since=submitted)
-    dirs = {task.key: task.unit_dir for task in tasks}
     pending = set(futures)
     while pending:
         done, pending = cf.wait(pending, timeout=heartbeat.POLL_S, return_when=cf.FIRST_COMPLETED)
         for future in done:
-            unit = futures[future]
-            on_done(unit, future.result())
-            bar.update(1, postfix=f"done {unit.title}")
-        line.show([(futures[f].title, dirs[futures[f].key]) for f in pending])
+            entry = futures[future]
+            on_done(entry.handle, future.result())
+            bar.update(entry.size, postfix=f"done {entry.name}")
+        line.show([(futures[f].name, futures[f].heartbeat_dir) for f in pending
+                   if futures[f].heartbeat_dir is not None])  # fmt: skip
 
 
 def stop_pool(pool: cf.ProcessPoolExecutor) -> None:

@@ -38,6 +38,7 @@ from urllib.parse import urlsplit
 from benchmark.errors import InputError
 from benchmark.progress import Progress, status
 from benchmark.runner.execute import heartbeat
+from benchmark.runner.execute.work_items import Entry, ItemOutcome, WorkItem, item_entries, run_item
 from benchmark.runner.execute.worker import UnitResult, UnitTask, run_unit, worker_init
 
 INSTALL_LINE = 'pip install -e ".[ray]"'
@@ -152,6 +153,20 @@ def ray_unit(task: UnitTask, manifest_digest: str, driver_cwd: str) -> UnitResul
     return run_unit(task)
 
 
+def ray_item(item: WorkItem, manifest_digest: str, driver_cwd: str) -> ItemOutcome:
+    """What a Ray task of a work item runs on its node: :func:`ray_unit`'s set-up and dataset
+    check (``manifest_digest`` "" when the item reads no dataset), then ``run_item``."""
+    start = time.perf_counter()
+    worker_init()
+    if Path(driver_cwd).is_dir():
+        os.chdir(driver_cwd)
+    if item.data_root is not None and manifest_digest:
+        problem = check_dataset_on_node(item.data_root, manifest_digest)
+        if problem:
+            return ItemOutcome(None, problem, time.perf_counter() - start)
+    return run_item(item)
+
+
 # ----------------------------------------------------------------------------- the driver
 def execute_units_ray(
     todo: list[tuple[object, UnitTask]],
@@ -170,46 +185,104 @@ def execute_units_ray(
     ``num_cpus``: CPUs of a local Ray (default ``os.cpu_count()``); ignored with an address.
     ``task_fn(task, manifest_digest, driver_cwd)`` is what a worker runs (:func:`ray_unit`;
     tests wrap it to kill a worker mid-unit)."""
-    _check_resources(cpus_per_unit, gpus_per_unit, max_retries)
+    entries = [Entry(unit, task, str(getattr(unit, "title", task.key)),
+                     data_root=str(task.cfg.data.root), heartbeat_dir=task.unit_dir)
+               for unit, task in todo]  # fmt: skip
+
+    def lost(entry: Entry, error: str, seconds: float) -> UnitResult:
+        return UnitResult(entry.payload.key, False, seconds=seconds, error=error)
+
+    _ray_loop(entries, task_fn, on_done, lost, quiet, ("reproduce", "run", "unit"),
+              address=address, cpus=cpus_per_unit, gpus=gpus_per_unit, max_retries=max_retries,
+              num_cpus=num_cpus)  # fmt: skip
+
+
+def execute_items_ray(
+    items: list[WorkItem],
+    on_done: Callable[[WorkItem, ItemOutcome], None],
+    quiet: bool,
+    *,
+    address: str | None = None,
+    cpus_per_item: float = DEFAULT_CPUS_PER_UNIT,
+    max_retries: int = DEFAULT_MAX_RETRIES,
+    num_cpus: int | None = None,
+    label: str = "work",
+    unit: str = "item",
+    task_fn: Callable[..., ItemOutcome] = ray_item,
+) -> None:
+    """:func:`execute_units_ray` for work items (no GPU each): ``on_done(item, outcome)`` here
+    as each ends; an item Ray could not run (its worker or node died ``max_retries + 1`` times)
+    is an outcome with that error."""
+
+    def lost(entry: Entry, error: str, seconds: float) -> ItemOutcome:
+        return ItemOutcome(None, error, seconds)
+
+    _ray_loop(item_entries(items), task_fn, on_done, lost, quiet, (label, unit, "item"),
+              address=address, cpus=cpus_per_item, gpus=0.0, max_retries=max_retries,
+              num_cpus=num_cpus)  # fmt: skip
+
+
+def _ray_loop(
+    entries: list[Entry],
+    task_fn: Callable[..., object],
+    on_done: Callable[[object, object], None],
+    lost: Callable[[Entry, str, float], object],
+    quiet: bool,
+    names: tuple[str, str, str],
+    *,
+    address: str | None,
+    cpus: float,
+    gpus: float,
+    max_retries: int,
+    num_cpus: int | None,
+) -> None:
+    """Submit ``task_fn(entry.payload, manifest_digest, driver_cwd)`` for every entry and call
+    ``on_done(entry.handle, result)`` here as each ends (``lost(entry, error, seconds)`` when
+    Ray could not produce a result). ``names``: the progress label, its unit and the word
+    before each Ray task's name."""
+    _check_resources(cpus, gpus, max_retries)
     ray = import_ray()
-    if not todo:
+    if not entries:
         return
+    label, unit, kind = names
     digests: dict[str, str] = {}
-    with Progress(len(todo), "reproduce", unit="run", enabled=not quiet) as bar:
-        for _, task in todo:  # the driver's view of the data, which every node must share
-            root = str(task.cfg.data.root)
-            if root not in digests:
-                digests[root] = _manifest_digest(root)
+    with Progress(sum(e.size for e in entries), label, unit=unit, enabled=not quiet) as bar:
+        for entry in entries:  # the driver's view of the data, which every node must share
+            if entry.data_root is not None and entry.data_root not in digests:
+                digests[entry.data_root] = _manifest_digest(entry.data_root)
         bar.status("starting Ray" if is_local_address(address) else f"connecting to {address}")
         owned = connect_ray(address, num_cpus)
-        pending: dict[object, tuple[object, UnitTask, float]] = {}
+        pending: dict[object, tuple[Entry, float]] = {}
         try:
             local = address is None or address == "local"
-            _check_nodes(ray, cpus_per_unit, gpus_per_unit, fatal=owned and local)
+            _check_nodes(ray, cpus, gpus, fatal=owned and local)
             remote = ray.remote(
-                num_cpus=cpus_per_unit,
-                num_gpus=gpus_per_unit,
+                num_cpus=cpus,
+                num_gpus=gpus,
                 max_retries=max_retries,
-                retry_exceptions=False,  # an exception is the unit's own: it would fail again
+                retry_exceptions=False,  # an exception is the task's own: it would fail again
             )(task_fn)
             cwd = str(Path.cwd())
             submitted = time.time()
-            for unit, task in todo:
-                name = f"unit {getattr(unit, 'title', task.key)}"[:120]
-                ref = remote.options(name=name).remote(task, digests[str(task.cfg.data.root)], cwd)
-                pending[ref] = (unit, task, time.monotonic())
-            bar.status(f"{len(pending)} unit(s) submitted")
+            for entry in entries:
+                digest = digests.get(entry.data_root or "", "")
+                ref = remote.options(name=f"{kind} {entry.name}"[:120]).remote(
+                    entry.payload, digest, cwd
+                )
+                pending[ref] = (entry, time.monotonic())
+            bar.status(f"{len(pending)} {kind}(s) submitted")
             line = heartbeat.RunningLine(bar, since=submitted)
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1, timeout=heartbeat.POLL_S)
                 if not done:  # the running units' epochs (heartbeats on a shared file system)
-                    line.show([(getattr(u, "title", t.key), t.unit_dir) for u, t, _ in
-                               pending.values()])  # fmt: skip
+                    line.show([(e.name, e.heartbeat_dir) for e, _ in pending.values()
+                               if e.heartbeat_dir is not None])  # fmt: skip
                     continue
-                unit, task, submitted = pending.pop(done[0])
-                result = _fetch(ray, done[0], task.key, submitted, max_retries)
-                on_done(unit, result)
-                bar.update(1, postfix=f"done {getattr(unit, 'title', task.key)}")
+                entry, started = pending.pop(done[0])
+                value, error = _fetch(ray, done[0], max_retries)
+                on_done(entry.handle, value if not error else
+                        lost(entry, error, time.monotonic() - started))  # fmt: skip
+                bar.update(entry.size, postfix=f"done {entry.name}")
         except BaseException:  # Ctrl-C or on_done failing: stop what still runs, then re-raise
             for ref in pending:
                 try:
@@ -280,22 +353,21 @@ def _check_nodes(ray, cpus: float, gpus: float, *, fatal: bool) -> None:
     status(f"warning: {message}; the units wait until such a node joins")
 
 
-def _fetch(ray, ref, key: str, submitted: float, max_retries: int) -> UnitResult:
-    """The task's :class:`UnitResult`, or a failed one saying why Ray could not produce it."""
+def _fetch(ray, ref, max_retries: int) -> tuple[object, str]:
+    """``(the task's value, "")``, or ``(None, why Ray could not produce it)``."""
     try:
-        return ray.get(ref)
-    except ray.exceptions.RayTaskError as err:  # raised outside run_unit: import or set-up
+        return ray.get(ref), ""
+    except ray.exceptions.RayTaskError as err:  # raised outside the task's own guard: set-up
         cause = err.cause if getattr(err, "cause", None) is not None else err
-        error = f"ray task failed: {type(cause).__name__}: {_first_line(cause)}"
+        return None, f"ray task failed: {type(cause).__name__}: {_first_line(cause)}"
     except ray.exceptions.TaskCancelledError:
-        error = "cancelled"
+        return None, "cancelled"
     except ray.exceptions.RayError as err:  # WorkerCrashedError, NodeDiedError, OutOfMemoryError
         attempts = max_retries + 1
-        error = (
+        return None, (
             f"worker died on each of {attempts} attempt(s) (max_retries {max_retries}): "
             f"{type(err).__name__}: {_first_line(err)}"
         )
-    return UnitResult(key, False, seconds=time.monotonic() - submitted, error=error)
 
 
 def _first_line(err: BaseException) -> str:

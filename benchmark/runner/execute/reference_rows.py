@@ -28,25 +28,23 @@ reads the frames.
 
 Cost (measured on the quick dataset, 96 px, one core: about 50 ms a frame for the oracle, 75-100
 ms for the template, 30-35 ms for feature + PnP): the 3,480 frames of the quick tables' test
-splits, each with the true and the swapped image, take about 19 CPU-minutes for the three. They
-run in the reproduction's ``--workers`` spawned processes (default :data:`MAX_PROCESSES`; about
-10 minutes on 2 cores, after the training, when the cores are free), in chunks of
-:data:`CHUNK_FRAMES` frames (the progress moves and both processes stay busy to the end), on
-every frame: the rows hold the models' frames and a paired
-comparison with a model needs no alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
+splits, each with the true and the swapped image, take about 19 CPU-minutes for the three. A
+reproduction plans them (:func:`plan_references`) as work items of :data:`CHUNK_FRAMES` frames
+(the progress moves and every worker stays busy to the end) that the units' executor runs after
+the training (``--workers`` processes, or Ray tasks on a cluster; about 10 minutes on 2 cores);
+:func:`evaluate_references` runs the same items outside a reproduction (the executor's pool).
+On every frame: the rows hold the models' frames and a paired comparison with a model needs no
+alignment. A profile in :data:`PROFILE_STRIDE` evaluates every
 ``stride``-th frame of each flight instead (every flight kept; the table note says so).
 """
 
 from __future__ import annotations
 
-import concurrent.futures as cf
 import functools
 import hashlib
 import json
 import math
-import multiprocessing
 import os
-import signal
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,8 +52,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from benchmark.progress import Progress, status
-from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_filename, worker_init
+from benchmark.progress import status
+from benchmark.runner.execute.pool import execute_items
+from benchmark.runner.execute.work_items import ItemOutcome, WorkItem
+from benchmark.runner.execute.worker import SATELLITE_MODES, eval_key, split_filename
 from benchmark.runner.plan.specs import TableSpec
 from benchmark.runner.plan.units import val_split_for
 
@@ -65,12 +65,14 @@ __all__ = [
     "MAX_PROCESSES",
     "PROFILE_STRIDE",
     "ReferenceResults",
+    "ReferenceWork",
     "constant_baseline",
     "dataset_splits",
     "describe_references",
     "evaluate_references",
     "fails_text",
     "failure_percent",
+    "plan_references",
     "reads_text",
     "reference_labels",
     "reference_note",
@@ -208,13 +210,6 @@ def _assemble(parts: list[tuple[dict[str, float], pd.DataFrame]]) -> tuple[dict,
     cpu_ms = sum(s["cpu_ms_per_frame"] * len(f) for s, f in parts) / len(frame)
     summary["cpu_ms_per_frame"] = cpu_ms
     return summary, frame
-
-
-def _worker_init() -> None:
-    worker_init()  # one thread per process, SIGINT left to the parent
-    import cv2
-
-    cv2.setNumThreads(1)
 
 
 def constant_baseline(
@@ -481,7 +476,9 @@ def evaluate_references(
     max_processes: int = MAX_PROCESSES,
 ) -> ReferenceResults:
     """Evaluate (or read back from ``workdir``'s cache) every reference of ``specs`` on every
-    test split of the tables that list it, true and swapped satellite image.
+    test split of the tables that list it, true and swapped satellite image, here: the
+    :func:`plan_references` work run by the process pool (a reproduction runs the same work
+    items with its executor instead: pool or Ray).
 
     ``profile``: the reproduction profile's name (its frame stride, :data:`PROFILE_STRIDE`);
     ``processes``: worker processes (default: up to ``max_processes`` (the reproduction's
@@ -490,6 +487,33 @@ def evaluate_references(
     chunks of ``chunk_frames`` frames. Without ``workdir`` nothing is cached. A progress bar
     (stderr) unless ``quiet``. An evaluation that raises is reported (``errors``, stderr) and its
     rows are left out; the others go on."""
+    work = plan_references(specs, data_root, workdir, profile, chunk_frames)
+    try:
+        items = work.items()
+        if processes is None:
+            cpus = os.cpu_count() or 1
+            many = work.frames >= PARALLEL_MIN_FRAMES
+            processes = max(1, min(max_processes, cpus, len(items))) if many else 1
+        if work.tasks and not quiet:
+            status(work.describe(processes))
+        if items:
+            execute_items(items, processes, work.collect, quiet, "references", "pair")
+    finally:
+        _dataset.cache_clear()  # the images of this process's evaluations are not kept
+    return work.results()
+
+
+def plan_references(
+    specs: list[TableSpec],
+    data_root: str | Path,
+    workdir: str | Path | None,
+    profile: str,
+    chunk_frames: int = CHUNK_FRAMES,
+) -> ReferenceWork:
+    """The references' evaluations of ``specs`` (:func:`evaluate_references`): those whose cached
+    record matches (same reference options, dataset, stride and code) read back, the others cut
+    into chunks of ``chunk_frames`` frames, the work items an executor runs
+    (:meth:`ReferenceWork.items`); :meth:`ReferenceWork.collect` records their outcomes."""
     from benchmark.tracking import manifest_sha256
 
     root = Path(data_root)
@@ -498,7 +522,7 @@ def evaluate_references(
         workdir=Path(workdir) if workdir is not None else None, data_root=Path(data_root)
     )
     if not wanted:
-        return out
+        return ReferenceWork({}, [], out, ("", ""))
     stride = PROFILE_STRIDE.get(profile, 1)
     manifest, code = manifest_sha256(root), _code_digest()
     tasks: dict[tuple[str, str, str], ReferenceTask] = {}
@@ -523,133 +547,112 @@ def evaluate_references(
             for rows in [_task_rows(task)]
             for i in range(0, len(rows), chunk_frames)
         ]
-        if chunks:
-            _run(chunks, tasks, out, processes, quiet, (manifest, code), max_processes)
-        elif not quiet:
-            status(f"references: {len(tasks)} evaluation(s) read back from "
-                   f"{Path(workdir) / REFERENCE_DIR}")  # fmt: skip
     finally:
-        _dataset.cache_clear()  # the images of this process's evaluations are not kept
-    return out
+        _dataset.cache_clear()
+    return ReferenceWork(tasks, chunks, out, (manifest, code))
 
 
-def _run(
-    chunks: list[Chunk],
-    tasks: dict[tuple[str, str, str], ReferenceTask],
-    out: ReferenceResults,
-    processes: int | None,
-    quiet: bool,
-    stamp: tuple[str, str],
-    max_processes: int = MAX_PROCESSES,
-) -> None:
-    """Evaluate ``chunks`` (here or in a spawn pool) and record each finished task in ``out``:
-    its CSV, then its JSON record (``stamp``: dataset manifest and code digest)."""
-    from benchmark.evaluation.metrics import write_predictions_csv
+class ReferenceWork:
+    """The references' evaluations still to run, as chunks of frames (:meth:`items`: work items
+    for an executor, ``run_chunk`` each), and their recording in this process (:meth:`collect`,
+    as each outcome arrives, in any order): a true-image evaluation is written (its CSV, then its
+    JSON record, ``stamp``: dataset manifest and code digest) once its chunks are in, a swap one
+    once its true one is (or reported failed when that one failed). :meth:`results` is the
+    whole, the cached evaluations included."""
 
-    n_frames = sum(len(c.rows) for c in chunks)
-    if processes is None:
-        cpus = os.cpu_count() or 1
-        many = n_frames >= PARALLEL_MIN_FRAMES
-        processes = max(1, min(max_processes, cpus, len(chunks))) if many else 1
-    expected = {}
-    for c in chunks:
-        expected[c.task.key] = expected.get(c.task.key, 0) + 1
-    parts: dict[tuple[str, str, str], list[tuple[int, tuple]]] = {}
-    done: dict[tuple[str, str, str], tuple[dict, pd.DataFrame]] = {}
+    def __init__(
+        self,
+        tasks: dict[tuple[str, str, str], ReferenceTask],
+        chunks: list[Chunk],
+        out: ReferenceResults,
+        stamp: tuple[str, str],
+    ) -> None:
+        self.tasks, self.chunks, self.out, self.stamp = tasks, chunks, out, stamp
+        self.expected: dict[tuple[str, str, str], int] = {}
+        for chunk in chunks:
+            self.expected[chunk.task.key] = self.expected.get(chunk.task.key, 0) + 1
+        self.parts: dict[tuple[str, str, str], list[tuple[int, tuple]]] = {}
+        self.done: dict[tuple[str, str, str], tuple[dict, pd.DataFrame]] = {}
 
-    def finish(task: ReferenceTask) -> None:
-        summary, frame = done.pop(task.key)
+    @property
+    def frames(self) -> int:
+        """Frames still to evaluate."""
+        return sum(len(c.rows) for c in self.chunks)
+
+    def items(self) -> list[WorkItem]:
+        """One work item per chunk (key: its evaluation and first row; size: its frames)."""
+        return [
+            WorkItem(f"{_what(c)} @{c.rows[0]}", _what(c), run_chunk, c, size=len(c.rows),
+                     data_root=c.task.data_root)
+            for c in self.chunks
+        ]  # fmt: skip
+
+    def describe(self, processes: int) -> str:
+        """One status line: what is run, what is read back, and where."""
+        n_run, n_all = len(self.expected), len(self.tasks)
+        if not n_run:
+            where = self.out.workdir / REFERENCE_DIR if self.out.workdir else "memory"
+            return f"references: {n_all} evaluation(s) read back from {where}"
+        stride = self.chunks[0].task.stride
+        every = f", 1 frame in {stride} of each flight" if stride > 1 else ""
+        return (
+            f"references: {n_run} evaluation(s) to run ({n_all - n_run} read back), "
+            f"{processes} process(es){every}"
+        )
+
+    def collect(self, item: WorkItem, outcome: ItemOutcome) -> None:
+        """Record one chunk's outcome (an error costs its evaluation's rows, not the report)."""
+        chunk: Chunk = item.arg
+        key = chunk.task.key
+        if key in self.out.errors:
+            return
+        if not outcome.ok:
+            self.out.errors[key] = outcome.error
+            self.parts.pop(key, None)
+            status(f"reference {key[0]} {eval_key(*key[1:])} failed: {outcome.error}")
+        else:
+            self.parts.setdefault(key, []).append((chunk.rows[0], outcome.value))
+            if len(self.parts[key]) == self.expected[key]:
+                ordered = sorted(self.parts.pop(key), key=lambda p: p[0])
+                self.done[key] = _assemble([r for _, r in ordered])
+        self._flush()
+
+    def _flush(self) -> None:
+        for key in sorted(self.done, key=lambda k: k[2] != "true"):
+            true_key = (*key[:2], "true")
+            if key[2] == "swap" and true_key in self.out.errors:
+                self.done.pop(key)
+                self.out.errors[key] = (
+                    f"its true-image evaluation failed ({self.out.errors[true_key]})"
+                )
+            elif key[2] == "true" or true_key in self.out.frames:
+                self._finish(self.tasks[key])
+
+    def _finish(self, task: ReferenceTask) -> None:
+        from benchmark.evaluation.metrics import write_predictions_csv
+
+        summary, frame = self.done.pop(task.key)
         if task.csv is not None:
             write_predictions_csv(frame, task.csv)
             frame = pd.read_csv(task.csv)  # as written: what a later report reads back
-        record = _record(task, summary, len(frame), *stamp)
+        record = _record(task, summary, len(frame), *self.stamp)
         if task.csv is not None:
             _write_json(Path(task.csv).with_suffix(".json"), record)
+        out = self.out
         out.records[task.key], out.summaries[task.key], out.frames[task.key] = (
             record, summary, frame
         )  # fmt: skip
 
-    def flush() -> None:
-        """A true evaluation is recorded when its chunks are in, a swap one once its true one
-        is recorded (or reported failed when that one failed)."""
-        for key in sorted(done, key=lambda k: k[2] != "true"):
-            true_key = (*key[:2], "true")
-            if key[2] == "swap" and true_key in out.errors:
-                done.pop(key)
-                out.errors[key] = f"its true-image evaluation failed ({out.errors[true_key]})"
-            elif key[2] == "true" or true_key in out.frames:
-                finish(tasks[key])
-
-    def collect(chunk: Chunk, result=None, err: BaseException | None = None) -> None:
-        key = chunk.task.key
-        if key in out.errors:
-            return
-        if err is not None:
-            # One reference's error costs its rows, not the report of a finished reproduction.
-            first = (str(err).strip().splitlines() or [""])[0][:300]
-            out.errors[key] = f"{type(err).__name__}: {first}"
-            parts.pop(key, None)
-            status(f"reference {key[0]} {eval_key(*key[1:])} failed: {out.errors[key]}")
-        else:
-            parts.setdefault(key, []).append((chunk.rows[0], result))
-            if len(parts[key]) == expected[key]:
-                done[key] = _assemble([r for _, r in sorted(parts.pop(key), key=lambda p: p[0])])
-        flush()
-
-    n_tasks = len(expected)
-    with Progress(n_frames, "references", unit="pair", enabled=not quiet and bool(chunks)) as bar:
-        stride = chunks[0].task.stride if chunks else 1
-        bar.status(
-            f"{n_tasks} evaluation(s) to run ({len(tasks) - n_tasks} read back), "
-            f"{processes} process(es)"
-            + (f", 1 frame in {stride} of each flight" if stride > 1 else "")
-        )
-        if processes <= 1:
-            for chunk in chunks:
-                if chunk.task.key not in out.errors:
-                    try:
-                        collect(chunk, run_chunk(chunk))
-                    except Exception as err:
-                        collect(chunk, err=err)
-                bar.update(len(chunk.rows), postfix=_what(chunk))
-        elif chunks:
-            _run_pool(chunks, processes, collect, bar)
-    for key in [k for k in done if k[2] == "swap"]:  # never recorded: its true one failed
-        done.pop(key)
+    def results(self) -> ReferenceResults:
+        """Every evaluation recorded so far (a swap one whose true one never came is dropped)."""
+        for key in [k for k in self.done if k[2] == "swap"]:
+            self.done.pop(key)
+        return self.out
 
 
 def _what(chunk: Chunk) -> str:
     t = chunk.task
     return f"{t.name} {eval_key(t.split, t.satellite)}"
-
-
-def _run_pool(chunks: list[Chunk], processes: int, collect, bar: Progress) -> None:
-    """Run ``chunks`` in a spawn pool of ``processes`` workers; ``collect(chunk, result)`` or
-    ``collect(chunk, err=...)`` in this process, in order of completion."""
-    ctx = multiprocessing.get_context("spawn")
-    pool = cf.ProcessPoolExecutor(processes, mp_context=ctx, initializer=_worker_init)
-    try:
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # see runner.pool
-        try:
-            futures = {pool.submit(run_chunk, chunk): chunk for chunk in chunks}
-        finally:
-            signal.signal(signal.SIGINT, previous)
-        for future in cf.as_completed(futures):
-            chunk = futures[future]
-            try:
-                result = future.result()
-            except Exception as err:
-                collect(chunk, err=err)
-            else:
-                collect(chunk, result)
-            bar.update(len(chunk.rows), postfix=_what(chunk))
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            if process.is_alive():
-                process.terminate()
-        raise
-    pool.shutdown(wait=True)
 
 
 def reference_rows(specs: list[TableSpec], results: ReferenceResults) -> list[dict]:
