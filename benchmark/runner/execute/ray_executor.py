@@ -139,31 +139,36 @@ def check_dataset_on_node(root: str | Path, expected_sha256: str) -> str:
 
 
 # ----------------------------------------------------------------------------- the Ray task
-def ray_unit(task: UnitTask, manifest_digest: str, driver_cwd: str) -> UnitResult:
-    """What one Ray task runs on its node: the pool worker's set-up (one torch thread, SIGINT
-    ignored), the driver's working directory (relative paths of the plan resolve as on the
-    driver, when the file system is shared), the dataset check, then :func:`run_unit`."""
-    start = time.perf_counter()
+def _set_up_node(data_root: str | Path | None, manifest_digest: str, driver_cwd: str) -> str:
+    """A Ray task's set-up on its node: the pool worker's (one torch thread, SIGINT ignored),
+    the driver's working directory (relative paths of the plan resolve as on the driver, when
+    the file system is shared), then the dataset check: "" when it passes or there is nothing
+    to check (no ``data_root`` or no digest), else the reason."""
     worker_init()
     if Path(driver_cwd).is_dir():
         os.chdir(driver_cwd)
-    problem = check_dataset_on_node(task.cfg.data.root, manifest_digest)
+    if data_root is None or not manifest_digest:
+        return ""
+    return check_dataset_on_node(data_root, manifest_digest)
+
+
+def ray_unit(task: UnitTask, manifest_digest: str, driver_cwd: str) -> UnitResult:
+    """What one Ray task of a unit runs on its node: :func:`_set_up_node`, then
+    :func:`run_unit` (a dataset the node does not share fails the unit, untrained)."""
+    start = time.perf_counter()
+    problem = _set_up_node(task.cfg.data.root, manifest_digest, driver_cwd)
     if problem:
         return UnitResult(task.key, False, seconds=time.perf_counter() - start, error=problem)
     return run_unit(task)
 
 
 def ray_item(item: WorkItem, manifest_digest: str, driver_cwd: str) -> ItemOutcome:
-    """What a Ray task of a work item runs on its node: :func:`ray_unit`'s set-up and dataset
-    check (``manifest_digest`` "" when the item reads no dataset), then ``run_item``."""
+    """What a Ray task of a work item runs on its node: :func:`_set_up_node`, then
+    ``run_item`` (``manifest_digest`` "" when the item reads no dataset)."""
     start = time.perf_counter()
-    worker_init()
-    if Path(driver_cwd).is_dir():
-        os.chdir(driver_cwd)
-    if item.data_root is not None and manifest_digest:
-        problem = check_dataset_on_node(item.data_root, manifest_digest)
-        if problem:
-            return ItemOutcome(None, problem, time.perf_counter() - start)
+    problem = _set_up_node(item.data_root, manifest_digest, driver_cwd)
+    if problem:
+        return ItemOutcome(None, problem, time.perf_counter() - start)
     return run_item(item)
 
 
