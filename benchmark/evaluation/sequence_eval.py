@@ -46,10 +46,12 @@ from benchmark.evaluation.evaluate import (
     predictions_to_frame,
 )
 from benchmark.evaluation.fusion import CircularGrid, OdometryNoise
+from benchmark.evaluation.fusion_joint import JointBelief, volume_joint_belief
 from benchmark.evaluation.sequence import (
     FusionSettings,
     SplitFrames,
     fuse_split,
+    fuse_split_joint,
     summarize_sequence,
 )
 from benchmark.evaluation.volume_beliefs import (
@@ -58,6 +60,7 @@ from benchmark.evaluation.volume_beliefs import (
     volume_position_beliefs,
     volume_yaw_beliefs,
 )
+from benchmark.progress import Progress
 
 STRESS_SCALE = 4.0
 # Summary key: 1.0 when the translation head's own density was the position belief (a head with
@@ -292,6 +295,32 @@ def fuse_estimates(
     )  # fmt: skip
 
 
+def _volume_frames(
+    frame: pd.DataFrame, marginals: VolumeMarginals, grid: CircularGrid, split: str
+) -> tuple[VolumeMarginals, pd.DataFrame]:
+    """``marginals`` in the order of ``frame``'s rows (matched on ``index``; the whole volume
+    too when kept) and ``frame`` with the volume's own per-frame estimates in place of the
+    head's yaw and position (pitch and roll stay the head's)."""
+    position_of = {int(i): k for k, i in enumerate(marginals.index.tolist())}
+    missing = [int(i) for i in frame["index"] if int(i) not in position_of]
+    if missing:
+        raise ValueError(
+            f"split {split}: the volume pass has no frame {missing[:5]} of the evaluation table"
+        )
+    order = torch.as_tensor([position_of[int(i)] for i in frame["index"]], dtype=torch.long)
+    volume = marginals.log_volume
+    aligned = dataclasses.replace(
+        marginals, index=marginals.index[order], yaw_log_p=marginals.yaw_log_p[order],
+        position_log_p=marginals.position_log_p[order],
+        log_volume=volume[order] if volume is not None else None,
+    )  # fmt: skip
+    yaw_hat, en_hat = volume_estimates(aligned, grid)
+    own = frame.copy()
+    own["yaw_hat_deg"] = np.degrees(yaw_hat.numpy())
+    own["E_hat_m"], own["N_hat_m"] = en_hat[:, 0].numpy(), en_hat[:, 1].numpy()
+    return aligned, own
+
+
 def fuse_volume(
     frame: pd.DataFrame,
     marginals: VolumeMarginals,
@@ -311,29 +340,65 @@ def fuse_volume(
     same split, matched to ``marginals`` on ``index``). Returns what :func:`fuse_predictions`
     returns."""
     settings = settings or FusionSettings()
-    position_of = {int(i): k for k, i in enumerate(marginals.index.tolist())}
-    missing = [int(i) for i in frame["index"] if int(i) not in position_of]
-    if missing:
-        raise ValueError(
-            f"split {split}: the volume pass has no frame {missing[:5]} of the evaluation table"
-        )
-    order = torch.as_tensor([position_of[int(i)] for i in frame["index"]], dtype=torch.long)
-    aligned = dataclasses.replace(
-        marginals,
-        index=marginals.index[order],
-        yaw_log_p=marginals.yaw_log_p[order],
-        position_log_p=marginals.position_log_p[order],
-    )
     grid = CircularGrid(settings.yaw_bins)
-    yaw_hat, en_hat = volume_estimates(aligned, grid)
-    own = frame.copy()
-    own["yaw_hat_deg"] = np.degrees(yaw_hat.numpy())
-    own["E_hat_m"], own["N_hat_m"] = en_hat[:, 0].numpy(), en_hat[:, 1].numpy()
+    aligned, own = _volume_frames(frame, marginals, grid, split)
     return fuse_predictions(
         own, volume_yaw_beliefs(aligned, grid), poses, sat_table, (None, None), noise,
         split=split, seed=seed, settings=settings, stress_scale=stress_scale,
         position_belief=partial(volume_position_beliefs, aligned),
     )  # fmt: skip
+
+
+def fuse_volume_joint(
+    frame: pd.DataFrame,
+    marginals: VolumeMarginals,
+    poses: pd.DataFrame,
+    sat_table: pd.DataFrame,
+    noise: OdometryNoise,
+    *,
+    split: str,
+    settings: FusionSettings | None = None,
+    progress: bool = False,
+) -> tuple[dict[str, float], pd.DataFrame]:
+    """Fuse a pair encoder's whole pose volume along the flights, jointly over heading and
+    position (:func:`~benchmark.evaluation.sequence.fuse_split_joint`; ``marginals`` with its
+    ``log_volume``): the same per-frame estimates and pitch and roll as :func:`fuse_volume`, no
+    calibration. The dataset's odometry only (no stress run: the joint grid is the cost).
+    Returns the summary (``seq_*`` keys) and the table of :func:`fuse_volume` with
+    ``odometry = "data"``."""
+    settings = settings or FusionSettings()
+    if marginals.log_volume is None:
+        raise ValueError(
+            f"split {split}: the joint fusion needs the whole volume "
+            f"(volume_marginals(keep_volume=True)); got its marginals only"
+        )
+    grid = CircularGrid(settings.yaw_bins)
+    aligned, own = _volume_frames(frame, marginals, grid, split)
+    rows = poses.iloc[own["index"].to_numpy()].reset_index(drop=True)
+    missing_cols = [c for c in ODOMETRY_COLUMNS if c not in rows.columns]
+    if missing_cols:
+        raise ValueError(f"split {split}: the pair table has no odometry columns {missing_cols}")
+    frames = _frames(
+        own, rows, volume_yaw_beliefs(aligned, grid), rows, footprints(rows, sat_table), None,
+        position_belief=partial(volume_position_beliefs, aligned),
+    )  # fmt: skip
+    volume = aligned.log_volume
+    assert volume is not None  # kept (checked above), reordered with the rest
+
+    def joint_belief(flight_rows: np.ndarray, plane: Any) -> JointBelief:
+        return volume_joint_belief(
+            volume[torch.as_tensor(flight_rows)], aligned.yaw, aligned.north, aligned.east,
+            aligned.cell_m, plane,
+        )  # fmt: skip
+
+    bar = Progress(len(np.unique(frames.flight)), f"joint fusion {split}", unit="flight",
+                   enabled=progress)  # fmt: skip
+    table = fuse_split_joint(
+        frames, joint_belief, noise, settings, progress=lambda done, total: bar.update(1)
+    )
+    bar.close()
+    table.insert(0, "odometry", "data")
+    return summarize_sequence(table), table
 
 
 def gives_position_density(head: torch.nn.Module) -> bool:

@@ -46,6 +46,9 @@ class VolumeMarginals:
     north: Tensor
     east: Tensor
     cell_m: float
+    # ``(N, K, P, Q)`` float32 log-mass of every cell, rows as ``index``; None unless asked for
+    # (``volume_marginals(keep_volume=True)``: the joint fusion reads it; ~0.2 MB a frame)
+    log_volume: Tensor | None = None
 
     def __post_init__(self) -> None:
         n, k = self.yaw_log_p.shape
@@ -75,17 +78,19 @@ def volume_marginals(
     num_workers: int = 0,
     progress: bool = False,
     desc: str = "volume",
+    keep_volume: bool = False,
 ) -> VolumeMarginals:
     """Run ``model`` over the images of ``dataset`` (a ``PairDataset``: the encoder must see the
     pairs, not cached features) and keep its pose volume's marginals. Eval mode, restored after;
-    the forward under autocast for ``precision``, the marginals in float64."""
+    the forward under autocast for ``precision``, the marginals in float64; ``keep_volume``: the
+    whole volume too (float32, ``VolumeMarginals.log_volume``)."""
     axes = model.encoder.pose_volume_axes() if gives_pose_volume(model) else None
     if axes is None:
         raise ValueError(
             f"{type(getattr(model, 'encoder', model)).__name__} has no pose volume "
             f"(PairEncoder.pose_volume_axes is None): fuse its heads' beliefs instead"
         )
-    index, yaw, position = [], [], []
+    index, yaw, position, volumes = [], [], [], []
     passes = model_outputs(
         model, dataset, batch_size=batch_size, shared_satellite=shared_satellite,
         precision=precision, num_workers=num_workers, progress=progress, desc=desc,
@@ -96,11 +101,13 @@ def volume_marginals(
         log_volume = out.encoder["log_volume"].double()  # (B, K, P, Q)
         yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
         position.append(torch.logsumexp(log_volume, dim=1).cpu())
+        if keep_volume:
+            volumes.append(log_volume.float().cpu())
         index.append(batch["index"].cpu())
     return VolumeMarginals(
         torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
         axes.yaw.double().cpu(), axes.north.double().cpu(), axes.east.double().cpu(),
-        float(axes.cell_m),
+        float(axes.cell_m), torch.cat(volumes) if keep_volume else None,
     )  # fmt: skip
 
 

@@ -33,6 +33,7 @@ from benchmark.runner.execute.ray_executor import is_local_address
 from benchmark.runner.execute.worker import (
     UnitResult,
     UnitTask,
+    joint_sequence_paths,
     sequence_paths,
     volume_sequence_paths,
 )
@@ -310,12 +311,12 @@ def _run_locked(
         stored = [s for job in unit.jobs if (s := logbook.finished(job, unit)) is not None]
         # the flight-fusion files are read from the work directory by the report: a unit whose
         # jobs are all in the store but whose files are gone runs again (it retrains nothing)
+        wanted = ((sequence_paths, unit.fuse_splits), (volume_sequence_paths, unit.volume_splits),
+                  (joint_sequence_paths, unit.joint_splits))  # fmt: skip
         fused = all(
-            sequence_paths(workdir / "units" / unit.key, split)[1].is_file()
-            for split in unit.fuse_splits
-        ) and all(
-            volume_sequence_paths(workdir / "units" / unit.key, split)[1].is_file()
-            for split in unit.volume_splits
+            paths(workdir / "units" / unit.key, split)[1].is_file()
+            for paths, splits in wanted
+            for split in splits
         )
         if len(stored) == len(unit.jobs) and fused:
             merged: dict[str, dict[str, float]] = {}
@@ -339,6 +340,7 @@ def _run_locked(
                     tracking=live,
                     fuse_splits=unit.fuse_splits,
                     volume_splits=unit.volume_splits,
+                    joint_splits=unit.joint_splits,
                 ),
             )
         )
@@ -440,7 +442,8 @@ def _with_shared_encoders(
                 live = logbook.unit_tracking(unit, log_model=config.log_models)
             task = UnitTask(unit.key, unit.cfg, unit.eval_splits, workdir / "units" / unit.key,
                             tracking=live, fuse_splits=unit.fuse_splits,
-                            volume_splits=unit.volume_splits)  # fmt: skip
+                            volume_splits=unit.volume_splits,
+                            joint_splits=unit.joint_splits)  # fmt: skip
             shared.append((unit, task))
     return shared + todo
 

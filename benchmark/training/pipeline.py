@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,6 +84,9 @@ class TrainEvalResult:
     sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
     # split -> (summary, CSV) of the pose volume's fusion (``eval/<split>__volume_sequence.*``)
     volume_sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
+    # split -> (summary, CSV) of the pose volume fused jointly over (heading, E, N)
+    # (``eval/<split>__volume_joint_sequence.*``)
+    joint_sequences: dict[str, tuple[dict[str, float], Path]] = field(default_factory=dict)
 
     @property
     def history(self) -> list[dict[str, float]]:
@@ -101,6 +105,7 @@ def train_and_evaluate(
     placement: Placement | None = None,
     fuse_splits: list[str] | tuple[str, ...] = (),
     volume_splits: list[str] | tuple[str, ...] = (),
+    joint_splits: list[str] | tuple[str, ...] = (),
 ) -> TrainEvalResult:
     """Train ``cfg`` into ``out_dir/train`` (resuming), then evaluate each split of
     ``cfg.data.root`` in ``eval_splits`` with the true and the swapped satellite image (files
@@ -110,7 +115,9 @@ def train_and_evaluate(
     afterwards (:func:`benchmark.evaluation.sequence_eval.evaluate_sequence`), calibrated on
     ``cfg.data.val_split``, which is then evaluated first. ``volume_splits`` (each also in
     ``eval_splits``) are fused with the pair encoder's own pose volume as the belief
-    (:func:`benchmark.evaluation.sequence_eval.fuse_volume`; a pass over the images)."""
+    (:func:`benchmark.evaluation.sequence_eval.fuse_volume`; a pass over the images);
+    ``joint_splits`` (each also in ``eval_splits``) jointly over (heading, E, N) as well
+    (:func:`benchmark.evaluation.sequence_eval.fuse_volume_joint`; the same pass)."""
     if fuse_splits and cfg.data.val_split is None:
         raise ValueError(
             f"fuse_splits {list(fuse_splits)} need a validation split to calibrate the beliefs "
@@ -148,10 +155,14 @@ def train_and_evaluate(
         result.sequences[split] = _sequence_split(
             cfg, model, out_dir, split, eval_batch, progress, placement
         )
-    for split in volume_splits:
-        result.volume_sequences[split] = _volume_split(
-            cfg, model, out_dir, split, eval_batch, progress, placement
+    for split in dict.fromkeys([*volume_splits, *joint_splits]):
+        marginal, joint = _volume_split(
+            cfg, model, out_dir, split, eval_batch, progress, placement, split in joint_splits
         )
+        if split in volume_splits:
+            result.volume_sequences[split] = marginal
+        if joint is not None:
+            result.joint_sequences[split] = joint
     return result
 
 
@@ -159,6 +170,22 @@ def volume_sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
     """``(csv, json)`` of one split's fusion of the pose volume under ``out_dir/eval``."""
     stem = Path(out_dir) / "eval" / f"{split_filename(split)}__volume_sequence"
     return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def joint_sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
+    """``(csv, json)`` of one split's joint (heading, E, N) fusion of the pose volume."""
+    stem = Path(out_dir) / "eval" / f"{split_filename(split)}__volume_joint_sequence"
+    return stem.with_suffix(".csv"), stem.with_suffix(".json")
+
+
+def fusion_paths(beliefs: str) -> Callable[[str | Path, str], tuple[Path, Path]]:
+    """Where a sequence row's fused files are, by what it fuses (``RowSpec.beliefs``): a head's
+    beliefs, the pose volume's marginals, or the pose volume jointly."""
+    paths = {"head": sequence_paths, "volume": volume_sequence_paths,
+             "volume_joint": joint_sequence_paths}  # fmt: skip
+    if beliefs not in paths:
+        raise ValueError(f"beliefs must be one of {tuple(paths)}, got {beliefs!r}")
+    return paths[beliefs]
 
 
 def _volume_split(
@@ -169,33 +196,51 @@ def _volume_split(
     batch_size: int,
     progress: bool,
     placement: Placement,
-) -> tuple[dict[str, float], Path]:
-    """Fuse the pose volume of one split along its flights, or read what a previous run
-    wrote: the encoder's pass over the split's images, the heads' pitch and roll from the true
-    image's evaluation table."""
+    joint: bool = False,
+) -> tuple[tuple[dict[str, float], Path], tuple[dict[str, float], Path] | None]:
+    """Fuse the pose volume of one split along its flights (its marginals and, if ``joint``,
+    jointly over heading and position), or read what a previous run wrote: one encoder pass
+    over the split's images, the heads' pitch and roll from the true image's evaluation table.
+    Returns ``(marginal, joint or None)``, each ``(summary, csv)``."""
     import pandas as pd
 
     from benchmark.data import PairDataset, odometry_noise
-    from benchmark.evaluation.sequence_eval import STRESS_SCALE, fuse_volume
+    from benchmark.evaluation.sequence_eval import STRESS_SCALE, fuse_volume, fuse_volume_joint
     from benchmark.evaluation.volume_beliefs import volume_marginals
 
     csv_path, json_path = volume_sequence_paths(out_dir, split)
-    if json_path.is_file() and csv_path.is_file():
-        return json.loads(json_path.read_text()), csv_path
+    joint_csv, joint_json = joint_sequence_paths(out_dir, split)
+    have = json_path.is_file() and csv_path.is_file()
+    have_joint = not joint or (joint_json.is_file() and joint_csv.is_file())
+    if have and have_joint:
+        return (json.loads(json_path.read_text()), csv_path), (
+            (json.loads(joint_json.read_text()), joint_csv) if joint else None
+        )
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     marginals = volume_marginals(
         model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,
         precision=placement.precision, num_workers=loader_workers(cfg, placement.device),
-        progress=progress, desc=f"volume {split}",
+        progress=progress, desc=f"volume {split}", keep_volume=joint and not have_joint,
     )  # fmt: skip
     true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
-    summary, table = fuse_volume(
-        pd.read_csv(true_csv), marginals, base.poses, base.sat_table,
-        odometry_noise(base.manifest["profile"]), split=split, seed=int(base.manifest["seed"]),
-        stress_scale=STRESS_SCALE if split.startswith("long/") else None,
-    )  # fmt: skip
-    _write_fusion(table, summary, csv_path, json_path)
-    return summary, csv_path
+    frame = pd.read_csv(true_csv)
+    noise = odometry_noise(base.manifest["profile"])
+    seed = int(base.manifest["seed"])
+    if not have:
+        summary, table = fuse_volume(
+            frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
+            stress_scale=STRESS_SCALE if split.startswith("long/") else None,
+        )  # fmt: skip
+        _write_fusion(table, summary, csv_path, json_path)
+    marginal = (json.loads(json_path.read_text()), csv_path)
+    if not joint:
+        return marginal, None
+    if not have_joint:
+        summary, table = fuse_volume_joint(
+            frame, marginals, base.poses, base.sat_table, noise, split=split, progress=progress
+        )  # fmt: skip
+        _write_fusion(table, summary, joint_csv, joint_json)
+    return marginal, (json.loads(joint_json.read_text()), joint_csv)
 
 
 def _write_fusion(table: Any, summary: dict[str, float], csv_path: Path, json_path: Path) -> None:

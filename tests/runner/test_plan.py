@@ -71,6 +71,11 @@ class TestPlanUnits:
         assert {"Pd/Re-Net", "Pd/Re-Net · matching, gravity-aided"} <= labels
         for unit in volume:
             assert unit.volume_splits == unit.fuse_splits
+        # the joint rows: the vision-only volume's unit, on the long flights only
+        joint = [u for u in units if u.joint_splits]
+        assert len(joint) == 1 and joint[0] in volume
+        assert joint[0].joint_splits == ["long/standard", "long/towns", "long/london"]
+        assert joint[0].cfg.model.encoder_options.get("protocol", "vision_only") == "vision_only"
 
     def test_control_is_its_own_unit(self):
         units = plan()

@@ -176,7 +176,7 @@ class TestLoadSpec:
             (
                 "attitude: pd_re_net}",
                 "attitude: pd_re_net, beliefs: pixels}",
-                r"beliefs must be one of \('head', 'volume'\), got 'pixels'",
+                r"beliefs must be one of \('head', 'volume', 'volume_joint'\), got 'pixels'",
             ),
             (
                 "attitude: pd_re_net}",

@@ -243,3 +243,30 @@ class TestPoseVolumeFusion:
             summary["seq_smooth_dpsi_deg"] == done.volume_sequences[split][0]["seq_smooth_dpsi_deg"]
         )
         assert csv.stat().st_mtime_ns == written
+
+    def test_joint_fusion_is_written_beside_the_marginal_one(
+        self, smoke_dataset, pretrained, tmp_path
+    ):
+        import pandas as pd
+
+        from benchmark.training.pipeline import joint_sequence_paths, volume_sequence_paths
+
+        cfg = _frozen_cfg(smoke_dataset, pretrained, "model.attitude=pd_re_net")
+        split, out = "long/standard", tmp_path / "run"
+        done = train_and_evaluate(cfg, out, ["standard/val", split], joint_splits=[split])
+        csv, js = joint_sequence_paths(out, split)
+        assert csv.is_file() and js.is_file() and split in done.joint_sequences
+        assert not done.volume_sequences  # the marginal fusion was not asked for (but is kept)
+        marginal = pd.read_csv(volume_sequence_paths(out, split)[0])
+        table = pd.read_csv(csv)
+        assert set(table["odometry"]) == {"data"} and list(table.columns) == list(marginal.columns)
+        # the same frames and the same per-frame estimates as the marginal fusion's
+        frame = table[table["mode"] == "frame"].sort_values("index")
+        ref = marginal[(marginal["mode"] == "frame") & (marginal["odometry"] == "data")]
+        np.testing.assert_array_equal(
+            frame["yaw_hat_deg"].to_numpy(), ref.sort_values("index")["yaw_hat_deg"].to_numpy()
+        )
+        written = csv.stat().st_mtime_ns
+        again = train_and_evaluate(cfg, out, ["standard/val", split], joint_splits=[split])
+        assert again.joint_sequences[split][0] == done.joint_sequences[split][0]
+        assert csv.stat().st_mtime_ns == written

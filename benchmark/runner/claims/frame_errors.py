@@ -28,11 +28,10 @@ import pandas as pd
 
 from benchmark.runner.execute.worker import (
     eval_key,
-    sequence_paths,
+    fusion_paths,
     split_filename,
-    volume_sequence_paths,
 )
-from benchmark.runner.plan.specs import RowSpec
+from benchmark.runner.plan.specs import VOLUME_BELIEFS, RowSpec
 from benchmark.runner.plan.units import Unit
 
 
@@ -135,7 +134,7 @@ class FrameStore:
             job = next(iter(by_seed.values()))[1]
             if t != table or (split is not None and split not in job.eval_splits):
                 continue
-            if getattr(job, "beliefs", "head") == "volume" and not volume:
+            if getattr(job, "beliefs", "head") in VOLUME_BELIEFS and not volume:
                 continue
             blank = job.row.get("satellite_input") == "blank"
             if control is None or control == blank:
@@ -267,9 +266,8 @@ class FrameStore:
 
     def sequence_path(self, unit_key: str, split: str, beliefs: str = "head") -> Path:
         """The unit's flight-fusion file of ``split`` (``sequence_paths``, issue 39; the pose
-        volume's, ``volume_sequence_paths``, for ``beliefs="volume"``)."""
-        paths = volume_sequence_paths if beliefs == "volume" else sequence_paths
-        return paths(self.workdir / "units" / unit_key, split)[0]
+        volume's for ``beliefs="volume"`` or ``"volume_joint"``: ``fusion_paths``)."""
+        return fusion_paths(beliefs)(self.workdir / "units" / unit_key, split)[0]
 
     def has_sequence(self, table: str, label: str, split: str) -> bool:
         """Whether every seed of the model fused ``split`` along its flights."""

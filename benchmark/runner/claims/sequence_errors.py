@@ -32,8 +32,7 @@ from benchmark.runner.execute.reference_rows import CONSTANT_LABEL
 from benchmark.runner.execute.worker import (
     eval_key,
     eval_paths,
-    sequence_paths,
-    volume_sequence_paths,
+    fusion_paths,
 )
 from benchmark.runner.plan.specs import TableSpec
 from benchmark.runner.plan.units import Unit
@@ -100,7 +99,7 @@ def load_sequences(
     out = []
     for job in spec.jobs():
         mine = _planned(spec, units, job.label)
-        where = volume_sequence_paths if job.beliefs == "volume" else sequence_paths
+        where = fusion_paths(job.beliefs)
         label, attitude_from = job.label, {u.key: u for u in mine}
         if job.pitch_roll == "best_on_val":
             chosen = choices.get(job.label)

@@ -101,6 +101,7 @@ def track_unit(
     heartbeat: EpochCallback | None = None,
     fuse_splits: list[str] | tuple[str, ...] = (),
     volume_splits: list[str] | tuple[str, ...] = (),
+    joint_splits: list[str] | tuple[str, ...] = (),
     placement: Placement | None = None,
 ) -> tuple[TrainEvalResult, str]:
     """Train and evaluate the unit into ``unit_dir``, logging to ``run`` as it goes; returns the
@@ -132,6 +133,7 @@ def track_unit(
             eval_batch=eval_batch,
             fuse_splits=fuse_splits,
             volume_splits=volume_splits,
+            joint_splits=joint_splits,
             placement=placement,
         )
     for key, summary in done.metrics.items():
@@ -142,6 +144,9 @@ def track_unit(
         run.log_metrics(finite, step=cfg.optim.epochs)
     for split, (summary, _) in done.volume_sequences.items():  # the pose volume, fused
         finite = {f"{split}/volume_{k}": v for k, v in summary.items() if _finite(v)}
+        run.log_metrics(finite, step=cfg.optim.epochs)
+    for split, (summary, _) in done.joint_sequences.items():  # ... and jointly
+        finite = {f"{split}/volume_joint_{k}": v for k, v in summary.items() if _finite(v)}
         run.log_metrics(finite, step=cfg.optim.epochs)
     for name in ("config.yaml", "history.json"):
         if (unit_dir / name).is_file():

@@ -37,6 +37,8 @@ from benchmark.training.pipeline import (
     eval_key,
     eval_keys,
     eval_paths,
+    fusion_paths,
+    joint_sequence_paths,
     sequence_paths,
     split_filename,
     train_and_evaluate,
@@ -52,6 +54,8 @@ __all__ = [
     "eval_key",
     "eval_keys",
     "eval_paths",
+    "fusion_paths",
+    "joint_sequence_paths",
     "run_unit",
     "sequence_paths",
     "split_filename",
@@ -71,6 +75,7 @@ class UnitTask:
     tracking: UnitTracking | None = None  # None: nothing is logged from the worker
     fuse_splits: list[str] = field(default_factory=list)  # fused along their flights (issue 39)
     volume_splits: list[str] = field(default_factory=list)  # the pose volume fused along them
+    joint_splits: list[str] = field(default_factory=list)  # ... and jointly (heading, E, N)
 
 
 @dataclass
@@ -82,6 +87,7 @@ class UnitResult:
     predictions: dict[str, str] = field(default_factory=dict)  # eval_key -> CSV path
     sequences: dict[str, str] = field(default_factory=dict)  # fused split -> sequence CSV path
     volume_sequences: dict[str, str] = field(default_factory=dict)  # the pose volume's, the same
+    joint_sequences: dict[str, str] = field(default_factory=dict)  # its joint fusion's
     seconds: float = 0.0
     error: str = ""
     # where the worker computed (benchmark.training.identity.device_tags of its own placement):
@@ -156,7 +162,8 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
-            volume_splits=task.volume_splits, placement=placement,
+            volume_splits=task.volume_splits, joint_splits=task.joint_splits,
+            placement=placement,
         )  # fmt: skip
         return _result(task, done, start, where)
     run, reused = open_unit_run(task.tracking)
@@ -164,7 +171,8 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
         done = train_and_evaluate(
             task.cfg, task.unit_dir, task.eval_splits, on_epoch_end=beat,
             eval_batch=task.eval_batch, fuse_splits=task.fuse_splits,
-            volume_splits=task.volume_splits, placement=placement,
+            volume_splits=task.volume_splits, joint_splits=task.joint_splits,
+            placement=placement,
         )  # fmt: skip
         result = _result(task, done, start, where)
         result.run_id, result.model_uri = reused.run_id, reused.tags.get("model_uri", "")
@@ -175,6 +183,7 @@ def _run_unit(task: UnitTask, start: float) -> UnitResult:
                                      task.eval_batch, heartbeat=beat,
                                      fuse_splits=task.fuse_splits,
                                      volume_splits=task.volume_splits,
+                                     joint_splits=task.joint_splits,
                                      placement=placement)  # fmt: skip
     result = _result(task, done, start, where)
     result.run_id, result.model_uri = run.run_id, model_uri
@@ -191,6 +200,7 @@ def _result(task: UnitTask, done, start: float, where: dict[str, str]) -> UnitRe
         predictions={k: str(v) for k, v in done.predictions.items()},
         sequences={k: str(path) for k, (_, path) in done.sequences.items()},
         volume_sequences={k: str(path) for k, (_, path) in done.volume_sequences.items()},
+        joint_sequences={k: str(path) for k, (_, path) in done.joint_sequences.items()},
         seconds=time.perf_counter() - start,
         placement_tags=where,
     )

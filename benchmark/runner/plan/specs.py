@@ -62,9 +62,13 @@ from benchmark.models.model_config import SATELLITE_INPUTS, ModelConfig, parse_s
 
 KINDS = ("table", "sweep", "cost", "sequence")
 # What a ``kind: sequence`` row fuses (``RowSpec.beliefs``).
-BELIEF_SOURCES = ("head", "volume")
-# Where a ``beliefs: volume`` row takes its pitch and roll (``RowSpec.pitch_roll``): "own" the
-# head of its own unit; "best_on_val" the spec's head row with the lowest validation error.
+# "volume": the pair encoder's pose volume, its two marginals fused apart; "volume_joint": the
+# same volume fused jointly over (heading, E, N) (``benchmark.evaluation.fusion_joint``).
+BELIEF_SOURCES = ("head", "volume", "volume_joint")
+VOLUME_BELIEFS = ("volume", "volume_joint")
+# Where a ``beliefs: volume`` (or ``volume_joint``) row takes its pitch and roll
+# (``RowSpec.pitch_roll``): "own" the head of its own unit; "best_on_val" the spec's head row
+# with the lowest validation error.
 PITCH_ROLL_SOURCES = ("own", "best_on_val")
 _FIRST_LINE = re.compile(r"^# (Paper (Table|Fig\.) (\d+)|Beyond the paper): .+")
 
@@ -104,8 +108,9 @@ class RowSpec:
     model: dict[str, Any]
     train_split: str | None = None  # None: the table's
     eval_splits: tuple[str, ...] | None = None  # None: the table's
-    # What a sequence row fuses: "head" (the heads' beliefs) or "volume" (the pair encoder's own
-    # pose volume; its heads give only pitch and roll). Not part of the model: a volume row and
+    # What a sequence row fuses: "head" (the heads' beliefs), "volume" (the pair encoder's own
+    # pose volume, its marginals; its heads give only pitch and roll) or "volume_joint" (the
+    # same volume fused jointly over heading and position). Not part of the model: a volume row and
     # a head row of the same model share their unit.
     beliefs: str = "head"
     # Where a volume row's pitch and roll come from (:data:`PITCH_ROLL_SOURCES`): "own" (its
@@ -416,12 +421,12 @@ def load_spec(path: str | Path) -> TableSpec:
                 f"{path}: rows[{index}] ({row.label!r}): beliefs: {row.beliefs} is for a "
                 f"kind: sequence spec (what its rows fuse); kind {raw['kind']!r} fuses nothing"
             )
-        if row.pitch_roll != "own" and row.beliefs != "volume":
+        if row.pitch_roll != "own" and row.beliefs not in VOLUME_BELIEFS:
             raise SpecError(
                 f"{path}: rows[{index}] ({row.label!r}): pitch_roll: {row.pitch_roll} is for a "
                 f"beliefs: volume row (a head row's pitch and roll are its own)"
             )
-        if row.beliefs == "volume" and row.model.get("encoder") is None:
+        if row.beliefs in VOLUME_BELIEFS and row.model.get("encoder") is None:
             raise SpecError(
                 f"{path}: rows[{index}] ({row.label!r}): a beliefs: volume row names the pair "
                 f"encoder whose pose volume it fuses (encoder: matching); the profile's encoder "

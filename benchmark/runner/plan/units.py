@@ -87,6 +87,12 @@ class Unit:
         the pair encoder's own pose volume fused along their flights."""
         return self._fused("volume")
 
+    @property
+    def joint_splits(self) -> list[str]:
+        """The splits of its ``beliefs: volume_joint`` sequence jobs (and their confirmation
+        splits): the pose volume fused jointly over heading and position."""
+        return self._fused("volume_joint")
+
     def _fused(self, beliefs: str) -> list[str]:
         seen: dict[str, None] = {}
         for job in self.jobs:
