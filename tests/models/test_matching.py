@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from benchmark.models import PairEncoder, create_model, list_heads
+from benchmark.models import PairEncoder, create_model, list_heads, matching_ops
 from benchmark.models.matching import matching
 from benchmark.models.matching_ops import (
     bev_templates,
@@ -155,6 +155,83 @@ class TestCorrelateXdft:
     def test_padding_is_the_2_3_5_fft_size(self):
         # The columns are transformed at fft_size(g) >= g: nothing the kept outputs read wraps.
         assert [fft_size(g) for g in (13, 23, 63, 64, 71)] == [15, 24, 64, 64, 72]
+
+
+def _conv_grads(sat, tpl, w):
+    """correlate_conv's output and its gradients of ``(out * w).sum()`` (the reference)."""
+    sat, tpl = (x.detach().requires_grad_() for x in (sat, tpl))
+    out = correlate_conv(sat, tpl)
+    return (out.detach(), *torch.autograd.grad((out * w).sum(), (sat, tpl)))
+
+
+class TestCorrelateXdftBlocks:
+    """``correlate_xdft``'s blocks of pairs (issue 40: 2 by default), a partial last block
+    included, and its per-thread workspace (buffers reused across blocks, calls and shapes),
+    against the direct correlation in float64."""
+
+    @pytest.mark.parametrize("block", [1, 2, 3, 8])
+    def test_blocks_equal_conv_forward_and_backward_float64(self, block):
+        gen = torch.Generator().manual_seed(block)
+        sat = torch.randn(5, 3, 17, 17, generator=gen, dtype=torch.float64, requires_grad=True)
+        tpl = torch.randn(5, 4, 3, 6, 6, generator=gen, dtype=torch.float64, requires_grad=True)
+        w = torch.randn(5, 4, 12, 12, generator=gen, dtype=torch.float64)
+        out = correlate_xdft(sat, tpl, block=block)
+        grads = torch.autograd.grad((out * w).sum(), (sat, tpl))
+        for got, want in zip((out, *grads), _conv_grads(sat, tpl, w), strict=True):
+            torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-10)
+
+    def test_gradcheck_float64_partial_block(self):
+        gen = torch.Generator().manual_seed(1)
+        sat = torch.randn(3, 2, 7, 7, generator=gen, dtype=torch.float64, requires_grad=True)
+        tpl = torch.randn(3, 3, 2, 3, 3, generator=gen, dtype=torch.float64, requires_grad=True)
+        assert torch.autograd.gradcheck(lambda s, t: correlate_xdft(s, t, block=2), (sat, tpl))
+
+    @pytest.mark.parametrize("which", ["sat", "templates"])
+    def test_one_input_requiring_grad(self, which):
+        gen = torch.Generator().manual_seed(2)
+        sat = torch.randn(3, 2, 11, 11, generator=gen, dtype=torch.float64)
+        tpl = torch.randn(3, 2, 2, 5, 5, generator=gen, dtype=torch.float64)
+        w = torch.randn(3, 2, 7, 7, generator=gen, dtype=torch.float64)
+        x = (sat if which == "sat" else tpl).requires_grad_()
+        (got,) = torch.autograd.grad((correlate_xdft(sat, tpl) * w).sum(), (x,))
+        want = _conv_grads(sat, tpl, w)[1 if which == "sat" else 2]
+        torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-10)
+
+    def test_workspace_reused_across_shapes_and_interleaved_calls(self):
+        """Two forwards before their backwards (the matcher's altitude banks), then other
+        shapes, then the first again: every result and gradient still conv's (no buffer of one
+        call leaks into another)."""
+        gen = torch.Generator().manual_seed(3)
+        f64 = torch.float64
+        cases = [
+            (torch.randn(4, 2, 13, 13, generator=gen, dtype=f64),
+             torch.randn(4, 3, 2, 5, 5, generator=gen, dtype=f64)),
+            (torch.randn(4, 2, 13, 13, generator=gen, dtype=f64),
+             torch.randn(4, 3, 2, 5, 5, generator=gen, dtype=f64)),
+            (torch.randn(2, 3, 10, 10, generator=gen, dtype=f64),
+             torch.randn(2, 2, 3, 4, 4, generator=gen, dtype=f64)),
+        ]  # fmt: skip
+        for _ in range(2):
+            leaves = [(s.clone().requires_grad_(), t.clone().requires_grad_()) for s, t in cases]
+            outs = [correlate_xdft(s, t) for s, t in leaves]  # every forward first
+            for (s, t), out in zip(leaves, outs, strict=True):
+                w = torch.linspace(-1, 1, out.numel(), dtype=f64).view_as(out)
+                grads = torch.autograd.grad((out * w).sum(), (s, t))
+                for got, want in zip((out, *grads), _conv_grads(s, t, w), strict=True):
+                    torch.testing.assert_close(got, want, rtol=1e-10, atol=1e-10)
+
+    def test_workspaces_per_thread_bounded(self):
+        cache = matching_ops._WORKSPACES.cache  # this thread's, filled by the calls above
+        assert 1 <= len(cache) <= matching_ops._WORKSPACE_SHAPES
+
+
+class TestTransposePairs:
+    @pytest.mark.parametrize("dtype", [torch.float64, torch.float32, torch.bfloat16])
+    def test_equals_the_batched_transpose(self, dtype):
+        src = torch.randn(3, 66, 200, generator=torch.Generator().manual_seed(0)).to(dtype)
+        out = torch.empty(3, 200, 66, dtype=dtype)
+        matching_ops._transpose_pairs(src, out)
+        assert torch.equal(out, src.transpose(1, 2))
 
 
 class TestBevTemplates:

@@ -318,17 +318,21 @@ class TestMatchingEncoder:
         assert got["sampling"] == 16 * b * c * (k * t * t + g * g)
         assert got["total"] == sum(got[kind] for kind in KINDS_OF_FLOPS)
         # Ours (correlate_xdft): the same convolutions and sampling, no complex work, and real
-        # GEMMs counted as matmul: the template rows' and the grid rows' DFTs (forward, again
-        # in the backward pass, which recomputes them, and the gradient of their input), the
-        # batched GEMM along the rows (forward and both gradients) and the inverse (forward
-        # and its input's gradient).
+        # GEMMs counted as matmul: the template rows' DFT (forward, again in the backward pass,
+        # which recomputes it, and the gradient of its input), the grid rows' DFT (forward and
+        # its input's gradient: the backward keeps the forward's spectra), the batched GEMM
+        # along the rows (forward and both gradients) and the inverse (forward and its input's
+        # gradient).
         for kind in ("convolution", "sampling"):
             assert ours[kind] == got[kind]
         assert ours["dft"] == ours["spectrum"] == 0
-        rows = b * 2 * v * t * (k * c * t) + (b * c * g) * g * 2 * v
+        template_rows = b * 2 * v * t * (k * c * t)
+        grid_rows = (b * c * g) * g * 2 * v
         inverse = (b * k * m) * 4 * v * m
         batched = (b * v) * (2 * k) * (c * t) * (2 * m)
-        assert ours["matmul"] - got["matmul"] == 2 * (3 * rows + 3 * batched + 2 * inverse)
+        assert ours["matmul"] - got["matmul"] == 2 * (
+            3 * template_rows + 2 * grid_rows + 3 * batched + 2 * inverse
+        )
 
     def test_altitude_hypotheses_beside_the_matching_encoder(self, capsys):
         """``matching_alt3`` (three altitudes) in the same rounds as ``matching``: its own
