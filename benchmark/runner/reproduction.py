@@ -304,6 +304,7 @@ def _run_locked(
     if stale:
         status(f"closed {len(stale)} run(s) left RUNNING by a killed invocation: now KILLED")
     results: dict[str, UnitResult] = {}
+    trained_seconds: dict[str, float] = {}  # units trained before, run again for files only
     todo: list[tuple[Unit, UnitTask]] = []
     for unit in units:
         if unit.shared_encoder and not unit.jobs:
@@ -318,13 +319,16 @@ def _run_locked(
             for paths, splits in wanted
             for split in splits
         )
-        if len(stored) == len(unit.jobs) and fused:
-            merged: dict[str, dict[str, float]] = {}
-            for metrics, _ in stored:
-                merged.update(metrics)
+        if len(stored) == len(unit.jobs) and stored:
             seconds = max(seconds for _, seconds in stored)
-            results[unit.key] = UnitResult(unit.key, True, metrics=merged, seconds=seconds)
-            continue
+            if fused:
+                merged: dict[str, dict[str, float]] = {}
+                for metrics, _ in stored:
+                    merged.update(metrics)
+                results[unit.key] = UnitResult(unit.key, True, metrics=merged, seconds=seconds)
+                continue
+            # runs again for its fusion files only: its training time stays the stored one
+            trained_seconds[unit.key] = seconds
         unit_dir = workdir / "units" / unit.key
         live = None
         if config.tracker != "null":
@@ -356,6 +360,8 @@ def _run_locked(
     failures: list[str] = []
 
     def on_done(unit: Unit, result: UnitResult) -> None:
+        if result.ok and unit.key in trained_seconds:  # not this invocation's re-evaluation
+            result.seconds = trained_seconds[unit.key]
         results[unit.key] = result
         unit_dir = workdir / "units" / unit.key
         if unit_dir.is_dir():

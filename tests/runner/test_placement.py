@@ -55,7 +55,7 @@ def fake_gpu(monkeypatch) -> None:
 def fake_done() -> SimpleNamespace:
     """What ``train_and_evaluate`` returns, with nothing trained or evaluated."""
     return SimpleNamespace(history=[], metrics={}, predictions={}, sequences={},
-                           volume_sequences={})  # fmt: skip
+                           volume_sequences={}, joint_sequences={})  # fmt: skip
 
 
 class TestPlanResolvesThePrecision:

@@ -249,6 +249,32 @@ class TestReproduceSmoke:
             merged["dphi_deg"], merged["dphi_deg_again"], check_names=False
         )
 
+    def test_a_unit_run_again_for_its_fusion_files_keeps_its_train_time(
+        self, full_run, smoke_dataset, monkeypatch
+    ):
+        """A unit whose jobs are all in the store but whose fusion files are gone runs again
+        (nothing is trained): the files come back, and its training time stays the stored one,
+        not the seconds its re-evaluation took."""
+        tmp, _ = full_run
+        monkeypatch.chdir(tmp)
+        units = tmp / "runs" / "units"
+        found = sorted(units.glob("*/eval/*__volume_joint_sequence.json")) or sorted(
+            units.glob("*/eval/*__sequence.json")
+        )
+        assert found
+        target = found[0]
+        unit = target.parent.parent.name
+        first = pd.read_csv(tmp / "reports" / "results.csv")
+        for path in target.parent.glob(target.stem + ".*"):  # its csv and json
+            path.unlink()
+        assert reproduce(tmp, smoke_dataset, "--workers", "1") == 0
+        assert target.is_file()
+        again = pd.read_csv(tmp / "reports" / "results.csv")
+        before = first.loc[first["unit"] == unit, "train_seconds"]
+        after = again.loc[again["unit"] == unit, "train_seconds"]
+        assert len(before) > 0 and len(after) == len(before)
+        assert set(after) == set(before)
+
 
 class TestReproduceFailures:
     def test_non_finite_loss_marks_run_failed(self, tmp_path, smoke_dataset, monkeypatch, capsys):
