@@ -20,7 +20,7 @@ the plane, :func:`~benchmark.evaluation.fusion_grid._plane_steps`, one FFT lengt
 a flight and step: the largest any row needs, so nothing wraps); then the heading blur. The
 adjoint (smoother) applies the adjoints in reverse order. Within a heading bin the step's
 direction is uncertain by the bin width ``h``: a cross-track spread of ``|d| h / sqrt(12)``
-(0.17 m for a 15 m step at 2 deg bins), far below a plane cell, so not modelled.
+(0.23 m for a 15 m step at 3 deg bins), far below a plane cell, so not modelled.
 
 **Measurement.** ``l_k = (1 - w) b_k + w u`` on the joint grid (:func:`robust_log_likelihood`),
 ``b_k`` the frame's joint belief at the headings ``delta + c_k`` normalised on the grid, ``u`` the
