@@ -51,6 +51,7 @@ from benchmark.evaluation.fusion import (
     robust_log_likelihood,
 )
 from benchmark.evaluation.fusion_grid import (
+    _PAD_SIGMAS,
     CircularGrid,
     PlanarGrid,
     _plane_fft_size,
@@ -60,6 +61,7 @@ from benchmark.evaluation.fusion_grid import (
     logsumexp_floored,
 )
 from benchmark.evaluation.fusion_odometry import OdometryNoise, position_transition_covariance
+from benchmark.evaluation.volume_beliefs import _linear_weights
 from benchmark.geometry import angle_difference
 
 # (sample k, absolute headings (n_heading,) rad) -> the frame's log-density (n_heading, E, N)
@@ -187,7 +189,7 @@ def _carry_factory(
         d = torch.stack([cos * x - sin * y, sin * x + cos * y], dim=-1)  # Rz(psi) [x, y]
         cov = position_transition_covariance(d, noise, horizon)
         sd = cov.diagonal(dim1=-2, dim2=-1).clamp_min(0).sqrt()
-        reach = ((d.abs() + 8.0 * sd) / grid.plane.spacing).amax(dim=0).tolist()
+        reach = ((d.abs() + _PAD_SIGMAS * sd) / grid.plane.spacing).amax(dim=0).tolist()
         size = _plane_fft_size(grid.plane, reach)
         rows = log_f[0]
         if adjoint:  # (Y P)^* = P^* Y^*: the blur first
@@ -273,8 +275,6 @@ def volume_joint_belief(
     the yaw (periodic) and bilinearly over the plane, the edge cells' value out to their outer
     edges and zero beyond the searched square (as the marginal beliefs of
     :mod:`benchmark.evaluation.volume_beliefs`); ``log tiny`` where zero."""
-    from benchmark.evaluation.volume_beliefs import _linear_weights
-
     n_yaw = len(yaw)
     width = 2 * math.pi / n_yaw
     start = float(yaw[0])
