@@ -279,14 +279,16 @@ def fuse_split_joint(
     noise: OdometryNoise,
     settings: FusionSettings | None = None,
     progress: Callable[[int, int], None] | None = None,
+    smooth: bool = True,
 ) -> pd.DataFrame:
     """:func:`fuse_split` with beliefs that are joint over (heading, E, N): each flight fused
     by :func:`~benchmark.evaluation.fusion_joint.filter_and_smooth_joint` on the satellite
     footprint's plane (``settings.joint_*``). ``joint_belief(rows (K_f,), plane)`` gives the
     :data:`~benchmark.evaluation.fusion_joint.JointBelief` of a flight's frames (rows of
     ``frames`` in time order); ``frames.yaw_beliefs`` and ``position_log_belief`` are not read.
-    The "frame" rows are ``frames``' own estimates; same table as :func:`fuse_split`.
-    ``progress(done, total)`` after each flight."""
+    The "frame" rows are ``frames``' own estimates; same table as :func:`fuse_split`
+    (``smooth=False``: without the "smooth" rows, the filter only). ``progress(done, total)``
+    after each flight."""
     settings = settings or FusionSettings()
     rows = flight_rows(frames.flight, frames.time_s)
     dyaw, dxy, dt = _steps(frames, rows)
@@ -301,18 +303,21 @@ def fuse_split_joint(
         flight = JointFlight(joint_belief(r, plane), dyaw[b, : n - 1], dxy[b, : n - 1],
                              sigma[b, : n - 1])  # fmt: skip
         fused = filter_and_smooth_joint(
-            flight, JointGrid(heading, plane), noise, settings.outlier_weight, settings.horizon
-        )
+            flight, JointGrid(heading, plane), noise, settings.outlier_weight, settings.horizon,
+            smooth=smooth,
+        )  # fmt: skip
         for m, est in enumerate(fused):
-            yaw[m, b, :n] = est.heading.map
-            position[m, b, :n] = est.position.map
+            if est is not None:
+                yaw[m, b, :n] = est.heading.map
+                position[m, b, :n] = est.position.map
         if progress is not None:
             progress(b + 1, len(rows))
     estimates = {
         "frame": (_padded(frames.yaw_hat, rows, 0.0), _padded(frames.position_hat, rows, 0.0)),
         "filter": (yaw[0], position[0]),
-        "smooth": (yaw[1], position[1]),
     }
+    if smooth:
+        estimates["smooth"] = (yaw[1], position[1])
     return _error_table(frames, rows, estimates)
 
 
@@ -353,7 +358,8 @@ def _fuse_positions(
 def _error_table(
     frames: SplitFrames, rows: list[np.ndarray], estimates: dict[str, tuple[Tensor, Tensor]]
 ) -> pd.DataFrame:
-    """Long table of estimates and errors per (mode, pair)."""
+    """Long table of estimates and errors per (mode, pair), for the modes of ``estimates`` (in
+    ``MODES`` order)."""
     order = np.concatenate(rows)
     sample = np.concatenate([np.arange(len(r)) for r in rows])
     start = np.concatenate([np.full(len(r), frames.time_s[r[0]]) for r in rows])
@@ -368,7 +374,7 @@ def _error_table(
     index = frames.index[order] if len(frames.index) else order
     parts = []
     deg = 180.0 / math.pi
-    for mode in MODES:
+    for mode in (m for m in MODES if m in estimates):
         yaw_all, pos_all = estimates[mode]
         yaw_hat, pos_hat = yaw_all[mask], pos_all[mask]
         R_hat = euler_to_rotmat(yaw_hat, pitch_hat, roll_hat)

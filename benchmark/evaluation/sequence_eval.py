@@ -357,15 +357,19 @@ def fuse_volume_joint(
     noise: OdometryNoise,
     *,
     split: str,
+    seed: int = 0,
     settings: FusionSettings | None = None,
+    stress_scale: float | None = None,
     progress: bool = False,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse a pair encoder's whole pose volume along the flights, jointly over heading and
     position (:func:`~benchmark.evaluation.sequence.fuse_split_joint`; ``marginals`` with its
     ``log_volume``): the same per-frame estimates and pitch and roll as :func:`fuse_volume`, no
-    calibration. The dataset's odometry only (no stress run: the joint grid is the cost).
-    Returns the summary (``seq_*`` keys) and the table of :func:`fuse_volume` with
-    ``odometry = "data"``."""
+    calibration. With the dataset's odometry, and with ``stress_scale`` (e.g.
+    :data:`STRESS_SCALE`) the stress odometry of :func:`fuse_predictions` (seeded by ``seed`` and
+    ``split``), causal filter only: the figure draws the filter, and the joint grid is the cost.
+    Returns the summary (``seq_*`` keys; ``seq{s}x_*`` for the stress run) and the table of
+    :func:`fuse_volume` (``odometry`` "data", and "{s}x" without smoothed rows)."""
     settings = settings or FusionSettings()
     if marginals.log_volume is None:
         raise ValueError(
@@ -378,10 +382,12 @@ def fuse_volume_joint(
     missing_cols = [c for c in ODOMETRY_COLUMNS if c not in rows.columns]
     if missing_cols:
         raise ValueError(f"split {split}: the pair table has no odometry columns {missing_cols}")
-    frames = _frames(
-        own, rows, volume_yaw_beliefs(aligned, grid), rows, footprints(rows, sat_table), None,
-        position_belief=partial(volume_position_beliefs, aligned),
-    )  # fmt: skip
+    yaw_beliefs, extent = volume_yaw_beliefs(aligned, grid), footprints(rows, sat_table)
+    position_belief = partial(volume_position_beliefs, aligned)
+    runs = [("data", rows, noise)]
+    if stress_scale is not None:
+        stressed = _scaled(noise, stress_scale)
+        runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
     volume = aligned.log_volume
     assert volume is not None  # kept (checked above), reordered with the rest
 
@@ -391,14 +397,22 @@ def fuse_volume_joint(
             aligned.cell_m, plane,
         )  # fmt: skip
 
-    bar = Progress(len(np.unique(frames.flight)), f"joint fusion {split}", unit="flight",
+    n_flights = len(np.unique(rows["flight"].to_numpy()))
+    bar = Progress(n_flights * len(runs), f"joint fusion {split}", unit="flight",
                    enabled=progress)  # fmt: skip
-    table = fuse_split_joint(
-        frames, joint_belief, noise, settings, progress=lambda done, total: bar.update(1)
-    )
+    tables, summary = [], {}
+    for name, odometry, told in runs:
+        frames = _frames(own, rows, yaw_beliefs, odometry, extent, None, position_belief)
+        table = fuse_split_joint(frames, joint_belief, told, settings, smooth=name == "data",
+                                 progress=lambda done, total: bar.update(1))  # fmt: skip
+        table.insert(0, "odometry", name)
+        tables.append(table)
+        prefix = "seq" if name == "data" else f"seq{name}"
+        summary.update(
+            {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
+        )
     bar.close()
-    table.insert(0, "odometry", "data")
-    return summarize_sequence(table), table
+    return summary, pd.concat(tables, ignore_index=True)
 
 
 def gives_position_density(head: torch.nn.Module) -> bool:

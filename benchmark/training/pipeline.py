@@ -237,7 +237,8 @@ def _volume_split(
         return marginal, None
     if not have_joint:
         summary, table = fuse_volume_joint(
-            frame, marginals, base.poses, base.sat_table, noise, split=split, progress=progress
+            frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
+            stress_scale=STRESS_SCALE if split.startswith("long/") else None, progress=progress,
         )  # fmt: skip
         _write_fusion(table, summary, joint_csv, joint_json)
     return marginal, (json.loads(joint_json.read_text()), joint_csv)

@@ -160,6 +160,24 @@ class TestFilterAndSmoothJoint:
         assert torch.equal(a.position.map[:5], b.position.map[:5])
         assert not torch.equal(a.heading.map[5:], b.heading.map[5:])
 
+    def test_filter_only_is_the_filter_of_the_full_run(self):
+        K = 6
+        yaw, pos, steps = straight_flight(K)
+        plane = PlanarGrid.around(pos, 20.0, 150.0)
+        grid = JointGrid(CircularGrid(60), plane)
+
+        def belief(k: int, psi: torch.Tensor) -> torch.Tensor:
+            return (8 * (torch.cos(psi - yaw[k]) - 1))[:, None, None] + blob(plane, pos[k], 30.0)[
+                None
+            ]
+
+        flight = JointFlight(belief, torch.diff(yaw), steps, torch.full((K - 1,), 0.01))
+        full, smoothed = filter_and_smooth_joint(flight, grid, NOISE)
+        alone, none = filter_and_smooth_joint(flight, grid, NOISE, smooth=False)
+        assert none is None and smoothed is not None
+        assert torch.equal(full.heading.map, alone.heading.map)
+        assert torch.equal(full.position.map, alone.position.map)
+
     def test_belief_of_the_wrong_shape_is_named(self):
         yaw, _, steps = straight_flight(3)
         grid = JointGrid(CircularGrid(12), PlanarGrid(0.0, 0.0, 10.0, 5, 4))
@@ -236,3 +254,9 @@ class TestFuseSplitJoint:
         assert by["smooth"]["dpsi_deg"].median() < 3.0
         assert by["filter"]["dpsi_deg"].mean() < by["frame"]["dpsi_deg"].mean() / 2
         assert by["smooth"]["horizontal_m"].median() < 15.0
+        # the filter alone: the same filtered rows, no smoothed ones
+        alone = fuse_split_joint(frames, joint_belief, NOISE, settings, smooth=False)
+        assert set(alone["mode"]) == {"frame", "filter"}
+        np.testing.assert_array_equal(
+            alone[alone["mode"] == "filter"]["yaw_hat_deg"], by["filter"]["yaw_hat_deg"]
+        )

@@ -259,7 +259,14 @@ class TestPoseVolumeFusion:
         assert not done.volume_sequences  # the marginal fusion was not asked for (but is kept)
         marginal = pd.read_csv(volume_sequence_paths(out, split)[0])
         table = pd.read_csv(csv)
-        assert set(table["odometry"]) == {"data"} and list(table.columns) == list(marginal.columns)
+        assert list(table.columns) == list(marginal.columns)
+        # long flights: the dataset's odometry, and the 4x stress odometry (causal filter only,
+        # for the figure), as the marginal fusion has
+        assert set(table["odometry"]) == set(marginal["odometry"]) == {"data", "4x"}
+        stress = table[table["odometry"] == "4x"]
+        assert set(stress["mode"]) == {"frame", "filter"}
+        assert "seq4x_filter_dpsi_deg" in done.joint_sequences[split][0]
+        table = table[table["odometry"] == "data"]
         # the same frames and the same per-frame estimates as the marginal fusion's
         frame = table[table["mode"] == "frame"].sort_values("index")
         ref = marginal[(marginal["mode"] == "frame") & (marginal["odometry"] == "data")]
