@@ -27,7 +27,7 @@ from benchmark.runner.claims.sequence_errors import (
     exact_yaw_geodesic_deg,
     sequence_rows,
 )
-from benchmark.runner.report.sequence import oracle_distance
+from benchmark.runner.report.sequence import oracle_distance, sequence_axes, sequence_figure
 
 N_FLIGHTS, PER_FLIGHT = 20, 8
 FLIGHT = np.repeat(np.arange(N_FLIGHTS), PER_FLIGHT)
@@ -365,3 +365,48 @@ class TestPitchRollOfTheBestHead:
                 exact_yaw_geodesic_deg(*(np.radians(head[c].to_numpy()) for c in (
                     "pitch_hat_deg", "roll_hat_deg", "pitch_deg", "roll_deg"))),
             )  # fmt: skip
+
+
+class TestSequenceFigure:
+    @staticmethod
+    def item(label: str, split: str, level: float, stress: bool = True) -> SequenceErrors:
+        t_s = np.tile(np.arange(PER_FLIGHT) * 2.0, N_FLIGHTS)
+        modes = {"filter": {"dpsi_deg": errors(level, 1) + t_s}}
+        runs = {"data": modes, **({"4x": {"filter": {"dpsi_deg": errors(level, 2)}}}
+                                  if stress else {})}  # fmt: skip
+        return SequenceErrors(label, split, runs, FLIGHT, t_s)
+
+    def test_a_panel_row_per_odometry_and_a_line_per_row(self) -> None:
+        import matplotlib.pyplot as plt
+
+        labels = [f"head {n}" for n in range(23)]  # more rows than one palette has colours
+        items = [self.item(lab, split, 10.0 + n, stress=n != 0)
+                 for n, lab in enumerate(labels) for split in ("long/standard", "long/towns")]
+        items.append(self.item("short", "standard/test", 5.0))  # long splits only are drawn
+        fig = sequence_axes(items)
+        try:
+            axes = np.array(fig.axes[:4]).reshape(2, 2)
+            titles = [ax.get_title() for ax in axes.flat]
+            assert titles == ["long/standard, the dataset's odometry",
+                              "long/towns, the dataset's odometry",
+                              "long/standard, 4x its noise", "long/towns, 4x its noise"]
+            assert [len(ax.lines) for ax in axes.flat] == [23, 23, 22, 22]
+            # every row its own colour and style, the same in every panel
+            looks = {(line.get_label(), tuple(line.get_color()), line.get_linestyle())
+                     for ax in axes.flat for line in ax.lines}  # fmt: skip
+            assert len({(c, s) for _, c, s in looks}) == 23 == len({lab for lab, _, _ in looks})
+            # the curve is the mean over seeds and flights at each second fused
+            line = next(x for x in axes[0, 0].lines if x.get_label() == "head 3")
+            e = errors(13.0, 1) + np.tile(np.arange(PER_FLIGHT) * 2.0, N_FLIGHTS)
+            t = np.tile(np.arange(PER_FLIGHT) * 2.0, N_FLIGHTS)
+            want = [e[:, t == x].mean() for x in np.unique(t)]
+            np.testing.assert_allclose(line.get_ydata(), want)
+            np.testing.assert_allclose(line.get_xdata(), np.unique(t))
+            assert len(fig.legends) == 1 and len(fig.legends[0].get_texts()) == 23
+        finally:
+            plt.close(fig)
+
+    def test_nothing_to_draw_writes_nothing(self, tmp_path) -> None:
+        assert sequence_axes([]) is None
+        assert sequence_figure([], tmp_path / "s.png") is False
+        assert not (tmp_path / "s.png").exists()

@@ -2,8 +2,8 @@
 the numbers of ``benchmark.runner.claims.sequence_errors`` (computed before the report).
 
 The table: a section per split, a row per (head, mode). The figure: mean δψ of the causal filter
-against seconds of flight fused, a line per head on each long split, with the dataset's odometry
-(solid) and the stress odometry (dashed).
+against seconds of flight fused, a line per head on each long split, a panel row per odometry
+(the dataset's, then the stress odometry at 4x its noise).
 """
 
 from __future__ import annotations
@@ -95,42 +95,78 @@ def oracle_distance(part: pd.DataFrame, mode: str = "smooth") -> str:
     )
 
 
-def sequence_figure(items: list[SequenceErrors], path: Path) -> bool:
-    """Mean δψ of the causal filter against seconds fused, per head, on each long split (or every
-    split when there is none): solid the dataset's odometry, dashed the stress odometry. False
-    when there is nothing to draw."""
+def _curve(item: SequenceErrors, odometry: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(seconds, mean δψ of the causal filter)`` of one row under ``odometry``, averaged over
+    its seeds and flights at each second fused; None without a filtered run."""
+    e = item.errors.get(odometry, {}).get("filter")
+    if e is None:
+        return None
+    err = e["dpsi_deg"].mean(axis=0)
+    t = np.round(item.t_s, 6)
+    times = np.unique(t)
+    return times, np.array([err[t == x].mean() for x in times])
+
+
+# 20 colours, then the same 20 dash-dotted: every row of the figure its own line style
+_STYLES = ("-", "-.", ":")
+
+
+def sequence_axes(items: list[SequenceErrors]):  # -> matplotlib Figure | None
+    """The figure of :func:`sequence_figure`, not saved: a column per long split (every split
+    when there is none), a row per odometry (the dataset's, then each stress odometry), a line
+    per row of the table (its own colour and style, the same in every panel), one legend below.
+    None when there is nothing to draw."""
     long = [i for i in items if i.split.startswith("long/")] or items
     splits = list(dict.fromkeys(i.split for i in long))
     if not splits:
-        return False
+        return None
+    odometries = list(dict.fromkeys(o for i in long for o in i.errors if o == "data"))
+    odometries += sorted({o for i in long for o in i.errors if o != "data"})
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(splits), figsize=(4.6 * len(splits), 3.6), squeeze=False)
-    colours: dict[str, str] = {}
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for ax, split in zip(axes.flat, splits, strict=True):
-        for item in (i for i in long if i.split == split):
-            colour = colours.setdefault(item.label, cycle[len(colours) % len(cycle)])
-            t = np.round(item.t_s, 6)
-            for odo, style in (("data", "-"), *((o, "--") for o in item.errors if o != "data")):
-                e = item.errors.get(odo, {}).get("filter")
-                if e is None:
+    labels = list(dict.fromkeys(i.label for i in long))
+    palette = plt.get_cmap("tab20").colors
+    style = {lab: (palette[n % 20], _STYLES[(n // 20) % 3]) for n, lab in enumerate(labels)}
+    rows, cols = len(odometries), len(splits)
+    legend_h = 0.17 * math.ceil(len(labels) / 2) + 0.15  # inches: 2 columns of 7 pt entries
+    height = 3.2 * rows + legend_h
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, height), squeeze=False, sharex=True)
+    handles = {}
+    for r, odo in enumerate(odometries):
+        for c, split in enumerate(splits):
+            ax = axes[r, c]
+            for item in (i for i in long if i.split == split):
+                curve = _curve(item, odo)
+                if curve is None:
                     continue
-                err = e["dpsi_deg"].mean(axis=0)
-                times = np.unique(t)
-                curve = [err[t == x].mean() for x in times]
-                ax.plot(times, curve, style, color=colour, lw=1.2,
-                        label=item.label if odo == "data" else None)  # fmt: skip
-        ax.set_title(split)
-        ax.set_xlabel("seconds of flight fused (causal filter)")
-        ax.set_ylabel("mean δψ (°)")
-        ax.grid(alpha=0.3)
-    axes.flat[0].legend(fontsize=6, ncol=2)
-    fig.suptitle("solid: the dataset's odometry; dashed: 4x its noise", fontsize=9)
-    fig.tight_layout()
+                colour, dash = style[item.label]
+                (line,) = ax.plot(*curve, dash, color=colour, lw=1.2, label=item.label)
+                handles.setdefault(item.label, line)
+            name = "the dataset's odometry" if odo == "data" else f"{odo} its noise"
+            ax.set_title(f"{split}, {name}", fontsize=9)
+            ax.set_ylabel("mean δψ (°), causal filter")
+            ax.grid(alpha=0.3)
+            if r == rows - 1:
+                ax.set_xlabel("seconds of flight fused")
+    fig.legend([handles[lab] for lab in labels if lab in handles],
+               [lab for lab in labels if lab in handles], loc="lower center", ncol=2,
+               fontsize=7, frameon=False)  # fmt: skip
+    fig.tight_layout(rect=(0, legend_h / height, 1, 1))
+    return fig
+
+
+def sequence_figure(items: list[SequenceErrors], path: Path) -> bool:
+    """Mean δψ of the causal filter against seconds fused, per row, on each long split (or every
+    split when there is none), one panel row per odometry (:func:`sequence_axes`), saved to
+    ``path``. False when there is nothing to draw."""
+    fig = sequence_axes(items)
+    if fig is None:
+        return False
+    import matplotlib.pyplot as plt
+
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return True
