@@ -70,8 +70,40 @@ class TestBf16SmokeReproduction:
         assert bf16 and {r["tags"]["precision"] for r in bf16} == {"bf16"}
         assert {r["status"] for r in bf16} == {"FINISHED"}
         assert "fig7.md" in {p.name for p in (tmp_path / "reports").iterdir()}
+        # the report says which precision produced it (issue 40)
+        readme = (tmp_path / "reports" / "README.md").read_text()
+        assert "Precision: every unit trained and evaluated in bf16." in readme
         # fp32 units are other models: a second reproduction trains them instead of reusing bf16
         assert reproduce(tmp_path, smoke_dataset, "--device", "cpu", "--precision", "fp32") == 0
         runs = unit_runs(tmp_path)
         fp32_keys = {r["tags"]["run_key"] for r in runs if r["tags"]["precision"] == "fp32"}
         assert fp32_keys and not fp32_keys & {r["tags"]["run_key"] for r in bf16}
+        readme = (tmp_path / "reports" / "README.md").read_text()
+        assert "Precision: every unit trained and evaluated in fp32." in readme
+
+
+class TestPrecisionText:
+    @staticmethod
+    def units(*precisions: str) -> list:
+        from types import SimpleNamespace
+
+        return [SimpleNamespace(cfg=SimpleNamespace(precision=p)) for p in precisions]
+
+    def test_one_precision(self):
+        from benchmark.runner.report.outputs import precision_text
+
+        assert precision_text(self.units("fp32", "fp32")) == (
+            "Precision: every unit trained and evaluated in fp32."
+        )
+
+    def test_mixed_precisions_are_counted(self):
+        from benchmark.runner.report.outputs import precision_text
+
+        assert precision_text(self.units("bf16", "fp32", "fp32")) == (
+            "Precision: mixed, 1 in bf16, 2 in fp32 (units)."
+        )
+
+    def test_no_units_no_sentence(self):
+        from benchmark.runner.report.outputs import precision_text
+
+        assert precision_text([]) == ""

@@ -159,7 +159,8 @@ def write_reports(
     readme = out / "README.md"
     audit = heading_cue_summary(audit_rows)
     listed = in_spec_order([*specs, *kept_specs])
-    text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit, plan.kept)
+    text = _readme(profile, listed, findings_md, claims_md, invocations or [], audit, plan.kept,
+                   precision_text(units))  # fmt: skip
     text += plan.markdown()
     text += failed_section(None, units, results)
     readme.write_text(text + provenance_summary(record))
@@ -235,6 +236,22 @@ def profile_protocol(profile: ReproProfile) -> str:
     )
 
 
+def precision_text(units: list[Unit]) -> str:
+    """The precision the units of a report trained and evaluated in, in words (issue 40: a report
+    says which precision produced it), from the units' own configs (``precision`` resolved at
+    planning: ``auto`` is never left in a unit's config)."""
+    counts: dict[str, int] = {}
+    for unit in units:
+        counts[unit.cfg.precision] = counts.get(unit.cfg.precision, 0) + 1
+    if not counts:
+        return ""
+    if len(counts) == 1:
+        (name,) = counts
+        return f"Precision: every unit trained and evaluated in {name}."
+    parts = ", ".join(f"{n} in {name}" for name, n in sorted(counts.items()))
+    return f"Precision: mixed, {parts} (units)."
+
+
 def _readme(
     profile: ReproProfile,
     specs: list[TableSpec],
@@ -243,6 +260,7 @@ def _readme(
     runs: list[dict],
     audit: str,
     earlier: list[EarlierTable] = (),
+    precision: str = "",
 ) -> str:
     cpu = platform.processor() or platform.machine()
     lines = [
@@ -270,7 +288,8 @@ def _readme(
     lines += [
         "",
         f"Profile: {profile_protocol(profile)} Dataset profile "
-        f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery).",
+        f"`{profile.dataset}` rendered by the uavbench simulator (not Google Earth imagery)."
+        + (f" {precision}" if precision else ""),
         "",
         "## Findings",
         "",
