@@ -8,20 +8,29 @@ import argparse
 import sys
 from pathlib import Path
 
-HELP = "compare two workdirs' units on the same frames: paired differences with equivalence"
+HELP = "compare two workdirs' units on the same frames: paired differences, equivalence"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("a", type=Path, help="workdir A (runs/<profile>, with units/)")
     parser.add_argument("b", type=Path, help="workdir B, the same variants trained another way")
-    parser.add_argument("--split", default="standard/val", help="split compared (default "
-                        "standard/val: no choice or verdict is made on it by the report)")
+    parser.add_argument(
+        "--split",
+        default="standard/val",
+        help="split compared (default "
+        "standard/val: no choice or verdict is made on it by the report)",
+    )
     parser.add_argument("--a-name", default="A", help="name of A in the output (e.g. fp32)")
     parser.add_argument("--b-name", default="B", help="name of B in the output (e.g. bf16)")
-    parser.add_argument("--out", type=Path, default=None, help="write the markdown here "
-                        "(and the table beside it as .csv); default: print it")
-    parser.add_argument("--n-boot", type=int, default=None, help="bootstrap replicates "
-                        "(default: the claims')")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="write the markdown here (and the table beside it as .csv); default: print it",
+    )
+    parser.add_argument(
+        "--n-boot", type=int, default=None, help="bootstrap replicates (default: the claims')"
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -53,7 +53,7 @@ COMMAND_HELP: dict[str, str] = {
     "ui": "serve the MLflow UI for the tracking store on 127.0.0.1 (Ctrl-C stops it)",
     "sync": "copy runs kept locally (./tracking-fallback) into an MLflow store; idempotent",
     "reproduce": "reproduce the paper's tables and figures: simulate, train, evaluate, report",
-    "compare": "compare two workdirs' units on the same frames: paired differences with equivalence",
+    "compare": "compare two workdirs' units on the same frames: paired differences, equivalence",
 }
 
 

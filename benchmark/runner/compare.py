@@ -134,8 +134,12 @@ def _read_pair(a: Unit, b: Unit, split: str) -> tuple[dict, dict, np.ndarray] | 
     truth = [c for c in TRUTH_COLUMNS if c in fa.columns]
     if "index" not in truth or "flight" not in truth:
         raise InputError(f"{pa}: no 'index'/'flight' columns (a per-frame evaluation table)")
-    if len(fa) != len(fb) or any(c not in fb.columns for c in truth) or not np.allclose(
-        fa[truth].to_numpy(np.float64), fb[truth].to_numpy(np.float64), rtol=0, atol=1e-4
+    if (
+        len(fa) != len(fb)
+        or any(c not in fb.columns for c in truth)
+        or not np.allclose(
+            fa[truth].to_numpy(np.float64), fb[truth].to_numpy(np.float64), rtol=0, atol=1e-4
+        )
     ):
         raise InputError(
             f"{pa} and {pb}: not the same frames (rows, index, flight or truth {truth} differ); "
@@ -275,8 +279,10 @@ def compare_markdown(
     ]
     for error in ERRORS:
         part = table[table["error"] == error]["verdict"].value_counts()
-        lines.append(f"- {ERROR_NAMES[error]}: " + ", ".join(
-            f"{part.get(v, 0)} {v}" for v in (EQUIVALENT, DIFFERENT, UNDECIDED)))
+        lines.append(
+            f"- {ERROR_NAMES[error]}: "
+            + ", ".join(f"{part.get(v, 0)} {v}" for v in (EQUIVALENT, DIFFERENT, UNDECIDED))
+        )
     lines.append("")
     rows = table[table["verdict"] == DIFFERENT]
     if len(rows):
@@ -289,9 +295,11 @@ def compare_markdown(
     if skipped:
         lines += ["Not compared: " + "; ".join(f"{len(v)} {k}" for k, v in skipped.items()) + ".",
                   ""]  # fmt: skip
-    header = "| variant | seeds | flights | " + " | ".join(
-        f"{ERROR_NAMES[e]}: {a_name} / {b_name}, Δ [95 %]" for e in ERRORS
-    ) + " |"
+    header = (
+        "| variant | seeds | flights | "
+        + " | ".join(f"{ERROR_NAMES[e]}: {a_name} / {b_name}, Δ [95 %]" for e in ERRORS)
+        + " |"
+    )
     lines += [header, "|" + "---|" * (3 + len(ERRORS))]
     symbol = {EQUIVALENT: "≈", DIFFERENT: "≠", UNDECIDED: "~"}
     for _, part in table.groupby("variant", sort=False):

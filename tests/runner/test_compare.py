@@ -1,4 +1,4 @@
-"""``uavbench compare`` (issue 40 item 2): the same units of two workdirs, paired on the same frames.
+"""``uavbench compare`` (issue 40 item 2): the same units of two workdirs, on the same frames.
 
 The references are closed forms: a constant per-frame difference has every bootstrap replicate
 equal to it; per-flight differences drawn from a normal law have the 95 % interval

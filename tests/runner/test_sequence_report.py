@@ -380,16 +380,22 @@ class TestSequenceFigure:
         import matplotlib.pyplot as plt
 
         labels = [f"head {n}" for n in range(23)]  # more rows than one palette has colours
-        items = [self.item(lab, split, 10.0 + n, stress=n != 0)
-                 for n, lab in enumerate(labels) for split in ("long/standard", "long/towns")]
+        items = [
+            self.item(lab, split, 10.0 + n, stress=n != 0)
+            for n, lab in enumerate(labels)
+            for split in ("long/standard", "long/towns")
+        ]
         items.append(self.item("short", "standard/test", 5.0))  # long splits only are drawn
         fig = sequence_axes(items)
         try:
             axes = np.array(fig.axes[:4]).reshape(2, 2)
             titles = [ax.get_title() for ax in axes.flat]
-            assert titles == ["long/standard, the dataset's odometry",
-                              "long/towns, the dataset's odometry",
-                              "long/standard, 4x its noise", "long/towns, 4x its noise"]
+            assert titles == [
+                "long/standard, the dataset's odometry",
+                "long/towns, the dataset's odometry",
+                "long/standard, 4x its noise",
+                "long/towns, 4x its noise",
+            ]
             assert [len(ax.lines) for ax in axes.flat] == [23, 23, 22, 22]
             # every row its own colour and style, the same in every panel
             looks = {(line.get_label(), tuple(line.get_color()), line.get_linestyle())
