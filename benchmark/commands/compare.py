@@ -31,17 +31,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--n-boot", type=int, default=None, help="bootstrap replicates (default: the claims')"
     )
+    parser.add_argument(
+        "--reports",
+        type=Path,
+        nargs=2,
+        metavar=("A_REPORTS", "B_REPORTS"),
+        default=None,
+        help="the two reproductions' report directories (reports/<profile>): add the claims "
+        "whose verdicts differ between them",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     from benchmark.runner.claims.evidence import N_BOOT
-    from benchmark.runner.compare import compare_markdown, compare_units, differences_frame
+    from benchmark.runner.compare import (
+        compare_markdown,
+        compare_units,
+        differences_frame,
+        verdict_changes_markdown,
+    )
 
     differences, left = compare_units(
         args.a / "units", args.b / "units", args.split, n_boot=args.n_boot or N_BOOT
     )
     text = compare_markdown(differences, left, a_name=args.a_name, b_name=args.b_name,
                             split=args.split)  # fmt: skip
+    if args.reports is not None:
+        a_report, b_report = (d / "README.md" for d in args.reports)
+        text += "\n" + verdict_changes_markdown(
+            a_report, b_report, a_name=args.a_name, b_name=args.b_name
+        )
     if args.out is None:
         sys.stdout.write(text)
         return 0

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -314,6 +315,50 @@ def compare_markdown(
     return "\n".join([*lines, ""])
 
 
+CLAIM_ROW = re.compile(r"\| (\d+) \| ")
+VERDICT_CELL = re.compile(r"\*\*([^*]+)\*\*")
+
+
+def claim_verdicts(readme: Path) -> dict[int, list[str]]:
+    """``claim -> [verdict on the main splits, verdict on the confirmation draw, ...]`` read from
+    the claims table of a report's README (``reports/<profile>/README.md``; a row per claim,
+    its verdicts in bold cells). Raises :class:`InputError` when the file has no claims table."""
+    if not readme.is_file():
+        raise InputError(f"{readme}: no such report README (expected reports/<profile>/README.md)")
+    out: dict[int, list[str]] = {}
+    for line in readme.read_text().splitlines():
+        match = CLAIM_ROW.match(line)
+        if match:
+            cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+            out[int(match.group(1))] = [m.group(1) for c in cells if (m := VERDICT_CELL.match(c))]
+    if not out:
+        raise InputError(f"{readme}: no claims table (rows '| <n> | ...' with bold verdicts)")
+    return out
+
+
+def verdict_changes_markdown(a: Path, b: Path, *, a_name: str, b_name: str) -> str:
+    """The claims whose verdicts differ between two reports (``a``/``b``: their README files),
+    draw by draw, and how many agree."""
+    va, vb = claim_verdicts(a), claim_verdicts(b)
+    claims = sorted(set(va) | set(vb))
+    changed = [n for n in claims if va.get(n) != vb.get(n)]
+    lines = [
+        f"## Verdicts: {b_name} against {a_name}",
+        "",
+        f"{len(claims) - len(changed)} of {len(claims)} claims have the same verdicts on every "
+        f"draw (main splits, confirmation draw) in `{a}` and `{b}`.",
+        "",
+    ]
+    if changed:
+        lines += [f"| claim | {a_name} | {b_name} |", "|---|---|---|"]
+        for n in changed:
+            lines.append(
+                f"| {n} | {' / '.join(va.get(n, ['-']))} | {' / '.join(vb.get(n, ['-']))} |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
 __all__ = [
     "DIFFERENT",
     "EQUIVALENT",
@@ -321,11 +366,13 @@ __all__ = [
     "UNDECIDED",
     "Difference",
     "Unit",
+    "claim_verdicts",
     "compare_markdown",
     "compare_units",
     "differences_frame",
     "read_units",
     "variant_labels",
     "variant_of",
+    "verdict_changes_markdown",
     "verdict_of",
 ]

@@ -22,10 +22,12 @@ from benchmark.runner.compare import (
     DIFFERENT,
     EQUIVALENT,
     UNDECIDED,
+    claim_verdicts,
     compare_units,
     read_units,
     variant_labels,
     variant_of,
+    verdict_changes_markdown,
     verdict_of,
 )
 
@@ -195,3 +197,40 @@ class TestCompareCommand:
         code = main(["compare", str(tmp_path / "nope"), str(tmp_path / "nope2")])
         assert code == 2
         assert str(tmp_path / "nope" / "units") in capsys.readouterr().err
+
+
+CLAIMS = """# report
+
+| # | claim | evidence | verdict | confirmation |
+|---|---|---|---|---|
+| 1 | a wins | x: -1.0 [-2, -0.5] | **supported** | **supported**<br>x |
+| 2 | b ties | y | **contradicted (no practical difference)** | **not resolved at this scale** |
+| 3 | c | z | **supported** | - |
+"""
+
+
+class TestClaimVerdicts:
+    def test_reads_each_draws_verdict(self, tmp_path) -> None:
+        readme = tmp_path / "README.md"
+        readme.write_text(CLAIMS)
+        assert claim_verdicts(readme) == {
+            1: ["supported", "supported"],
+            2: ["contradicted (no practical difference)", "not resolved at this scale"],
+            3: ["supported"],
+        }
+
+    def test_changes_are_listed_draw_by_draw(self, tmp_path) -> None:
+        a, b = tmp_path / "a.md", tmp_path / "b.md"
+        a.write_text(CLAIMS)
+        b.write_text(
+            CLAIMS.replace("| **supported** | - |", "| **not resolved at this scale** | - |")
+        )
+        text = verdict_changes_markdown(a, b, a_name="fp32", b_name="bf16")
+        assert "2 of 3 claims have the same verdicts" in text
+        assert "| 3 | supported | not resolved at this scale |" in text
+
+    def test_a_file_without_claims_is_refused(self, tmp_path) -> None:
+        readme = tmp_path / "README.md"
+        readme.write_text("# nothing here\n")
+        with pytest.raises(InputError, match="no claims table"):
+            claim_verdicts(readme)
