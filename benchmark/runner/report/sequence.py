@@ -10,12 +10,16 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from benchmark.runner.claims.sequence_errors import SequenceErrors, SequenceTable
 from benchmark.runner.plan.specs import TableSpec
+
+if TYPE_CHECKING:  # matplotlib is imported where a figure is drawn, not on import
+    from matplotlib.figure import Figure
 
 MODE_NAMES = {"frame": "per frame", "filter": "filtered", "smooth": "smoothed"}
 
@@ -111,7 +115,7 @@ def _curve(item: SequenceErrors, odometry: str) -> tuple[np.ndarray, np.ndarray]
 _STYLES = ("-", "-.", ":")
 
 
-def sequence_axes(items: list[SequenceErrors]):  # -> matplotlib Figure | None
+def sequence_axes(items: list[SequenceErrors]) -> Figure | None:
     """The figure of :func:`sequence_figure`, not saved: a column per long split (every split
     when there is none), a row per odometry (the dataset's, then each stress odometry), a line
     per row of the table (its own colour and style, the same in every panel), one legend below.
