@@ -93,6 +93,25 @@ def stress_odometry(
     return out
 
 
+def _odometry_runs(
+    rows: pd.DataFrame, noise: OdometryNoise, stress_scale: float | None, seed: int, split: str
+) -> list[tuple[str, pd.DataFrame, OdometryNoise]]:
+    """``(name, odometry columns, the noise the filter is told)``: the dataset's odometry
+    ("data"), then with ``stress_scale`` the stress odometry ("{s}x", :func:`stress_odometry`)."""
+    runs = [("data", rows, noise)]
+    if stress_scale is not None:
+        stressed = _scaled(noise, stress_scale)
+        runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
+    return runs
+
+
+def _run_summary(table: pd.DataFrame, name: str) -> dict[str, float]:
+    """:func:`summarize_sequence` of one odometry run, keys ``seq_*`` for "data" and
+    ``seq{name}_*`` for a stress run."""
+    prefix = "seq" if name == "data" else f"seq{name}"
+    return {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
+
+
 def _frames(
     frame: pd.DataFrame,
     poses: pd.DataFrame,
@@ -240,10 +259,7 @@ def fuse_predictions(
     if missing:
         raise ValueError(f"split {split}: the pair table has no odometry columns {missing}")
     extent = footprints(rows, sat_table)
-    runs = [("data", rows, noise)]
-    if stress_scale is not None:
-        stressed = _scaled(noise, stress_scale)
-        runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
+    runs = _odometry_runs(rows, noise, stress_scale, seed, split)
     tables, summary = [], {}
     for name, odometry, told in runs:
         frames = _frames(frame, rows, beliefs, odometry, extent, position, position_belief)
@@ -252,10 +268,7 @@ def fuse_predictions(
         table = fuse_split(frames, told, settings, position=name == "data")
         table.insert(0, "odometry", name)
         tables.append(table)
-        prefix = "seq" if name == "data" else f"seq{name}"
-        summary.update(
-            {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
-        )
+        summary.update(_run_summary(table, name))
     summary["calibration_kappa"] = attitude.kappa if attitude is not None else math.nan
     summary["calibration_sigma_m"] = position.sigma_m if position is not None else math.nan
     return summary, pd.concat(tables, ignore_index=True)
@@ -384,10 +397,7 @@ def fuse_volume_joint(
         raise ValueError(f"split {split}: the pair table has no odometry columns {missing_cols}")
     yaw_beliefs, extent = volume_yaw_beliefs(aligned, grid), footprints(rows, sat_table)
     position_belief = partial(volume_position_beliefs, aligned)
-    runs = [("data", rows, noise)]
-    if stress_scale is not None:
-        stressed = _scaled(noise, stress_scale)
-        runs.append((f"{stress_scale:g}x", stress_odometry(rows, stressed, seed, split), stressed))
+    runs = _odometry_runs(rows, noise, stress_scale, seed, split)
     volume = aligned.log_volume
     assert volume is not None  # kept (checked above), reordered with the rest
 
@@ -407,10 +417,7 @@ def fuse_volume_joint(
                                  progress=lambda done, total: bar.update(1))  # fmt: skip
         table.insert(0, "odometry", name)
         tables.append(table)
-        prefix = "seq" if name == "data" else f"seq{name}"
-        summary.update(
-            {k.replace("seq", prefix, 1): v for k, v in summarize_sequence(table).items()}
-        )
+        summary.update(_run_summary(table, name))
     bar.close()
     return summary, pd.concat(tables, ignore_index=True)
 
