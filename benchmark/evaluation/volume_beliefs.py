@@ -17,12 +17,23 @@ beliefs, before any head:
 
 Per-frame estimates for the "frame" rows: the yaw of the interpolated belief's maximum (a bin
 centre) and the position cell of the marginal's maximum; pitch and roll stay the head's.
+
+**Calibration** (:func:`fit_volume_temperature`). A volume trained by its NLL on the training
+frames is overconfident on new ones: on standard/val of the quick units its mean NLL of the true
+cell was above the uniform volume's (a wrong match is sharp). Like a regression head's belief
+(:mod:`benchmark.evaluation.beliefs`), the volume is calibrated on the validation split before it
+is fused: one temperature ``tau``, ``log q = log_softmax(log p / tau)`` over all cells, fitted by
+maximum likelihood of the true cell (temperature scaling). The NLL is convex in ``beta = 1 /
+tau`` (``-beta s_c + logsumexp(beta s)``: a log-partition function), so a bounded scalar search
+finds its one minimum. Tempering keeps the order of the cells, not of the marginals: the
+per-frame estimates (the marginals' maxima) are those of the calibrated volume, the belief that
+is fused.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import torch
 from torch import Tensor
@@ -79,11 +90,15 @@ def volume_marginals(
     progress: bool = False,
     desc: str = "volume",
     keep_volume: bool = False,
+    temperature: float = 1.0,
 ) -> VolumeMarginals:
     """Run ``model`` over the images of ``dataset`` (a ``PairDataset``: the encoder must see the
     pairs, not cached features) and keep its pose volume's marginals. Eval mode, restored after;
     the forward under autocast for ``precision``, the marginals in float64; ``keep_volume``: the
-    whole volume too (float32, ``VolumeMarginals.log_volume``)."""
+    whole volume too (float32, ``VolumeMarginals.log_volume``); ``temperature``: the volume
+    tempered first (:func:`temper_log_volume`; 1 leaves it bit-identical)."""
+    if not (math.isfinite(temperature) and temperature > 0):
+        raise ValueError(f"temperature must be a finite positive number, got {temperature!r}")
     axes = model.encoder.pose_volume_axes() if gives_pose_volume(model) else None
     if axes is None:
         raise ValueError(
@@ -98,7 +113,7 @@ def volume_marginals(
     for batch, out in passes:
         if "uav" not in batch:
             raise ValueError("volume_marginals needs the images: got cached features")
-        log_volume = out.encoder["log_volume"].double()  # (B, K, P, Q)
+        log_volume = temper_log_volume(out.encoder["log_volume"].double(), temperature)
         yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
         position.append(torch.logsumexp(log_volume, dim=1).cpu())
         if keep_volume:
@@ -108,6 +123,106 @@ def volume_marginals(
         torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
         axes.yaw.double().cpu(), axes.north.double().cpu(), axes.east.double().cpu(),
         float(axes.cell_m), torch.cat(volumes) if keep_volume else None,
+    )  # fmt: skip
+
+
+# Below this log-mass a cell holds nothing in float64 (the smallest normal double is e^-708): an
+# excluded cell (the encoder's masked positions) stays excluded at any temperature.
+_EMPTY_LOG_MASS = math.log(torch.finfo(torch.float64).tiny)
+
+
+def temper_log_volume(log_volume: Tensor, temperature: float) -> Tensor:
+    """``log_softmax(log_volume / temperature)`` over each frame's cells: ``log_volume (B, ...)``
+    log-masses, the same shape back (float64 in, float64 out). Empty cells (below
+    :data:`_EMPTY_LOG_MASS`) stay empty. ``temperature == 1`` returns ``log_volume`` itself."""
+    if temperature == 1.0:
+        return log_volume
+    empty = log_volume < _EMPTY_LOG_MASS
+    scaled = torch.where(empty, log_volume, log_volume / temperature)
+    lse = torch.logsumexp(scaled.flatten(1), dim=1)
+    return scaled - lse.view(-1, *([1] * (log_volume.dim() - 1)))
+
+
+@dataclass(frozen=True)
+class VolumeCalibration:
+    """A pose volume's temperature fitted on a validation split (:func:`fit_volume_temperature`):
+    ``temperature`` (> 1 softens an overconfident volume), the ``n_frames`` whose true pose lies
+    inside the searched square (the fit's frames) of ``n_total``, and the mean NLL (nats) of their
+    true cells before (``nll_raw``, temperature 1) and after (``nll``); ``nll_uniform`` the
+    uniform volume's, for scale."""
+
+    temperature: float
+    n_frames: int
+    n_total: int
+    nll_raw: float
+    nll: float
+    nll_uniform: float
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: float(v) for k, v in asdict(self).items()}
+
+
+def true_cells(
+    axes: tuple[Tensor, Tensor, Tensor], yaw: Tensor, east: Tensor, north: Tensor, cell_m: float
+) -> tuple[Tensor, Tensor]:
+    """Each frame's true cell of a volume with axes ``(yaw (K,), north (P,), east (Q,))``: the
+    flat index ``(N,)`` into ``(K, P, Q)`` of the nearest yaw bin (around the circle) and the
+    nearest position cell, and ``inside (N,)`` bool, whether the true (E, N) lies within that
+    cell (``cell_m`` square), i.e. inside the searched square. ``yaw`` rad, ``east``, ``north``
+    m, each ``(N,)``."""
+    yaw_axis, north_axis, east_axis = (a.double() for a in axes)
+    gap = torch.remainder(yaw.double()[:, None] - yaw_axis[None] + math.pi, 2 * math.pi) - math.pi
+    k = gap.abs().argmin(1)
+    dn = (north.double()[:, None] - north_axis[None]).abs()
+    de = (east.double()[:, None] - east_axis[None]).abs()
+    p, q = dn.argmin(1), de.argmin(1)
+    half = 0.5 * cell_m + 1e-9
+    inside = (dn.min(1).values <= half) & (de.min(1).values <= half)
+    return (k * len(north_axis) + p) * len(east_axis) + q, inside
+
+
+def fit_volume_temperature(
+    log_volume: Tensor,
+    axes: tuple[Tensor, Tensor, Tensor],
+    cell_m: float,
+    yaw: Tensor,
+    east: Tensor,
+    north: Tensor,
+    bounds: tuple[float, float] = (0.25, 16.0),
+) -> VolumeCalibration:
+    """The temperature of maximum likelihood of the true cells (module docstring): ``log_volume
+    (N, K, P, Q)`` log-masses of a validation split's frames, ``axes`` ``(yaw (K,), north (P,),
+    east (Q,))`` and ``cell_m`` as :class:`VolumeMarginals`, the true ``yaw`` rad, ``east``,
+    ``north`` m ``(N,)``. Frames whose truth lies outside the searched square have no true cell
+    and are left out (counted). The search runs over ``beta = 1 / tau`` in ``1 / bounds``
+    (bounded Brent, to 1e-5 in beta), float64, 64 frames at a time."""
+    from scipy.optimize import minimize_scalar
+
+    if log_volume.dim() != 4 or log_volume.shape[0] != yaw.shape[0]:
+        raise ValueError(
+            f"log_volume must be (N, K, P, Q) with N = len(yaw) = {yaw.shape[0]}, "
+            f"got {tuple(log_volume.shape)}"
+        )
+    cells, inside = true_cells(axes, yaw, east, north, cell_m)
+    rows = torch.nonzero(inside).flatten()
+    if len(rows) == 0:
+        raise ValueError("fit_volume_temperature: no frame's true pose lies inside the volume")
+    flat = log_volume.flatten(1)
+
+    def nll(beta: float) -> float:
+        total = 0.0
+        for start in range(0, len(rows), 64):
+            part = rows[start : start + 64]
+            tempered = temper_log_volume(flat[part].double(), 1.0 / beta)
+            total -= float(tempered.gather(1, cells[part][:, None]).sum())
+        return total / len(rows)
+
+    low, high = 1.0 / bounds[1], 1.0 / bounds[0]
+    best = minimize_scalar(nll, bounds=(low, high), method="bounded", options={"xatol": 1e-5})
+    beta = float(best.x)
+    return VolumeCalibration(
+        temperature=1.0 / beta, n_frames=len(rows), n_total=int(yaw.shape[0]),
+        nll_raw=nll(1.0), nll=nll(beta), nll_uniform=math.log(flat.shape[1]),
     )  # fmt: skip
 
 
@@ -179,8 +294,12 @@ def volume_estimates(marginals: VolumeMarginals, grid: CircularGrid) -> tuple[Te
 
 
 __all__ = [
+    "VolumeCalibration",
     "VolumeMarginals",
+    "fit_volume_temperature",
     "gives_pose_volume",
+    "temper_log_volume",
+    "true_cells",
     "volume_estimates",
     "volume_marginals",
     "volume_position_beliefs",

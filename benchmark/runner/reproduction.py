@@ -33,6 +33,7 @@ from benchmark.runner.execute.ray_executor import is_local_address
 from benchmark.runner.execute.worker import (
     UnitResult,
     UnitTask,
+    fusion_done,
     joint_sequence_paths,
     sequence_paths,
     volume_sequence_paths,
@@ -315,7 +316,7 @@ def _run_locked(
         wanted = ((sequence_paths, unit.fuse_splits), (volume_sequence_paths, unit.volume_splits),
                   (joint_sequence_paths, unit.joint_splits))  # fmt: skip
         fused = all(
-            paths(workdir / "units" / unit.key, split)[1].is_file()
+            fusion_done(paths, workdir / "units" / unit.key, split)
             for paths, splits in wanted
             for split in splits
         )

@@ -19,6 +19,8 @@ Layout of ``out_dir``::
     eval/long__standard__sequence.csv / .json   a fused split's per-frame/filter/smoother table
     eval/long__standard__beliefs.npy   its yaw beliefs, recorded by the true image's pass; gone
                                   once the fusion is written
+    eval/volume_calibration.json  a pair encoder's pose-volume temperature, fitted on the
+                                  validation split before its volume is fused
 
 Running it again costs nothing once its files are complete, so an interrupted run resumes where it
 stopped: mid-training from the last epoch's checkpoint, after training from the evaluations already
@@ -118,12 +120,13 @@ def train_and_evaluate(
     (:func:`benchmark.evaluation.sequence_eval.fuse_volume`; a pass over the images);
     ``joint_splits`` (each also in ``eval_splits``) jointly over (heading, E, N) as well
     (:func:`benchmark.evaluation.sequence_eval.fuse_volume_joint`; the same pass)."""
-    if fuse_splits and cfg.data.val_split is None:
+    calibrated = [*fuse_splits, *volume_splits, *joint_splits]
+    if calibrated and cfg.data.val_split is None:
         raise ValueError(
-            f"fuse_splits {list(fuse_splits)} need a validation split to calibrate the beliefs "
+            f"fused splits {calibrated} need a validation split to calibrate the beliefs "
             f"on; the config trained on {cfg.data.train_split!r} has none"
         )
-    if fuse_splits:  # calibration reads the validation predictions: evaluate them first
+    if calibrated:  # calibration reads the validation predictions: evaluate them first
         eval_splits = [cfg.data.val_split, *(s for s in eval_splits if s != cfg.data.val_split)]
     if placement is None:
         placement = resolve_placement(cfg.device, cfg.precision)
@@ -155,9 +158,22 @@ def train_and_evaluate(
         result.sequences[split] = _sequence_split(
             cfg, model, out_dir, split, eval_batch, progress, placement
         )
+    volume_calibration = None
     for split in dict.fromkeys([*volume_splits, *joint_splits]):
+        if volume_calibration is None:
+            volume_calibration = _volume_calibration(
+                cfg, model, out_dir, eval_batch, progress, placement
+            )
         marginal, joint = _volume_split(
-            cfg, model, out_dir, split, eval_batch, progress, placement, split in joint_splits
+            cfg,
+            model,
+            out_dir,
+            split,
+            eval_batch,
+            progress,
+            placement,
+            split in joint_splits,
+            volume_calibration,
         )
         if split in volume_splits:
             result.volume_sequences[split] = marginal
@@ -178,6 +194,26 @@ def joint_sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
     return stem.with_suffix(".csv"), stem.with_suffix(".json")
 
 
+def volume_calibration_path(out_dir: str | Path) -> Path:
+    """The pose volume's temperature fitted on the unit's validation split
+    (``eval/volume_calibration.json``;
+    :func:`benchmark.evaluation.volume_beliefs.fit_volume_temperature`)."""
+    return Path(out_dir) / "eval" / "volume_calibration.json"
+
+
+def fusion_done(paths: Callable[[str | Path, str], tuple[Path, Path]], out_dir: str | Path,
+                split: str) -> bool:  # fmt: skip
+    """Whether one split's fused files under ``out_dir`` are complete and current: the summary
+    JSON written (last), and for a pose volume's fusion, made with the calibrated volume (its
+    summary holds ``volume_temperature``; files of an older version are fused again)."""
+    csv_path, json_path = paths(out_dir, split)
+    if not (json_path.is_file() and csv_path.is_file()):
+        return False
+    if paths in (volume_sequence_paths, joint_sequence_paths):
+        return "volume_temperature" in json.loads(json_path.read_text())
+    return True
+
+
 def fusion_paths(beliefs: str) -> Callable[[str | Path, str], tuple[Path, Path]]:
     """Where a sequence row's fused files are, by what it fuses (``RowSpec.beliefs``): a head's
     beliefs, the pose volume's marginals, or the pose volume jointly."""
@@ -188,6 +224,47 @@ def fusion_paths(beliefs: str) -> Callable[[str | Path, str], tuple[Path, Path]]
     return paths[beliefs]
 
 
+def _volume_calibration(
+    cfg: TrainConfig,
+    model: torch.nn.Module,
+    out_dir: Path,
+    batch_size: int,
+    progress: bool,
+    placement: Placement,
+) -> dict[str, float]:
+    """The pose volume's temperature on ``cfg.data.val_split`` (read back if written): one
+    encoder pass over the validation images, the true poses from its evaluation table (evaluated
+    first), :func:`~benchmark.evaluation.volume_beliefs.fit_volume_temperature`."""
+    import pandas as pd
+
+    from benchmark.data import PairDataset
+    from benchmark.evaluation.volume_beliefs import fit_volume_temperature, volume_marginals
+
+    path = volume_calibration_path(out_dir)
+    if path.is_file():
+        return json.loads(path.read_text())
+    val_split = str(cfg.data.val_split)
+    base = PairDataset(cfg.data.root, val_split, verify=cfg.data.verify)
+    marginals = volume_marginals(
+        model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,
+        precision=placement.precision, num_workers=loader_workers(cfg, placement.device),
+        progress=progress, desc=f"volume {val_split} (calibration)", keep_volume=True,
+    )  # fmt: skip
+    val_csv, _ = eval_paths(out_dir, eval_key(val_split, "true"))
+    truth = pd.read_csv(val_csv).set_index("index").loc[marginals.index.numpy()]
+    assert marginals.log_volume is not None  # kept
+    fitted = fit_volume_temperature(
+        marginals.log_volume, (marginals.yaw, marginals.north, marginals.east), marginals.cell_m,
+        torch.tensor(truth["yaw_deg"].to_numpy(float)).deg2rad(),
+        torch.tensor(truth["E_m"].to_numpy(float)), torch.tensor(truth["N_m"].to_numpy(float)),
+    )  # fmt: skip
+    calibration = {"split": val_split, **fitted.to_dict()}
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(calibration, indent=2))
+    tmp.replace(path)
+    return calibration
+
+
 def _volume_split(
     cfg: TrainConfig,
     model: torch.nn.Module,
@@ -196,12 +273,14 @@ def _volume_split(
     batch_size: int,
     progress: bool,
     placement: Placement,
-    joint: bool = False,
+    joint: bool,
+    calibration: dict[str, Any],
 ) -> tuple[tuple[dict[str, float], Path], tuple[dict[str, float], Path] | None]:
     """Fuse the pose volume of one split along its flights (its marginals and, if ``joint``,
     jointly over heading and position), or read what a previous run wrote: one encoder pass
-    over the split's images, the heads' pitch and roll from the true image's evaluation table.
-    Returns ``(marginal, joint or None)``, each ``(summary, csv)``."""
+    over the split's images, the volume tempered by ``calibration`` (:func:`_volume_calibration`),
+    the heads' pitch and roll from the true image's evaluation table. Returns ``(marginal,
+    joint or None)``, each ``(summary, csv)``; each summary holds ``volume_temperature``."""
     import pandas as pd
 
     from benchmark.data import PairDataset, odometry_noise
@@ -210,37 +289,40 @@ def _volume_split(
 
     csv_path, json_path = volume_sequence_paths(out_dir, split)
     joint_csv, joint_json = joint_sequence_paths(out_dir, split)
-    have = json_path.is_file() and csv_path.is_file()
-    have_joint = not joint or (joint_json.is_file() and joint_csv.is_file())
+    have = fusion_done(volume_sequence_paths, out_dir, split)
+    have_joint = not joint or fusion_done(joint_sequence_paths, out_dir, split)
     if have and have_joint:
         return (json.loads(json_path.read_text()), csv_path), (
             (json.loads(joint_json.read_text()), joint_csv) if joint else None
         )
+    temperature = float(calibration["temperature"])
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     marginals = volume_marginals(
         model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,
         precision=placement.precision, num_workers=loader_workers(cfg, placement.device),
         progress=progress, desc=f"volume {split}", keep_volume=joint and not have_joint,
+        temperature=temperature,
     )  # fmt: skip
     true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
     frame = pd.read_csv(true_csv)
     noise = odometry_noise(base.manifest["profile"])
     seed = int(base.manifest["seed"])
+    stress = STRESS_SCALE if split.startswith("long/") else None
     if not have:
         summary, table = fuse_volume(
             frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
-            stress_scale=STRESS_SCALE if split.startswith("long/") else None,
+            stress_scale=stress,
         )  # fmt: skip
-        _write_fusion(table, summary, csv_path, json_path)
+        _write_fusion(table, {**summary, "volume_temperature": temperature}, csv_path, json_path)
     marginal = (json.loads(json_path.read_text()), csv_path)
     if not joint:
         return marginal, None
     if not have_joint:
         summary, table = fuse_volume_joint(
             frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
-            stress_scale=STRESS_SCALE if split.startswith("long/") else None, progress=progress,
+            stress_scale=stress, progress=progress,
         )  # fmt: skip
-        _write_fusion(table, summary, joint_csv, joint_json)
+        _write_fusion(table, {**summary, "volume_temperature": temperature}, joint_csv, joint_json)
     return marginal, (json.loads(joint_json.read_text()), joint_csv)
 
 

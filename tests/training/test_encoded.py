@@ -6,6 +6,7 @@ clear error."""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -206,7 +207,11 @@ class TestPoseVolumeFusion:
         from benchmark.data import PairDataset
         from benchmark.evaluation.volume_beliefs import gives_pose_volume
         from benchmark.geometry import angle_difference
-        from benchmark.training.pipeline import sequence_paths, volume_sequence_paths
+        from benchmark.training.pipeline import (
+            sequence_paths,
+            volume_calibration_path,
+            volume_sequence_paths,
+        )
 
         cfg = _frozen_cfg(smoke_dataset, pretrained, "model.attitude=pd_re_net")
         split, out = "long/standard", tmp_path / "run"
@@ -225,7 +230,12 @@ class TestPoseVolumeFusion:
         batch = torch.utils.data.default_collate(list(data))
         with torch.no_grad():
             enc = model.encode_pairs(batch["uav"], batch["sat"], None, batch["context"])
-        yaw_p = torch.logsumexp(enc.extras["log_volume"].double(), dim=(2, 3))
+        # the volume tempered by the temperature fitted on standard/val (the file the run wrote)
+        calibration = json.loads(volume_calibration_path(out).read_text())
+        assert calibration["split"] == "standard/val" and calibration["temperature"] > 0
+        lv = enc.extras["log_volume"].double() / calibration["temperature"]
+        lv = torch.log_softmax(lv.flatten(1), dim=1).view_as(lv)
+        yaw_p = torch.logsumexp(lv, dim=(2, 3))
         expected = model.encoder.yaws.double()[yaw_p.argmax(-1)]
         frame = table[(table["mode"] == "frame") & (table["odometry"] == "data")]
         frame = frame.sort_values("index")
