@@ -13,6 +13,9 @@ from scipy.interpolate import RegularGridInterpolator
 from benchmark.evaluation.fusion_grid import CircularGrid, PlanarGrid
 from benchmark.evaluation.volume_beliefs import (
     VolumeMarginals,
+    fit_volume_temperature,
+    temper_log_volume,
+    true_cells,
     volume_estimates,
     volume_position_beliefs,
     volume_yaw_beliefs,
@@ -109,3 +112,123 @@ class TestVolumeMarginals:
         with pytest.raises(ValueError, match=r"position_log_p must be \(N, P, Q\)"):
             VolumeMarginals(m.index, m.yaw_log_p, m.position_log_p[:, :-1], YAWS, m.north,
                             m.east, CELL)  # fmt: skip
+
+
+def _small_axes() -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A small volume's axes: 8 yaw bins, 5 x 5 cells of 10 m, north descending."""
+    yaw = torch.arange(8, dtype=F64) * (2 * math.pi / 8)
+    off = torch.arange(-2, 3, dtype=F64) * 10.0
+    return yaw, off.flip(0), off
+
+
+class TestTemperLogVolume:
+    def test_against_scipy_log_softmax(self):
+        from scipy.special import log_softmax
+
+        lv = torch.log_softmax(torch.randn(3, 8, 5, 5, dtype=F64).flatten(1), 1).view(3, 8, 5, 5)
+        for tau in (0.5, 1.7, 6.0):
+            ref = log_softmax(lv.flatten(1).numpy() / tau, axis=1).reshape(3, 8, 5, 5)
+            np.testing.assert_allclose(temper_log_volume(lv, tau).numpy(), ref, atol=1e-12)
+
+    def test_one_is_the_volume_itself(self):
+        lv = torch.randn(2, 8, 5, 5, dtype=F64)
+        assert temper_log_volume(lv, 1.0) is lv
+
+    def test_empty_cells_stay_empty_at_any_temperature(self):
+        lv = torch.zeros(1, 8, 5, 5, dtype=F64)
+        lv[0, 1:] = -1.0e4  # the encoder's excluded cells: mass exp(-1e4) = 0
+        lv = lv - torch.logsumexp(lv.flatten(1), 1).view(1, 1, 1, 1)
+        out = temper_log_volume(lv, 16.0)
+        assert float(out[0, 1:].exp().sum()) == 0.0
+        np.testing.assert_allclose(float(out.exp().sum()), 1.0, rtol=1e-12)
+        # the first bin's 25 cells were equal and stay so: 1/25 each
+        np.testing.assert_allclose(out[0, 0].exp().numpy(), 1 / 25, rtol=1e-12)
+
+    def test_order_of_cells_kept(self):
+        lv = torch.randn(2, 8, 5, 5, dtype=F64)
+        for tau in (0.3, 4.0):
+            out = temper_log_volume(lv, tau)
+            assert torch.equal(lv.flatten(1).argsort(1), out.flatten(1).argsort(1))
+
+
+class TestTrueCells:
+    def test_against_a_brute_force_search(self):
+        axes = _small_axes()
+        g = torch.Generator().manual_seed(4)
+        n = 200
+        yaw = (torch.rand(n, generator=g, dtype=F64) * 4 - 2) * math.pi  # beyond one turn
+        east = (torch.rand(n, generator=g, dtype=F64) - 0.5) * 60
+        north = (torch.rand(n, generator=g, dtype=F64) - 0.5) * 60
+        cells, inside = true_cells(axes, yaw, east, north, 10.0)
+        for i in range(n):
+            gaps = [abs(math.remainder(float(yaw[i]) - float(a), 2 * math.pi)) for a in axes[0]]
+            k = int(np.argmin(gaps))
+            p = int(np.argmin([abs(float(north[i]) - float(a)) for a in axes[1]]))
+            q = int(np.argmin([abs(float(east[i]) - float(a)) for a in axes[2]]))
+            assert int(cells[i]) == (k * 5 + p) * 5 + q
+            assert bool(inside[i]) == (abs(float(east[i])) <= 25 and abs(float(north[i])) <= 25)
+
+    def test_yaw_near_a_full_turn_is_bin_zero(self):
+        axes = _small_axes()
+        zero = torch.zeros(1, dtype=F64)
+        cells, inside = true_cells(axes, torch.tensor([2 * math.pi - 0.01]), zero, zero, 10.0)
+        assert int(cells[0]) == 12 and bool(inside[0])  # bin 0, row 2, column 2
+
+
+class TestFitVolumeTemperature:
+    @staticmethod
+    def overconfident(n: int, tau: float, seed: int) -> tuple[torch.Tensor, ...]:
+        """``n`` frames whose true cells are drawn from ``softmax(s)`` while the volume says
+        ``log_softmax(s / tau)``: a volume overconfident by ``tau`` (its best temperature)."""
+        axes = _small_axes()
+        g = torch.Generator().manual_seed(seed)
+        s = 2.0 * torch.randn(n, 200, generator=g, dtype=F64)
+        draw = torch.multinomial(torch.softmax(s, 1), 1, generator=g).flatten()
+        k, p, q = draw // 25, (draw // 5) % 5, draw % 5
+        lv = torch.log_softmax(s / tau, 1).view(n, 8, 5, 5)
+        return lv, axes, axes[0][k], axes[2][q], axes[1][p]
+
+    def test_recovers_a_known_overconfidence(self):
+        lv, axes, yaw, east, north = self.overconfident(3000, 0.5, seed=1)
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, east, north)
+        assert fitted.temperature == pytest.approx(2.0, rel=0.06)  # log_softmax(s / 0.5) * 0.5
+        assert fitted.n_frames == fitted.n_total == 3000
+        assert fitted.nll < fitted.nll_raw and fitted.nll_uniform == pytest.approx(math.log(200))
+
+    def test_a_calibrated_volume_keeps_temperature_one(self):
+        lv, axes, yaw, east, north = self.overconfident(3000, 1.0, seed=2)
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, east, north)
+        assert fitted.temperature == pytest.approx(1.0, rel=0.06)
+
+    def test_the_minimum_of_a_brute_force_scan(self):
+        from scipy.special import log_softmax
+
+        lv, axes, yaw, east, north = self.overconfident(300, 0.7, seed=3)
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, east, north)
+        cells, _ = true_cells(axes, yaw, east, north, 10.0)
+        flat, idx = lv.flatten(1).numpy(), cells.numpy()
+
+        def nll(tau: float) -> float:
+            return float(-log_softmax(flat / tau, axis=1)[np.arange(len(idx)), idx].mean())
+
+        taus = np.exp(np.linspace(np.log(0.25), np.log(16), 2001))
+        scan = np.array([nll(t) for t in taus])
+        assert fitted.nll <= scan.min() + 1e-7
+        assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
+        assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
+
+    def test_frames_outside_the_square_are_left_out(self):
+        lv, axes, yaw, east, north = self.overconfident(50, 0.5, seed=4)
+        far = east.clone()
+        far[:10] = 500.0  # beyond the +-25 m square
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, far, north)
+        alone = fit_volume_temperature(lv[10:], axes, 10.0, yaw[10:], east[10:], north[10:])
+        assert (fitted.n_frames, fitted.n_total) == (40, 50)
+        assert fitted.temperature == pytest.approx(alone.temperature, rel=1e-9)
+
+    def test_bad_input_is_named(self):
+        lv, axes, yaw, east, north = self.overconfident(5, 0.5, seed=5)
+        with pytest.raises(ValueError, match="N = len"):
+            fit_volume_temperature(lv[:4], axes, 10.0, yaw, east, north)
+        with pytest.raises(ValueError, match="no frame"):
+            fit_volume_temperature(lv, axes, 10.0, yaw, east + 1000.0, north)

@@ -233,6 +233,9 @@ class TestPoseVolumeFusion:
         # the volume tempered by the temperature fitted on standard/val (the file the run wrote)
         calibration = json.loads(volume_calibration_path(out).read_text())
         assert calibration["split"] == "standard/val" and calibration["temperature"] > 0
+        # fitted on the validation frames, every one of them, and recorded with the fusion
+        assert calibration["n_total"] == len(PairDataset(smoke_dataset, "standard/val"))
+        assert json.loads(js.read_text())["volume_temperature"] == calibration["temperature"]
         lv = enc.extras["log_volume"].double() / calibration["temperature"]
         lv = torch.log_softmax(lv.flatten(1), dim=1).view_as(lv)
         yaw_p = torch.logsumexp(lv, dim=(2, 3))

@@ -142,3 +142,39 @@ class TestHeadPositionDensity:
         again = train_and_evaluate(cfg, out, ["standard/test", split], fuse_splits=[split])
         assert again.sequences[split][0][POSITION_FROM_HEAD] == 1.0
         pd.testing.assert_frame_equal(pd.read_csv(csv), own, check_exact=False, rtol=1e-7)
+
+
+class TestFusionDone:
+    """Fused files count as done when complete; a pose volume's only when fused with the
+    calibrated volume (its summary holds ``volume_temperature``)."""
+
+    @staticmethod
+    def write(paths, out, split: str, summary: dict) -> None:
+        csv, js = paths(out, split)
+        csv.parent.mkdir(parents=True, exist_ok=True)
+        csv.write_text("index\n0\n")
+        js.write_text(json.dumps(summary))
+
+    def test_missing_files_are_not_done(self, tmp_path):
+        from benchmark.training.pipeline import fusion_done, sequence_paths
+
+        assert not fusion_done(sequence_paths, tmp_path, "long/standard")
+        self.write(sequence_paths, tmp_path, "long/standard", {"seq_filter_dpsi_mean_deg": 1.0})
+        sequence_paths(tmp_path, "long/standard")[0].unlink()  # the JSON alone: not done
+        assert not fusion_done(sequence_paths, tmp_path, "long/standard")
+
+    def test_a_heads_fusion_needs_no_temperature(self, tmp_path):
+        from benchmark.training.pipeline import fusion_done, sequence_paths
+
+        self.write(sequence_paths, tmp_path, "long/standard", {"seq_filter_dpsi_mean_deg": 1.0})
+        assert fusion_done(sequence_paths, tmp_path, "long/standard")
+
+    @pytest.mark.parametrize("kind", ["volume_sequence_paths", "joint_sequence_paths"])
+    def test_a_volume_fused_before_calibration_is_stale(self, tmp_path, kind):
+        from benchmark.training import pipeline
+
+        paths = getattr(pipeline, kind)
+        self.write(paths, tmp_path, "long/towns", {"seq_filter_dpsi_mean_deg": 1.0})
+        assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
+        self.write(paths, tmp_path, "long/towns", {"volume_temperature": 1.9})
+        assert pipeline.fusion_done(paths, tmp_path, "long/towns")
