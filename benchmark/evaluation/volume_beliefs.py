@@ -221,7 +221,7 @@ def fit_volume_temperature(
     best = minimize_scalar(nll, bounds=(low, high), method="bounded", options={"xatol": 1e-5})
     beta = float(best.x)
     return VolumeCalibration(
-        temperature=1.0 / beta, n_frames=int(len(rows)), n_total=int(yaw.shape[0]),
+        temperature=1.0 / beta, n_frames=len(rows), n_total=int(yaw.shape[0]),
         nll_raw=nll(1.0), nll=nll(beta), nll_uniform=math.log(flat.shape[1]),
     )  # fmt: skip
 
