@@ -321,11 +321,15 @@ def _volume_frames(
             f"split {split}: the volume pass has no frame {missing[:5]} of the evaluation table"
         )
     order = torch.as_tensor([position_of[int(i)] for i in frame["index"]], dtype=torch.long)
-    volume = marginals.log_volume
+
+    def rows(x: torch.Tensor | None) -> torch.Tensor | None:
+        return x[order] if x is not None else None
+
     aligned = dataclasses.replace(
         marginals, index=marginals.index[order], yaw_log_p=marginals.yaw_log_p[order],
-        position_log_p=marginals.position_log_p[order],
-        log_volume=volume[order] if volume is not None else None,
+        position_log_p=marginals.position_log_p[order], log_volume=rows(marginals.log_volume),
+        raw_yaw_log_p=rows(marginals.raw_yaw_log_p),
+        raw_position_log_p=rows(marginals.raw_position_log_p),
     )  # fmt: skip
     yaw_hat, en_hat = volume_estimates(aligned, grid)
     own = frame.copy()

@@ -25,13 +25,14 @@ cell was above the uniform volume's (a wrong match is sharp). Like a regression 
 is fused: one temperature ``tau``, ``log q = log_softmax(log p / tau)`` over all cells, fitted by
 maximum likelihood of the true cell (temperature scaling). The NLL is convex in ``beta = 1 /
 tau`` (``-beta s_c + logsumexp(beta s)``: a log-partition function), so a bounded scalar search
-finds its one minimum. Tempering keeps the order of the cells, not of the marginals: the
-per-frame estimates (the marginals' maxima) are those of the calibrated volume, the belief that
-is fused.
+finds its one minimum. Tempering keeps the order of the cells but not of the marginals: the
+per-frame estimates stay the untempered marginals' maxima (a calibration changes how strongly a
+frame votes along a flight, not what it says; the "frame" rows do not move with it).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import asdict, dataclass
 
@@ -60,6 +61,11 @@ class VolumeMarginals:
     # ``(N, K, P, Q)`` float32 log-mass of every cell, rows as ``index``; None unless asked for
     # (``volume_marginals(keep_volume=True)``: the joint fusion reads it; ~0.2 MB a frame)
     log_volume: Tensor | None = None
+    # the untempered volume's marginals ``(N, K)`` and ``(N, P, Q)`` when the fields above are
+    # tempered (``volume_marginals(temperature != 1)``): the per-frame estimates are read from
+    # them, so that a calibration changes how a frame votes, not what it says; None: the above
+    raw_yaw_log_p: Tensor | None = None
+    raw_position_log_p: Tensor | None = None
 
     def __post_init__(self) -> None:
         n, k = self.yaw_log_p.shape
@@ -70,6 +76,13 @@ class VolumeMarginals:
             )
         if k != len(self.yaw) or self.index.shape != (n,):
             raise ValueError("VolumeMarginals: yaw_log_p (N, K), yaw (K,) and index (N,) disagree")
+        for name, like in (("raw_yaw_log_p", self.yaw_log_p),
+                           ("raw_position_log_p", self.position_log_p)):  # fmt: skip
+            raw = getattr(self, name)
+            if raw is not None and raw.shape != like.shape:
+                raise ValueError(
+                    f"VolumeMarginals: {name} must be {tuple(like.shape)}, got {tuple(raw.shape)}"
+                )
 
 
 def gives_pose_volume(model: torch.nn.Module) -> bool:
@@ -105,7 +118,7 @@ def volume_marginals(
             f"{type(getattr(model, 'encoder', model)).__name__} has no pose volume "
             f"(PairEncoder.pose_volume_axes is None): fuse its heads' beliefs instead"
         )
-    index, yaw, position, volumes = [], [], [], []
+    index, yaw, position, volumes, raw_yaw, raw_position = [], [], [], [], [], []
     passes = model_outputs(
         model, dataset, batch_size=batch_size, shared_satellite=shared_satellite,
         precision=precision, num_workers=num_workers, progress=progress, desc=desc,
@@ -113,7 +126,11 @@ def volume_marginals(
     for batch, out in passes:
         if "uav" not in batch:
             raise ValueError("volume_marginals needs the images: got cached features")
-        log_volume = temper_log_volume(out.encoder["log_volume"].double(), temperature)
+        raw = out.encoder["log_volume"].double()  # (B, K, P, Q)
+        log_volume = temper_log_volume(raw, temperature)
+        if temperature != 1.0:
+            raw_yaw.append(torch.logsumexp(raw, dim=(2, 3)).cpu())
+            raw_position.append(torch.logsumexp(raw, dim=1).cpu())
         yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
         position.append(torch.logsumexp(log_volume, dim=1).cpu())
         if keep_volume:
@@ -123,6 +140,7 @@ def volume_marginals(
         torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
         axes.yaw.double().cpu(), axes.north.double().cpu(), axes.east.double().cpu(),
         float(axes.cell_m), torch.cat(volumes) if keep_volume else None,
+        torch.cat(raw_yaw) if raw_yaw else None, torch.cat(raw_position) if raw_position else None,
     )  # fmt: skip
 
 
@@ -285,7 +303,14 @@ def _linear_weights(axis: Tensor, points: Tensor) -> tuple[Tensor, Tensor]:
 def volume_estimates(marginals: VolumeMarginals, grid: CircularGrid) -> tuple[Tensor, Tensor]:
     """The volume's own per-frame estimates: ``yaw (N,)`` rad, the maximum of
     :func:`volume_yaw_beliefs` on ``grid``, and ``(N, 2)`` (E, N) metres, the centre of the
-    position marginal's most probable cell."""
+    position marginal's most probable cell; of the untempered marginals when ``marginals`` holds
+    them (``raw_*``)."""
+    if marginals.raw_yaw_log_p is not None and marginals.raw_position_log_p is not None:
+        marginals = dataclasses.replace(
+            marginals, yaw_log_p=marginals.raw_yaw_log_p,
+            position_log_p=marginals.raw_position_log_p, raw_yaw_log_p=None,
+            raw_position_log_p=None,
+        )  # fmt: skip
     yaw = grid.centres(torch.float64)[volume_yaw_beliefs(marginals, grid).argmax(-1)]
     flat = marginals.position_log_p.flatten(1).argmax(-1)
     q = len(marginals.east)

@@ -232,3 +232,24 @@ class TestFitVolumeTemperature:
             fit_volume_temperature(lv[:4], axes, 10.0, yaw, east, north)
         with pytest.raises(ValueError, match="no frame"):
             fit_volume_temperature(lv, axes, 10.0, yaw, east + 1000.0, north)
+
+
+class TestVolumeEstimatesOfACalibratedVolume:
+    def test_the_estimates_are_the_untempered_marginals_maxima(self):
+        import dataclasses
+
+        raw, grid = marginals(3, seed=7), CircularGrid(720)
+        flat = marginals(3, seed=8)  # other marginals, standing for the tempered ones
+        both = dataclasses.replace(
+            flat, raw_yaw_log_p=raw.yaw_log_p, raw_position_log_p=raw.position_log_p
+        )
+        yaw, en = volume_estimates(both, grid)
+        yaw_raw, en_raw = volume_estimates(raw, grid)
+        assert torch.equal(yaw, yaw_raw) and torch.equal(en, en_raw)
+
+    def test_raw_marginals_of_another_shape_are_refused(self):
+        import dataclasses
+
+        m = marginals(3)
+        with pytest.raises(ValueError, match="raw_yaw_log_p must be"):
+            dataclasses.replace(m, raw_yaw_log_p=m.yaw_log_p[:2])
