@@ -25,6 +25,7 @@ TARGETS: dict[str, str] = {
     "accelerator": "benchmark.commands.bench_accelerator",
     "ray": "benchmark.commands.bench_ray",
     "isa": "benchmark.commands.bench_isa",
+    "allocator": "benchmark.commands.bench_allocator",
 }
 
 TARGET_HELP: dict[str, str] = {
@@ -36,6 +37,7 @@ TARGET_HELP: dict[str, str] = {
     "accelerator": "one-command accelerator check: smoke reproduction, train fp32/bf16, latency",
     "ray": "smoke reproduction through the process pool and a local Ray: wall times, ratio",
     "isa": "dataset manifest digest with each library's SIMD level forced down, side by side",
+    "allocator": "matcher step and joint fusion: glibc's default allocator against uavbench's",
 }
 
 HELP = "performance benchmarks: " + ", ".join(f"bench {t}" for t in TARGETS)

@@ -18,6 +18,7 @@ import sys
 from collections.abc import Sequence
 
 from benchmark import __version__
+from benchmark.allocator import tune_allocator
 from benchmark.errors import InputError
 
 # subcommand -> module path. Order is the pipeline order shown in --help.
@@ -77,6 +78,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     name = argv[0]
+    try:  # before any tensor exists: freed blocks stay warm (benchmark.allocator)
+        tune_allocator()
+    except ValueError as err:
+        print(f"uavbench {name}: error: {err}", file=sys.stderr)
+        return 2
     module = importlib.import_module(COMMANDS[name])
     cmd_parser = argparse.ArgumentParser(prog=f"uavbench {name}", description=module.HELP)
     module.add_arguments(cmd_parser)

@@ -71,11 +71,13 @@ class TestPlanUnits:
         assert {"Pd/Re-Net", "Pd/Re-Net · matching, gravity-aided"} <= labels
         for unit in volume:
             assert unit.volume_splits == unit.fuse_splits
-        # the joint rows: the vision-only volume's unit, on the long flights only
+        # the joint rows: both volumes' units (vision-only and gravity-aided), long flights only
         joint = [u for u in units if u.joint_splits]
-        assert len(joint) == 1 and joint[0] in volume
-        assert joint[0].joint_splits == ["long/standard", "long/towns", "long/london"]
-        assert joint[0].cfg.model.encoder_options.get("protocol", "vision_only") == "vision_only"
+        assert len(joint) == 2 and all(u in volume for u in joint)
+        for unit in joint:
+            assert unit.joint_splits == ["long/standard", "long/towns", "long/london"]
+        protocols = {u.cfg.model.encoder_options.get("protocol", "vision_only") for u in joint}
+        assert protocols == {"vision_only", "gravity_aided"}
 
     def test_control_is_its_own_unit(self):
         units = plan()
