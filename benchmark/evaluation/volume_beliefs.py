@@ -19,13 +19,14 @@ Per-frame estimates for the "frame" rows: the yaw of the interpolated belief's m
 centre) and the position cell of the marginal's maximum; pitch and roll stay the head's.
 
 **Calibration** (:func:`fit_volume_temperature`). A volume trained by its NLL on the training
-frames is overconfident on new ones: on standard/val of the quick units its mean NLL of the true
-cell was above the uniform volume's (a wrong match is sharp). Like a regression head's belief
-(:mod:`benchmark.evaluation.beliefs`), the volume is calibrated on the validation split before it
-is fused: one temperature ``tau``, ``log q = log_softmax(log p / tau)`` over all cells, fitted by
-maximum likelihood of the true cell (temperature scaling). The NLL is convex in ``beta = 1 /
-tau`` (``-beta s_c + logsumexp(beta s)``: a log-partition function), so a bounded scalar search
-finds its one minimum. Tempering keeps the order of the cells but not of the marginals: the
+frames can be over- or underconfident on new ones, and a wrong match's sharp peak then outvotes
+correct frames along a flight. Like a regression head's belief
+(:mod:`benchmark.evaluation.beliefs`), each belief the fusion uses is calibrated on the
+validation split before it is fused: one temperature ``tau``, ``log q = log_softmax(log p /
+tau)``, fitted by maximum likelihood of the truth (temperature scaling), for the whole volume
+(the joint fusion), its yaw marginal and its position marginal (the marginal fusions). The NLL
+is convex in ``beta = 1 / tau`` (``-beta s_c + logsumexp(beta s)``: a log-partition function),
+so a bounded scalar search finds its one minimum. Tempering keeps the order of the cells: the
 per-frame estimates stay the untempered marginals' maxima (a calibration changes how strongly a
 frame votes along a flight, not what it says; the "frame" rows do not move with it).
 """
@@ -104,14 +105,22 @@ def volume_marginals(
     desc: str = "volume",
     keep_volume: bool = False,
     temperature: float = 1.0,
+    yaw_temperature: float = 1.0,
+    position_temperature: float = 1.0,
 ) -> VolumeMarginals:
     """Run ``model`` over the images of ``dataset`` (a ``PairDataset``: the encoder must see the
     pairs, not cached features) and keep its pose volume's marginals. Eval mode, restored after;
     the forward under autocast for ``precision``, the marginals in float64; ``keep_volume``: the
-    whole volume too (float32, ``VolumeMarginals.log_volume``); ``temperature``: the volume
-    tempered first (:func:`temper_log_volume`; 1 leaves it bit-identical)."""
-    if not (math.isfinite(temperature) and temperature > 0):
-        raise ValueError(f"temperature must be a finite positive number, got {temperature!r}")
+    whole volume too (float32, ``VolumeMarginals.log_volume``), tempered by ``temperature``;
+    the yaw and position marginals tempered by ``yaw_temperature`` and ``position_temperature``
+    (:func:`temper_log_volume`, :class:`VolumeCalibration`; 1 leaves each bit-identical; any
+    other keeps the untempered marginals in ``raw_*`` for the per-frame estimates)."""
+    tempers = {"temperature": temperature, "yaw_temperature": yaw_temperature,
+               "position_temperature": position_temperature}  # fmt: skip
+    for name, value in tempers.items():
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite positive number, got {value!r}")
+    tempered = any(value != 1.0 for value in tempers.values())
     axes = model.encoder.pose_volume_axes() if gives_pose_volume(model) else None
     if axes is None:
         raise ValueError(
@@ -127,14 +136,14 @@ def volume_marginals(
         if "uav" not in batch:
             raise ValueError("volume_marginals needs the images: got cached features")
         raw = out.encoder["log_volume"].double()  # (B, K, P, Q)
-        log_volume = temper_log_volume(raw, temperature)
-        if temperature != 1.0:
-            raw_yaw.append(torch.logsumexp(raw, dim=(2, 3)).cpu())
-            raw_position.append(torch.logsumexp(raw, dim=1).cpu())
-        yaw.append(torch.logsumexp(log_volume, dim=(2, 3)).cpu())
-        position.append(torch.logsumexp(log_volume, dim=1).cpu())
+        yaw_p, position_p = torch.logsumexp(raw, dim=(2, 3)), torch.logsumexp(raw, dim=1)
+        if tempered:
+            raw_yaw.append(yaw_p.cpu())
+            raw_position.append(position_p.cpu())
+        yaw.append(temper_log_volume(yaw_p, yaw_temperature).cpu())
+        position.append(temper_log_volume(position_p, position_temperature).cpu())
         if keep_volume:
-            volumes.append(log_volume.float().cpu())
+            volumes.append(temper_log_volume(raw, temperature).float().cpu())
         index.append(batch["index"].cpu())
     return VolumeMarginals(
         torch.cat(index).long(), torch.cat(yaw), torch.cat(position),
@@ -163,18 +172,27 @@ def temper_log_volume(log_volume: Tensor, temperature: float) -> Tensor:
 
 @dataclass(frozen=True)
 class VolumeCalibration:
-    """A pose volume's temperature fitted on a validation split (:func:`fit_volume_temperature`):
-    ``temperature`` (> 1 softens an overconfident volume), the ``n_frames`` whose true pose lies
-    inside the searched square (the fit's frames) of ``n_total``, and the mean NLL (nats) of their
-    true cells before (``nll_raw``, temperature 1) and after (``nll``); ``nll_uniform`` the
-    uniform volume's, for scale."""
+    """A pose volume's temperatures fitted on a validation split (:func:`fit_volume_temperature`),
+    one per belief the fusion uses: ``temperature`` of the whole volume (the joint fusion),
+    ``yaw_temperature`` of its yaw marginal and ``position_temperature`` of its position marginal
+    (the marginal fusions); > 1 softens an overconfident belief. Fitted on the ``n_frames``
+    whose true pose lies inside the searched square, of ``n_total``. Mean NLLs (nats) of the
+    truth before (``*_raw``, temperature 1) and after, and the uniform's (``*_uniform``)."""
 
     temperature: float
+    yaw_temperature: float
+    position_temperature: float
     n_frames: int
     n_total: int
     nll_raw: float
     nll: float
     nll_uniform: float
+    yaw_nll_raw: float
+    yaw_nll: float
+    yaw_nll_uniform: float
+    position_nll_raw: float
+    position_nll: float
+    position_nll_uniform: float
 
     def to_dict(self) -> dict[str, float | int]:
         return dict(asdict(self))
@@ -199,6 +217,29 @@ def true_cells(
     return (k * len(north_axis) + p) * len(east_axis) + q, inside
 
 
+def fit_temperature(
+    log_p: Tensor, target: Tensor, bounds: tuple[float, float] = (0.25, 16.0)
+) -> tuple[float, float, float]:
+    """The temperature ``tau`` maximising the likelihood of ``target (N,)`` (indices) under
+    ``log_softmax(log_p / tau)`` of ``log_p (N, M)`` log-masses; returns ``(tau, NLL at 1, NLL
+    at tau)`` (mean nats). The NLL is convex in ``beta = 1 / tau`` (module docstring): bounded
+    Brent over ``1 / bounds``, to 1e-5 in beta, float64, 64 rows at a time."""
+    from scipy.optimize import minimize_scalar
+
+    def nll(beta: float) -> float:
+        total = 0.0
+        for start in range(0, len(target), 64):
+            tempered = temper_log_volume(log_p[start : start + 64].double(), 1.0 / beta)
+            total -= float(tempered.gather(1, target[start : start + 64, None]).sum())
+        return total / len(target)
+
+    low, high = 1.0 / bounds[1], 1.0 / bounds[0]
+    beta = float(
+        minimize_scalar(nll, bounds=(low, high), method="bounded", options={"xatol": 1e-5}).x
+    )
+    return 1.0 / beta, nll(1.0), nll(beta)
+
+
 def fit_volume_temperature(
     log_volume: Tensor,
     axes: tuple[Tensor, Tensor, Tensor],
@@ -208,14 +249,15 @@ def fit_volume_temperature(
     north: Tensor,
     bounds: tuple[float, float] = (0.25, 16.0),
 ) -> VolumeCalibration:
-    """The temperature of maximum likelihood of the true cells (module docstring): ``log_volume
-    (N, K, P, Q)`` log-masses of a validation split's frames, ``axes`` ``(yaw (K,), north (P,),
-    east (Q,))`` and ``cell_m`` as :class:`VolumeMarginals`, the true ``yaw`` rad, ``east``,
-    ``north`` m ``(N,)``. Frames whose truth lies outside the searched square have no true cell
-    and are left out (counted). The search runs over ``beta = 1 / tau`` in ``1 / bounds``
-    (bounded Brent, to 1e-5 in beta), float64, 64 frames at a time."""
-    from scipy.optimize import minimize_scalar
-
+    """The temperatures of maximum likelihood (module docstring) of the whole volume at the true
+    cell, of its yaw marginal at the true yaw bin and of its position marginal at the true
+    position cell (:func:`fit_temperature`, each within ``bounds``): ``log_volume (N, K, P, Q)``
+    log-masses of a validation split's frames, ``axes`` ``(yaw (K,), north (P,), east (Q,))``
+    and ``cell_m`` as :class:`VolumeMarginals`, the true ``yaw`` rad, ``east``, ``north`` m
+    ``(N,)``. Frames whose truth lies outside the searched square have no true cell and are left
+    out of all three (counted). Each belief gets its own temperature because tempering the
+    volume is not tempering its marginals: on the quick units' standard/val the volume's
+    temperature (1.3-1.9) made its yaw marginal worse than untempered (its own best: about 1)."""
     if log_volume.dim() != 4 or log_volume.shape[0] != yaw.shape[0]:
         raise ValueError(
             f"log_volume must be (N, K, P, Q) with N = len(yaw) = {yaw.shape[0]}, "
@@ -225,22 +267,22 @@ def fit_volume_temperature(
     rows = torch.nonzero(inside).flatten()
     if len(rows) == 0:
         raise ValueError("fit_volume_temperature: no frame's true pose lies inside the volume")
-    flat = log_volume.flatten(1)
-
-    def nll(beta: float) -> float:
-        total = 0.0
-        for start in range(0, len(rows), 64):
-            part = rows[start : start + 64]
-            tempered = temper_log_volume(flat[part].double(), 1.0 / beta)
-            total -= float(tempered.gather(1, cells[part][:, None]).sum())
-        return total / len(rows)
-
-    low, high = 1.0 / bounds[1], 1.0 / bounds[0]
-    best = minimize_scalar(nll, bounds=(low, high), method="bounded", options={"xatol": 1e-5})
-    beta = float(best.x)
+    k, p, q = log_volume.shape[1:]
+    volume = log_volume[rows].double()
+    target = cells[rows]
+    tau, raw, fitted = fit_temperature(volume.flatten(1), target, bounds)
+    yaw_tau, yaw_raw, yaw_fitted = fit_temperature(
+        torch.logsumexp(volume, dim=(2, 3)), target // (p * q), bounds
+    )
+    pos_tau, pos_raw, pos_fitted = fit_temperature(
+        torch.logsumexp(volume, dim=1).flatten(1), target % (p * q), bounds
+    )
     return VolumeCalibration(
-        temperature=1.0 / beta, n_frames=len(rows), n_total=int(yaw.shape[0]),
-        nll_raw=nll(1.0), nll=nll(beta), nll_uniform=math.log(flat.shape[1]),
+        temperature=tau, yaw_temperature=yaw_tau, position_temperature=pos_tau,
+        n_frames=len(rows), n_total=int(yaw.shape[0]),
+        nll_raw=raw, nll=fitted, nll_uniform=math.log(k * p * q),
+        yaw_nll_raw=yaw_raw, yaw_nll=yaw_fitted, yaw_nll_uniform=math.log(k),
+        position_nll_raw=pos_raw, position_nll=pos_fitted, position_nll_uniform=math.log(p * q),
     )  # fmt: skip
 
 
@@ -321,6 +363,7 @@ def volume_estimates(marginals: VolumeMarginals, grid: CircularGrid) -> tuple[Te
 __all__ = [
     "VolumeCalibration",
     "VolumeMarginals",
+    "fit_temperature",
     "fit_volume_temperature",
     "gives_pose_volume",
     "temper_log_volume",

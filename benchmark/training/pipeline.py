@@ -49,6 +49,9 @@ from benchmark.training.encoded import encode_for_heads, resolve_pretrained
 from benchmark.training.loop import EpochCallback, TrainResult, check_finite, loader_workers
 
 SWAP_SUFFIX = "/swap"
+# The pose volume's temperatures (benchmark.evaluation.volume_beliefs.VolumeCalibration) that a
+# volume's fusion is made with and records: the whole volume's, its yaw and position marginals'.
+VOLUME_TEMPERATURES = ("temperature", "yaw_temperature", "position_temperature")
 EVAL_BATCH = 64  # pairs per evaluation batch (eval mode: per-sample results, any size would do)
 
 
@@ -205,12 +208,14 @@ def fusion_done(paths: Callable[[str | Path, str], tuple[Path, Path]], out_dir: 
                 split: str) -> bool:  # fmt: skip
     """Whether one split's fused files under ``out_dir`` are complete and current: the summary
     JSON written (last), and for a pose volume's fusion, made with the calibrated volume (its
-    summary holds ``volume_temperature``; files of an older version are fused again)."""
+    summary holds every ``volume_<temperature>`` of :data:`VOLUME_TEMPERATURES`; files of an
+    older version are fused again)."""
     csv_path, json_path = paths(out_dir, split)
     if not (json_path.is_file() and csv_path.is_file()):
         return False
     if paths in (volume_sequence_paths, joint_sequence_paths):
-        return "volume_temperature" in json.loads(json_path.read_text())
+        summary = json.loads(json_path.read_text())
+        return all(f"volume_{k}" in summary for k in VOLUME_TEMPERATURES)
     return True
 
 
@@ -242,7 +247,9 @@ def _volume_calibration(
 
     path = volume_calibration_path(out_dir)
     if path.is_file():
-        return json.loads(path.read_text())
+        written = json.loads(path.read_text())
+        if all(k in written for k in VOLUME_TEMPERATURES):  # else: an older version's, fit again
+            return written
     val_split = str(cfg.data.val_split)
     base = PairDataset(cfg.data.root, val_split, verify=cfg.data.verify)
     marginals = volume_marginals(
@@ -280,7 +287,8 @@ def _volume_split(
     jointly over heading and position), or read what a previous run wrote: one encoder pass
     over the split's images, the volume tempered by ``calibration`` (:func:`_volume_calibration`),
     the heads' pitch and roll from the true image's evaluation table. Returns ``(marginal,
-    joint or None)``, each ``(summary, csv)``; each summary holds ``volume_temperature``."""
+    joint or None)``, each ``(summary, csv)``; each summary holds the temperatures it was made
+    with (``volume_temperature``, ``volume_yaw_temperature``, ``volume_position_temperature``)."""
     import pandas as pd
 
     from benchmark.data import PairDataset, odometry_noise
@@ -295,13 +303,14 @@ def _volume_split(
         return (json.loads(json_path.read_text()), csv_path), (
             (json.loads(joint_json.read_text()), joint_csv) if joint else None
         )
-    temperature = float(calibration["temperature"])
+    tempers = {k: float(calibration[k]) for k in VOLUME_TEMPERATURES}
+    recorded = {f"volume_{k}": v for k, v in tempers.items()}
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     marginals = volume_marginals(
         model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,
         precision=placement.precision, num_workers=loader_workers(cfg, placement.device),
         progress=progress, desc=f"volume {split}", keep_volume=joint and not have_joint,
-        temperature=temperature,
+        **tempers,
     )  # fmt: skip
     true_csv, _ = eval_paths(out_dir, eval_key(split, "true"))
     frame = pd.read_csv(true_csv)
@@ -313,7 +322,7 @@ def _volume_split(
             frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
             stress_scale=stress,
         )  # fmt: skip
-        _write_fusion(table, {**summary, "volume_temperature": temperature}, csv_path, json_path)
+        _write_fusion(table, {**summary, **recorded}, csv_path, json_path)
     marginal = (json.loads(json_path.read_text()), csv_path)
     if not joint:
         return marginal, None
@@ -322,7 +331,7 @@ def _volume_split(
             frame, marginals, base.poses, base.sat_table, noise, split=split, seed=seed,
             stress_scale=stress, progress=progress,
         )  # fmt: skip
-        _write_fusion(table, {**summary, "volume_temperature": temperature}, joint_csv, joint_json)
+        _write_fusion(table, {**summary, **recorded}, joint_csv, joint_json)
     return marginal, (json.loads(joint_json.read_text()), joint_csv)
 
 

@@ -194,6 +194,8 @@ class TestFitVolumeTemperature:
         assert fitted.temperature == pytest.approx(2.0, rel=0.06)  # log_softmax(s / 0.5) * 0.5
         assert fitted.n_frames == fitted.n_total == 3000
         assert fitted.nll < fitted.nll_raw and fitted.nll_uniform == pytest.approx(math.log(200))
+        assert fitted.yaw_nll_uniform == pytest.approx(math.log(8))
+        assert fitted.position_nll_uniform == pytest.approx(math.log(25))
 
     def test_a_calibrated_volume_keeps_temperature_one(self):
         lv, axes, yaw, east, north = self.overconfident(3000, 1.0, seed=2)
@@ -217,6 +219,43 @@ class TestFitVolumeTemperature:
         assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
         assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
 
+    def test_each_marginal_gets_its_own_temperature(self):
+        # a volume whose yaw and position are independent: p(k, cell) = p_yaw(k) p_pos(cell).
+        # The truth is drawn from (yaw logits a, position logits b); the volume says (2 a, b / 2):
+        # its yaw marginal is overconfident by 2, its position marginal underconfident by 2.
+        # Tempering the whole volume cannot fix both; each marginal's own temperature does.
+        axes = _small_axes()
+        g = torch.Generator().manual_seed(6)
+        n = 4000
+        a = 1.5 * torch.randn(n, 8, generator=g, dtype=F64)
+        b = 1.5 * torch.randn(n, 25, generator=g, dtype=F64)
+        k = torch.multinomial(torch.softmax(a, 1), 1, generator=g).flatten()
+        c = torch.multinomial(torch.softmax(b, 1), 1, generator=g).flatten()
+        lv = torch.log_softmax(2 * a, 1)[:, :, None] + torch.log_softmax(b / 2, 1)[:, None, :]
+        fitted = fit_volume_temperature(
+            lv.view(n, 8, 5, 5), axes, 10.0, axes[0][k], axes[2][c % 5], axes[1][c // 5]
+        )
+        assert fitted.yaw_temperature == pytest.approx(2.0, rel=0.08)
+        assert fitted.position_temperature == pytest.approx(0.5, rel=0.08)
+        assert fitted.yaw_nll < fitted.yaw_nll_raw and fitted.position_nll < fitted.position_nll_raw
+
+    def test_marginal_nlls_against_scipy(self):
+        from scipy.special import log_softmax, logsumexp
+
+        lv, axes, yaw, east, north = self.overconfident(300, 0.7, seed=9)
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, east, north)
+        cells, _ = true_cells(axes, yaw, east, north, 10.0)
+        flat = lv.numpy().reshape(300, 8, 25)
+        idx = np.arange(300)
+        yaw_p = logsumexp(flat, axis=2)
+        pos_p = logsumexp(flat, axis=1)
+        k, c = cells.numpy() // 25, cells.numpy() % 25
+        assert fitted.yaw_nll_raw == pytest.approx(-yaw_p[idx, k].mean(), rel=1e-12)
+        assert fitted.position_nll_raw == pytest.approx(-pos_p[idx, c].mean(), rel=1e-12)
+        tau = fitted.yaw_temperature
+        expected = -log_softmax(yaw_p / tau, axis=1)[idx, k].mean()
+        assert fitted.yaw_nll == pytest.approx(expected, rel=1e-10)
+
     def test_frames_outside_the_square_are_left_out(self):
         lv, axes, yaw, east, north = self.overconfident(50, 0.5, seed=4)
         far = east.clone()
@@ -225,6 +264,7 @@ class TestFitVolumeTemperature:
         alone = fit_volume_temperature(lv[10:], axes, 10.0, yaw[10:], east[10:], north[10:])
         assert (fitted.n_frames, fitted.n_total) == (40, 50)
         assert fitted.temperature == pytest.approx(alone.temperature, rel=1e-9)
+        assert fitted.yaw_temperature == pytest.approx(alone.yaw_temperature, rel=1e-9)
 
     def test_bad_input_is_named(self):
         lv, axes, yaw, east, north = self.overconfident(5, 0.5, seed=5)
@@ -253,3 +293,13 @@ class TestVolumeEstimatesOfACalibratedVolume:
         m = marginals(3)
         with pytest.raises(ValueError, match="raw_yaw_log_p must be"):
             dataclasses.replace(m, raw_yaw_log_p=m.yaw_log_p[:2])
+
+
+class TestVolumeMarginalsTemperatures:
+    """volume_marginals tempers the whole volume and each marginal by its own temperature."""
+
+    def test_refuses_a_bad_temperature(self):
+        from benchmark.evaluation.volume_beliefs import volume_marginals
+
+        with pytest.raises(ValueError, match="yaw_temperature must be"):
+            volume_marginals(torch.nn.Identity(), [], yaw_temperature=0.0)

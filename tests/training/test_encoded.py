@@ -235,7 +235,9 @@ class TestPoseVolumeFusion:
         assert calibration["split"] == "standard/val" and calibration["temperature"] > 0
         # fitted on the validation frames, every one of them, and recorded with the fusion
         assert calibration["n_total"] == len(PairDataset(smoke_dataset, "standard/val"))
-        assert json.loads(js.read_text())["volume_temperature"] == calibration["temperature"]
+        recorded = json.loads(js.read_text())
+        for name in ("temperature", "yaw_temperature", "position_temperature"):
+            assert calibration[name] > 0 and recorded[f"volume_{name}"] == calibration[name]
         # the frame rows are the untempered volume's maxima: a calibration changes the votes
         yaw_p = torch.logsumexp(enc.extras["log_volume"].double(), dim=(2, 3))
         expected = model.encoder.yaws.double()[yaw_p.argmax(-1)]

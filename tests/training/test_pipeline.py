@@ -176,5 +176,8 @@ class TestFusionDone:
         paths = getattr(pipeline, kind)
         self.write(paths, tmp_path, "long/towns", {"seq_filter_dpsi_mean_deg": 1.0})
         assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
-        self.write(paths, tmp_path, "long/towns", {"volume_temperature": 1.9})
+        self.write(paths, tmp_path, "long/towns", {"volume_temperature": 1.9})  # one of three
+        assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
+        every = {f"volume_{k}": 1.0 for k in pipeline.VOLUME_TEMPERATURES}
+        self.write(paths, tmp_path, "long/towns", every)
         assert pipeline.fusion_done(paths, tmp_path, "long/towns")
