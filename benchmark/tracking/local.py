@@ -15,6 +15,7 @@ leaves a readable record of everything logged up to then.
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
 import re
@@ -210,9 +211,12 @@ class LocalTracker(Tracker):
 
     def _info(self, rec: Mapping, run_dir: Path) -> RunInfo:
         latest: dict[str, float] = {}
-        with open(run_dir / "metrics.csv", newline="", encoding="utf-8") as fh:
-            for row in csv.DictReader(fh):
-                latest[row["key"]] = float(row["value"])
+        text = (run_dir / "metrics.csv").read_text(encoding="utf-8")
+        # Another process may be appending to this run's file right now (two workers, one store):
+        # a last line without its newline is still being written, and is not read.
+        complete = text[: text.rfind("\n") + 1]
+        for row in csv.DictReader(io.StringIO(complete, newline="")):
+            latest[row["key"]] = float(row["value"])
         return RunInfo(
             run_id=rec["run_id"],
             experiment=rec["experiment"],

@@ -139,6 +139,25 @@ class TestLocalTracker:
         assert found.metrics == {"loss": 0.25}
         assert tracker.find_finished_run("table 1/std", "other") is None
 
+    def test_a_row_still_being_written_by_another_process_is_not_read(self, tmp_path):
+        # two workers share one store: one lists the runs (to reuse a finished one) while the
+        # other appends to its run's metrics.csv; a half-written last row used to raise
+        # "float() argument must be ... not 'NoneType'" (seen once through Ray under load)
+        tracker = LocalTracker(tmp_path / "runs")
+        with tracker.start_run("t", "done", tags={"run_key": "k"}) as r:
+            r.log_metrics({"loss": 0.5}, 0)
+        with tracker.start_run("t", "writing", tags={"run_key": "w"}) as r:
+            r.log_metrics({"loss": 0.75}, 0)
+            r.flush()
+            _, _, run_dir = read_local_run(tmp_path / "runs", "t", "writing")
+            with open(run_dir / "metrics.csv", "a", encoding="utf-8") as fh:
+                fh.write("loss")  # the other process is mid-row
+            runs = {info.run_name: info for info in tracker.list_runs("t")}
+            assert runs["done"].metrics == {"loss": 0.5}
+            assert runs["writing"].metrics == {"loss": 0.75}  # the partial row is not read
+            found = tracker.find_finished_run("t", "k")
+            assert found is not None and found.metrics == {"loss": 0.5}
+
 
 @pytest.fixture
 def in_tmp_cwd(tmp_path, monkeypatch):
