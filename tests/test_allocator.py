@@ -96,3 +96,15 @@ class TestAllocatorBenchResult:
         total = next(line for line in lines if "same run" in line)
         assert "2.50x" in total  # base default 1.0 over ours tuned 0.4
         assert "code alone, both default: 2.00x" in total
+
+
+class TestAllocatorStatus:
+    def test_untouched_until_tuned_then_the_tuning_status(self, monkeypatch):
+        import benchmark.allocator as allocator
+
+        monkeypatch.setattr(allocator, "_STATUS", None)
+        assert allocator.allocator_status().tuned is False
+        assert "not tuned" in allocator.allocator_status().detail
+        monkeypatch.setenv(ENV_SWITCH, "default")
+        status = allocator.tune_allocator()
+        assert allocator.allocator_status() == status and "default" in status.detail

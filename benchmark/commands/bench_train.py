@@ -104,7 +104,11 @@ def parse(argv: Sequence[str]) -> lib.TrainBenchConfig:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Time the models and print the table; exit 0."""
+    """Time the models and print the table, then the allocator policy every loop ran under
+    (the base row too: ``bench allocator`` times the base as it ran before); exit 0."""
+    from benchmark.allocator import allocator_status
+
     for line in lib.bench_train(config_from(args)).lines():
         print(line)
+    print(f"{allocator_status().detail} (every loop; bench allocator compares the policies)")
     return 0
