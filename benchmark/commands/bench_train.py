@@ -108,7 +108,8 @@ def run(args: argparse.Namespace) -> int:
     (the base row too: ``bench allocator`` times the base as it ran before); exit 0."""
     from benchmark.allocator import allocator_status
 
-    for line in lib.bench_train(config_from(args)).lines():
-        print(line)
+    result = lib.bench_train(config_from(args))  # prints its set-up and CPU lines as it starts
     print(f"{allocator_status().detail} (every loop; bench allocator compares the policies)")
+    for line in result.lines():
+        print(line)
     return 0

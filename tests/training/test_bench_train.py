@@ -82,6 +82,7 @@ class TestBenchTrain:
         # Sharing: ours encodes 4 UAV + 2 satellite images, plain 4 + 4: fewer FLOPs per step.
         assert float(got["ours fp32"][3]) < float(got["plain fp32"][3])
         assert "load" in out.splitlines()[0] and out.splitlines()[-1].startswith("end: load")
+        assert out.splitlines()[2].startswith("allocator: ")  # after the set-up and CPU lines
 
     @pytest.mark.usefixtures("real_cpu_flags")
     def test_cpu_line_names_the_bf16_flags_and_isa(self, capsys):
