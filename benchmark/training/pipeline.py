@@ -161,12 +161,10 @@ def train_and_evaluate(
         result.sequences[split] = _sequence_split(
             cfg, model, out_dir, split, eval_batch, progress, placement
         )
-    volume_calibration = None
-    for split in dict.fromkeys([*volume_splits, *joint_splits]):
-        if volume_calibration is None:
-            volume_calibration = _volume_calibration(
-                cfg, model, out_dir, eval_batch, progress, placement
-            )
+    volumes = list(dict.fromkeys([*volume_splits, *joint_splits]))
+    if volumes:  # one calibration for every split the volume is fused on
+        calibration = _volume_calibration(cfg, model, out_dir, eval_batch, progress, placement)
+    for split in volumes:
         marginal, joint = _volume_split(
             cfg,
             model,
@@ -176,7 +174,7 @@ def train_and_evaluate(
             progress,
             placement,
             split in joint_splits,
-            volume_calibration,
+            calibration,
         )
         if split in volume_splits:
             result.volume_sequences[split] = marginal
@@ -266,9 +264,7 @@ def _volume_calibration(
         torch.tensor(truth["E_m"].to_numpy(float)), torch.tensor(truth["N_m"].to_numpy(float)),
     )  # fmt: skip
     calibration = {"split": val_split, **fitted.to_dict()}
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(calibration, indent=2))
-    tmp.replace(path)
+    _write_json(calibration, path)
     return calibration
 
 
@@ -340,9 +336,15 @@ def _write_fusion(table: Any, summary: dict[str, float], csv_path: Path, json_pa
     from benchmark.evaluation.metrics import write_predictions_csv
 
     write_predictions_csv(table, csv_path)
-    tmp = json_path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(summary, indent=2))
-    tmp.replace(json_path)
+    _write_json(summary, json_path)
+
+
+def _write_json(obj: Any, path: Path) -> None:
+    """``obj`` as JSON at ``path``, atomically (a temporary file, then a rename): a reader sees
+    the whole file or none."""
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    tmp.replace(path)
 
 
 def sequence_paths(out_dir: str | Path, split: str) -> tuple[Path, Path]:
