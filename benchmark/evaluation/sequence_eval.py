@@ -351,11 +351,11 @@ def fuse_volume(
     stress_scale: float | None = STRESS_SCALE,
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse a pair encoder's own pose volume along the flights (``benchmark.evaluation.
-    volume_beliefs``): its yaw marginal and its position marginal are the beliefs (no
-    calibration: the volume is a trained density, like a distribution head's), its maxima the
-    per-frame estimates; pitch and roll are the heads' (``frame``: the evaluation CSV of the
-    same split, matched to ``marginals`` on ``index``). Returns what :func:`fuse_predictions`
-    returns."""
+    volume_beliefs``): its yaw marginal and its position marginal are the beliefs (as tempered
+    in ``marginals``: ``volume_marginals``' temperatures, fitted on the validation split), the
+    untempered marginals' maxima the per-frame estimates; pitch and roll are the heads'
+    (``frame``: the evaluation CSV of the same split, matched to ``marginals`` on ``index``).
+    Returns what :func:`fuse_predictions` returns."""
     settings = settings or FusionSettings()
     grid = CircularGrid(settings.yaw_bins)
     aligned, own = _volume_frames(frame, marginals, grid, split)
@@ -381,8 +381,8 @@ def fuse_volume_joint(
 ) -> tuple[dict[str, float], pd.DataFrame]:
     """Fuse a pair encoder's whole pose volume along the flights, jointly over heading and
     position (:func:`~benchmark.evaluation.sequence.fuse_split_joint`; ``marginals`` with its
-    ``log_volume``): the same per-frame estimates and pitch and roll as :func:`fuse_volume`, no
-    calibration. With the dataset's odometry, and with ``stress_scale`` (e.g.
+    ``log_volume``, tempered as it comes): the same per-frame estimates and pitch and roll as
+    :func:`fuse_volume`. With the dataset's odometry, and with ``stress_scale`` (e.g.
     :data:`STRESS_SCALE`) the stress odometry of :func:`fuse_predictions` (seeded by ``seed`` and
     ``split``), causal filter only: the figure draws the filter, and the joint grid is the cost.
     Returns the summary (``seq_*`` keys; ``seq{s}x_*`` for the stress run) and the table of

@@ -24,9 +24,16 @@ correct frames along a flight. Like a regression head's belief
 (:mod:`benchmark.evaluation.beliefs`), each belief the fusion uses is calibrated on the
 validation split before it is fused: one temperature ``tau``, ``log q = log_softmax(log p /
 tau)``, fitted by maximum likelihood of the truth (temperature scaling), for the whole volume
-(the joint fusion), its yaw marginal and its position marginal (the marginal fusions). The NLL
-is convex in ``beta = 1 / tau`` (``-beta s_c + logsumexp(beta s)``: a log-partition function),
-so a bounded scalar search finds its one minimum. Tempering keeps the order of the cells: the
+(the joint fusion), its yaw marginal and its position marginal (the marginal fusions). The
+likelihood fitted is the one the fusion reads, ``(1 - w) q + w / M`` with the fusion's outlier
+weight ``w`` (``FusionSettings.outlier_weight``; its uniform share read in cell masses, spread
+over the ``M`` cells): fitted on ``q`` alone, the wrong matches' frames, which the fusion's
+uniform share already explains, would soften every frame's vote (the quick units' volumes on
+standard/val: 1.83-1.91 vision-only and 1.30-1.37 gravity-aided without the outlier share,
+1.57-1.58 and 1.24-1.32 with it). With
+``w = 0`` the NLL is convex in ``beta = 1 / tau`` (``-beta s_c + logsumexp(beta s)``: a
+log-partition function), so a bounded scalar search finds its one minimum; with ``w > 0`` a
+scan brackets it first (:func:`fit_temperature`). Tempering keeps the order of the cells: the
 per-frame estimates stay the untempered marginals' maxima (a calibration changes how strongly a
 frame votes along a flight, not what it says; the "frame" rows do not move with it).
 """
@@ -176,8 +183,9 @@ class VolumeCalibration:
     one per belief the fusion uses: ``temperature`` of the whole volume (the joint fusion),
     ``yaw_temperature`` of its yaw marginal and ``position_temperature`` of its position marginal
     (the marginal fusions); > 1 softens an overconfident belief. Fitted on the ``n_frames``
-    whose true pose lies inside the searched square, of ``n_total``. Mean NLLs (nats) of the
-    truth before (``*_raw``, temperature 1) and after, and the uniform's (``*_uniform``)."""
+    whose true pose lies inside the searched square, of ``n_total``, under the mixture with
+    ``outlier_weight`` (:func:`fit_temperature`). Mean NLLs (nats) of the truth before
+    (``*_raw``, temperature 1) and after, under that mixture, and the uniform's (``*_uniform``)."""
 
     temperature: float
     yaw_temperature: float
@@ -193,6 +201,7 @@ class VolumeCalibration:
     position_nll_raw: float
     position_nll: float
     position_nll_uniform: float
+    outlier_weight: float = 0.0
 
     def to_dict(self) -> dict[str, float | int]:
         return dict(asdict(self))
@@ -218,22 +227,42 @@ def true_cells(
 
 
 def fit_temperature(
-    log_p: Tensor, target: Tensor, bounds: tuple[float, float] = (0.25, 16.0)
+    log_p: Tensor,
+    target: Tensor,
+    bounds: tuple[float, float] = (0.25, 16.0),
+    outlier_weight: float = 0.0,
 ) -> tuple[float, float, float]:
     """The temperature ``tau`` maximising the likelihood of ``target (N,)`` (indices) under
-    ``log_softmax(log_p / tau)`` of ``log_p (N, M)`` log-masses; returns ``(tau, NLL at 1, NLL
-    at tau)`` (mean nats). The NLL is convex in ``beta = 1 / tau`` (module docstring): bounded
-    Brent over ``1 / bounds``, to 1e-5 in beta, float64, 64 rows at a time."""
+    ``(1 - w) softmax(log_p / tau) + w / M`` of ``log_p (N, M)`` log-masses, ``w`` the
+    ``outlier_weight`` (the fusion's robust likelihood, :func:`~benchmark.evaluation.fusion.
+    robust_log_likelihood`, read in cell masses: its uniform share spread over the ``M`` cells);
+    returns ``(tau, NLL at 1, NLL at tau)`` (mean nats). With ``w = 0`` the NLL is convex in
+    ``beta = 1 / tau`` (module docstring): bounded Brent over ``1 / bounds``, to 1e-5 in beta.
+    With ``w > 0`` it need not be (``-log`` of a mixture): the best of 65 log-spaced ``beta``
+    first, then bounded Brent between its two neighbours. float64, 64 rows at a time."""
     from scipy.optimize import minimize_scalar
+
+    if not 0.0 <= outlier_weight < 1.0:
+        raise ValueError(f"outlier_weight must lie in [0, 1), got {outlier_weight!r}")
+    floor = math.log(outlier_weight) - math.log(log_p.shape[1]) if outlier_weight > 0 else None
+    keep = math.log1p(-outlier_weight)
 
     def nll(beta: float) -> float:
         total = 0.0
         for start in range(0, len(target), 64):
             tempered = temper_log_volume(log_p[start : start + 64].double(), 1.0 / beta)
-            total -= float(tempered.gather(1, target[start : start + 64, None]).sum())
+            at_truth = tempered.gather(1, target[start : start + 64, None])
+            if floor is not None:
+                at_truth = torch.logaddexp(at_truth + keep, torch.full_like(at_truth, floor))
+            total -= float(at_truth.sum())
         return total / len(target)
 
     low, high = 1.0 / bounds[1], 1.0 / bounds[0]
+    if floor is not None:
+        betas = torch.logspace(math.log10(low), math.log10(high), 65, dtype=torch.float64)
+        scan = [nll(float(b)) for b in betas]
+        best = min(range(len(scan)), key=scan.__getitem__)
+        low, high = float(betas[max(best - 1, 0)]), float(betas[min(best + 1, len(scan) - 1)])
     beta = float(
         minimize_scalar(nll, bounds=(low, high), method="bounded", options={"xatol": 1e-5}).x
     )
@@ -248,14 +277,16 @@ def fit_volume_temperature(
     east: Tensor,
     north: Tensor,
     bounds: tuple[float, float] = (0.25, 16.0),
+    outlier_weight: float = 0.0,
 ) -> VolumeCalibration:
     """The temperatures of maximum likelihood (module docstring) of the whole volume at the true
     cell, of its yaw marginal at the true yaw bin and of its position marginal at the true
     position cell (:func:`fit_temperature`, each within ``bounds``): ``log_volume (N, K, P, Q)``
     log-masses of a validation split's frames, ``axes`` ``(yaw (K,), north (P,), east (Q,))``
     and ``cell_m`` as :class:`VolumeMarginals`, the true ``yaw`` rad, ``east``, ``north`` m
-    ``(N,)``. Frames whose truth lies outside the searched square have no true cell and are left
-    out of all three (counted). Each belief gets its own temperature because tempering the
+    ``(N,)``, under the fusion's ``outlier_weight`` (the mixture of :func:`fit_temperature`).
+    Frames whose truth lies outside the searched square have no true cell and are left out of
+    all three (counted). Each belief gets its own temperature because tempering the
     volume is not tempering its marginals: on the quick units' standard/val the volume's
     temperature (1.3-1.9) made its yaw marginal worse than untempered (its own best: about 1)."""
     if log_volume.dim() != 4 or log_volume.shape[0] != yaw.shape[0]:
@@ -270,12 +301,13 @@ def fit_volume_temperature(
     k, p, q = log_volume.shape[1:]
     volume = log_volume[rows].double()
     target = cells[rows]
-    tau, raw, fitted = fit_temperature(volume.flatten(1), target, bounds)
+    w = outlier_weight
+    tau, raw, fitted = fit_temperature(volume.flatten(1), target, bounds, w)
     yaw_tau, yaw_raw, yaw_fitted = fit_temperature(
-        torch.logsumexp(volume, dim=(2, 3)), target // (p * q), bounds
+        torch.logsumexp(volume, dim=(2, 3)), target // (p * q), bounds, w
     )
     pos_tau, pos_raw, pos_fitted = fit_temperature(
-        torch.logsumexp(volume, dim=1).flatten(1), target % (p * q), bounds
+        torch.logsumexp(volume, dim=1).flatten(1), target % (p * q), bounds, w
     )
     return VolumeCalibration(
         temperature=tau, yaw_temperature=yaw_tau, position_temperature=pos_tau,
@@ -283,6 +315,7 @@ def fit_volume_temperature(
         nll_raw=raw, nll=fitted, nll_uniform=math.log(k * p * q),
         yaw_nll_raw=yaw_raw, yaw_nll=yaw_fitted, yaw_nll_uniform=math.log(k),
         position_nll_raw=pos_raw, position_nll=pos_fitted, position_nll_uniform=math.log(p * q),
+        outlier_weight=w,
     )  # fmt: skip
 
 

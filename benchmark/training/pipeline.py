@@ -52,6 +52,9 @@ SWAP_SUFFIX = "/swap"
 # The pose volume's temperatures (benchmark.evaluation.volume_beliefs.VolumeCalibration) that a
 # volume's fusion is made with and records: the whole volume's, its yaw and position marginals'.
 VOLUME_TEMPERATURES = ("temperature", "yaw_temperature", "position_temperature")
+# ... and the calibration's keys a fused file must record to be current: the temperatures and the
+# outlier weight they were fitted under (the fusion's own, FusionSettings.outlier_weight).
+VOLUME_CALIBRATION_KEYS = (*VOLUME_TEMPERATURES, "outlier_weight")
 EVAL_BATCH = 64  # pairs per evaluation batch (eval mode: per-sample results, any size would do)
 
 
@@ -206,14 +209,14 @@ def fusion_done(paths: Callable[[str | Path, str], tuple[Path, Path]], out_dir: 
                 split: str) -> bool:  # fmt: skip
     """Whether one split's fused files under ``out_dir`` are complete and current: the summary
     JSON written (last), and for a pose volume's fusion, made with the calibrated volume (its
-    summary holds every ``volume_<temperature>`` of :data:`VOLUME_TEMPERATURES`; files of an
-    older version are fused again)."""
+    summary holds every ``volume_<key>`` of :data:`VOLUME_CALIBRATION_KEYS`, the outlier weight
+    the fusion's own; files of an older version are fused again)."""
     csv_path, json_path = paths(out_dir, split)
     if not (json_path.is_file() and csv_path.is_file()):
         return False
     if paths in (volume_sequence_paths, joint_sequence_paths):
         summary = json.loads(json_path.read_text())
-        return all(f"volume_{k}" in summary for k in VOLUME_TEMPERATURES)
+        return _current_calibration(summary, "volume_")
     return True
 
 
@@ -227,6 +230,16 @@ def fusion_paths(beliefs: str) -> Callable[[str | Path, str], tuple[Path, Path]]
     return paths[beliefs]
 
 
+def _current_calibration(record: dict[str, Any], prefix: str = "") -> bool:
+    """Whether ``record`` (a calibration file, or a fused summary with ``prefix`` "volume_") holds
+    every key of :data:`VOLUME_CALIBRATION_KEYS`, fitted under the fusion's outlier weight."""
+    from benchmark.evaluation.sequence import FusionSettings
+
+    if not all(f"{prefix}{k}" in record for k in VOLUME_CALIBRATION_KEYS):
+        return False
+    return float(record[f"{prefix}outlier_weight"]) == FusionSettings().outlier_weight
+
+
 def _volume_calibration(
     cfg: TrainConfig,
     model: torch.nn.Module,
@@ -235,18 +248,21 @@ def _volume_calibration(
     progress: bool,
     placement: Placement,
 ) -> dict[str, float]:
-    """The pose volume's temperature on ``cfg.data.val_split`` (read back if written): one
+    """The pose volume's temperatures on ``cfg.data.val_split`` (read back if written): one
     encoder pass over the validation images, the true poses from its evaluation table (evaluated
-    first), :func:`~benchmark.evaluation.volume_beliefs.fit_volume_temperature`."""
+    first), :func:`~benchmark.evaluation.volume_beliefs.fit_volume_temperature` under the
+    fusion's own outlier weight (``FusionSettings.outlier_weight``: the likelihood the fusion
+    reads is ``(1 - w) q + w u``, so its temperature is fitted for that, not for ``q`` alone)."""
     import pandas as pd
 
     from benchmark.data import PairDataset
+    from benchmark.evaluation.sequence import FusionSettings
     from benchmark.evaluation.volume_beliefs import fit_volume_temperature, volume_marginals
 
     path = volume_calibration_path(out_dir)
     if path.is_file():
         written = json.loads(path.read_text())
-        if all(k in written for k in VOLUME_TEMPERATURES):  # else: an older version's, fit again
+        if _current_calibration(written):  # else: an older version's, fit again
             return written
     val_split = str(cfg.data.val_split)
     base = PairDataset(cfg.data.root, val_split, verify=cfg.data.verify)
@@ -262,6 +278,7 @@ def _volume_calibration(
         marginals.log_volume, (marginals.yaw, marginals.north, marginals.east), marginals.cell_m,
         torch.tensor(truth["yaw_deg"].to_numpy(float)).deg2rad(),
         torch.tensor(truth["E_m"].to_numpy(float)), torch.tensor(truth["N_m"].to_numpy(float)),
+        outlier_weight=FusionSettings().outlier_weight,
     )  # fmt: skip
     calibration = {"split": val_split, **fitted.to_dict()}
     _write_json(calibration, path)
@@ -284,7 +301,8 @@ def _volume_split(
     over the split's images, the volume tempered by ``calibration`` (:func:`_volume_calibration`),
     the heads' pitch and roll from the true image's evaluation table. Returns ``(marginal,
     joint or None)``, each ``(summary, csv)``; each summary holds the temperatures it was made
-    with (``volume_temperature``, ``volume_yaw_temperature``, ``volume_position_temperature``)."""
+    with (``volume_temperature``, ``volume_yaw_temperature``, ``volume_position_temperature``)
+    and the outlier weight they were fitted under (``volume_outlier_weight``)."""
     import pandas as pd
 
     from benchmark.data import PairDataset, odometry_noise
@@ -300,7 +318,7 @@ def _volume_split(
             (json.loads(joint_json.read_text()), joint_csv) if joint else None
         )
     tempers = {k: float(calibration[k]) for k in VOLUME_TEMPERATURES}
-    recorded = {f"volume_{k}": v for k, v in tempers.items()}
+    recorded = {f"volume_{k}": float(calibration[k]) for k in VOLUME_CALIBRATION_KEYS}
     base = PairDataset(cfg.data.root, split, verify=cfg.data.verify)
     marginals = volume_marginals(
         model, base, batch_size=batch_size, shared_satellite=cfg.model.shared_satellite,

@@ -256,6 +256,55 @@ class TestFitVolumeTemperature:
         expected = -log_softmax(yaw_p / tau, axis=1)[idx, k].mean()
         assert fitted.yaw_nll == pytest.approx(expected, rel=1e-10)
 
+    @staticmethod
+    def with_gross_errors(n: int, tau: float, share: float, seed: int) -> tuple[torch.Tensor, ...]:
+        """As :meth:`overconfident`, but a ``share`` of the frames' true cells drawn uniformly
+        (wrong matches): the truth follows ``(1 - share) softmax(s) + share / M``, the fusion's
+        robust likelihood with outlier weight ``share`` around a volume overconfident by ``tau``."""
+        axes = _small_axes()
+        g = torch.Generator().manual_seed(seed)
+        s = 2.0 * torch.randn(n, 200, generator=g, dtype=F64)
+        draw = torch.multinomial(torch.softmax(s, 1), 1, generator=g).flatten()
+        wrong = torch.rand(n, generator=g, dtype=F64) < share
+        draw = torch.where(wrong, torch.randint(0, 200, (n,), generator=g), draw)
+        k, p, q = draw // 25, (draw // 5) % 5, draw % 5
+        lv = torch.log_softmax(s / tau, 1).view(n, 8, 5, 5)
+        return lv, axes, axes[0][k], axes[2][q], axes[1][p]
+
+    def test_the_outlier_share_keeps_wrong_matches_from_softening_the_volume(self):
+        lv, axes, yaw, east, north = self.with_gross_errors(4000, 0.5, 0.3, seed=11)
+        robust = fit_volume_temperature(lv, axes, 10.0, yaw, east, north, outlier_weight=0.3)
+        plain = fit_volume_temperature(lv, axes, 10.0, yaw, east, north)
+        assert robust.temperature == pytest.approx(2.0, rel=0.08)
+        assert plain.temperature > 1.2 * robust.temperature  # the wrong matches pull it up
+        assert robust.outlier_weight == 0.3 and plain.outlier_weight == 0.0
+
+    def test_the_mixture_fit_is_the_minimum_of_a_brute_force_scan(self):
+        from scipy.special import log_softmax, logsumexp
+
+        lv, axes, yaw, east, north = self.with_gross_errors(300, 0.7, 0.4, seed=12)
+        w = 0.4
+        fitted = fit_volume_temperature(lv, axes, 10.0, yaw, east, north, outlier_weight=w)
+        cells, _ = true_cells(axes, yaw, east, north, 10.0)
+        flat, idx = lv.flatten(1).numpy(), cells.numpy()
+
+        def nll(tau: float) -> float:
+            at = log_softmax(flat / tau, axis=1)[np.arange(len(idx)), idx]
+            both = np.stack([np.log1p(-w) + at, np.full_like(at, np.log(w / 200))])
+            return float(-logsumexp(both, axis=0).mean())
+
+        taus = np.exp(np.linspace(np.log(0.25), np.log(16), 2001))
+        scan = np.array([nll(t) for t in taus])
+        assert fitted.nll <= scan.min() + 1e-7
+        assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
+        assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
+
+    def test_a_bad_outlier_weight_is_refused(self):
+        lv, axes, yaw, east, north = self.overconfident(5, 0.5, seed=5)
+        for w in (-0.1, 1.0, 1.5):
+            with pytest.raises(ValueError, match="outlier_weight"):
+                fit_volume_temperature(lv, axes, 10.0, yaw, east, north, outlier_weight=w)
+
     def test_frames_outside_the_square_are_left_out(self):
         lv, axes, yaw, east, north = self.overconfident(50, 0.5, seed=4)
         far = east.clone()

@@ -13,6 +13,7 @@ import pytest
 import torch
 
 from benchmark.config import ConfigError
+from benchmark.evaluation.sequence import FusionSettings
 from benchmark.training.config import PretrainedConfig, load_train_config
 from benchmark.training.identity import numbers_hash, run_key
 from benchmark.training.pipeline import train_and_evaluate
@@ -238,6 +239,9 @@ class TestPoseVolumeFusion:
         recorded = json.loads(js.read_text())
         for name in ("temperature", "yaw_temperature", "position_temperature"):
             assert calibration[name] > 0 and recorded[f"volume_{name}"] == calibration[name]
+        # fitted under the likelihood the fusion reads: the fusion's own outlier weight
+        w = FusionSettings().outlier_weight
+        assert calibration["outlier_weight"] == recorded["volume_outlier_weight"] == w
         # the frame rows are the untempered volume's maxima: a calibration changes the votes
         yaw_p = torch.logsumexp(enc.extras["log_volume"].double(), dim=(2, 3))
         expected = model.encoder.yaws.double()[yaw_p.argmax(-1)]

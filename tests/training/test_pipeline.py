@@ -8,6 +8,7 @@ import json
 import pandas as pd
 import pytest
 
+from benchmark.evaluation.sequence import FusionSettings
 from benchmark.training import load_train_config, train_and_evaluate
 from benchmark.training.pipeline import eval_key, eval_keys, eval_paths, split_filename
 
@@ -146,7 +147,8 @@ class TestHeadPositionDensity:
 
 class TestFusionDone:
     """Fused files count as done when complete; a pose volume's only when fused with the
-    calibrated volume (its summary holds ``volume_temperature``)."""
+    calibrated volume (its summary holds the temperatures and the outlier weight they were
+    fitted under, the fusion's own)."""
 
     @staticmethod
     def write(paths, out, split: str, summary: dict) -> None:
@@ -178,6 +180,12 @@ class TestFusionDone:
         assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
         self.write(paths, tmp_path, "long/towns", {"volume_temperature": 1.9})  # one of three
         assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
-        every = {f"volume_{k}": 1.0 for k in pipeline.VOLUME_TEMPERATURES}
+        temperatures = {f"volume_{k}": 1.0 for k in pipeline.VOLUME_TEMPERATURES}
+        self.write(paths, tmp_path, "long/towns", temperatures)  # fitted without the outlier share
+        assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
+        other = {**temperatures, "volume_outlier_weight": 0.1}  # under another outlier share
+        self.write(paths, tmp_path, "long/towns", other)
+        assert not pipeline.fusion_done(paths, tmp_path, "long/towns")
+        every = {**temperatures, "volume_outlier_weight": FusionSettings().outlier_weight}
         self.write(paths, tmp_path, "long/towns", every)
         assert pipeline.fusion_done(paths, tmp_path, "long/towns")
