@@ -74,7 +74,14 @@ _EXP_FLOOR = -700.0
 def exp_floored(x: Tensor) -> Tensor:
     """``exp(x)`` with every ``x < -700`` set to exactly 0 (same shape): the fast path of the
     CPU's exp for beliefs whose floor lies below the underflow threshold."""
-    return torch.exp(x.clamp_min(_EXP_FLOOR)).masked_fill(x < _EXP_FLOOR, 0.0)
+    return exp_floored_(x.clone())
+
+
+def exp_floored_(x: Tensor) -> Tensor:
+    """:func:`exp_floored` in place on ``x`` (a temporary of the caller's), returned: the same
+    elementwise operations on one buffer, so the same bits without two more tensors to fill."""
+    below = x < _EXP_FLOOR
+    return x.clamp_min_(_EXP_FLOOR).exp_().masked_fill_(below, 0.0)
 
 
 def logaddexp_constant(x: Tensor, c: float) -> Tensor:
@@ -92,7 +99,7 @@ def logsumexp_floored(x: Tensor, dim: tuple[int, ...]) -> Tensor:
     """``log(sum(exp(x)))`` over ``dim``, kept; the terms below ``-700`` of the maximum dropped
     (relative ``< 1e-304``, :func:`exp_floored`). ``-inf`` where every term is ``-inf``."""
     peak = torch.amax(x, dim=dim, keepdim=True).clamp_min(torch.finfo(x.dtype).min)
-    return torch.log(exp_floored(x - peak).sum(dim=dim, keepdim=True)) + peak
+    return torch.log(exp_floored_(x - peak).sum(dim=dim, keepdim=True)) + peak
 
 
 @dataclass(frozen=True)
@@ -241,17 +248,21 @@ def _spectral_apply(
     zero; peak)``."""
     dims = tuple(range(-len(size), 0))
     peak = torch.amax(log_f, dim=dims, keepdim=True).clamp_min(torch.finfo(log_f.dtype).min)
-    p = exp_floored(log_f - peak)
+    p = exp_floored_(log_f - peak)
     q = torch.fft.irfftn(torch.fft.rfftn(p, s=size, dim=dims) * H, s=size, dim=dims)
     floor = _ROUNDING_EPS * torch.finfo(q.dtype).eps * torch.amax(q, dim=dims, keepdim=True)
-    q = torch.where(q > floor, q, torch.zeros_like(q))
+    q.masked_fill_(~(q > floor), 0.0)  # q is this function's own; NaN -> 0 as where() did
     if conserve:  # put back the mass of the clipped negative lobes
         q = q * (p.sum(dim=dims, keepdim=True) / q.sum(dim=dims, keepdim=True))
     return q, peak
 
 
 def _to_log(q: Tensor, peak: Tensor) -> Tensor:
-    return torch.log(q.clamp_min(torch.finfo(q.dtype).tiny)) + peak
+    """``log(max(q, tiny)) + peak``, same shape (``q`` is left as it was)."""
+    out = q.clamp_min(torch.finfo(q.dtype).tiny).log_()
+    if out.shape == torch.broadcast_shapes(out.shape, peak.shape):
+        return out.add_(peak)
+    return out + peak
 
 
 def _yaw_transition(

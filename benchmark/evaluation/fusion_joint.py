@@ -57,7 +57,7 @@ from benchmark.evaluation.fusion_grid import (
     _plane_fft_size,
     _plane_steps,
     _to_log,
-    exp_floored,
+    exp_floored_,
     logsumexp_floored,
 )
 from benchmark.evaluation.fusion_odometry import OdometryNoise, position_transition_covariance
@@ -163,12 +163,21 @@ def _heading_blur(log_f: Tensor, kernel: Tensor) -> Tensor:
     if r == 0:
         return log_f
     peak = torch.amax(log_f, dim=0, keepdim=True).clamp_min(torch.finfo(log_f.dtype).min)
-    p = exp_floored(log_f - peak)
+    p = exp_floored_(log_f - peak)
     out = torch.zeros_like(p)
-    for offset in range(-r, r + 1):  # the kernel is tiny: a few rolled, scaled adds
+    n = p.shape[0]
+    for offset in range(-r, r + 1):  # the kernel is tiny: a few shifted, scaled adds
         w = float(kernel[offset + r])
-        if w:
-            out += w * torch.roll(p, offset, dims=0)
+        if not w:
+            continue
+        # out[i] += w p[(i - offset) mod n], as torch.roll(p, offset) would give, without the
+        # rolled copy: the two slices on either side of the wrap (same products, same order)
+        o = offset % n
+        if o == 0:
+            out += w * p
+        else:
+            out[o:] += w * p[: n - o]
+            out[:o] += w * p[n - o :]
     return _to_log(out, peak)
 
 

@@ -34,7 +34,12 @@ from benchmark.evaluation.fusion import (
     von_mises_belief,
     yaw_transition_sigma,
 )
-from benchmark.evaluation.fusion_grid import exp_floored, logaddexp_constant, logsumexp_floored
+from benchmark.evaluation.fusion_grid import (
+    exp_floored,
+    exp_floored_,
+    logaddexp_constant,
+    logsumexp_floored,
+)
 
 DEG = math.pi / 180
 F64 = torch.float64
@@ -138,6 +143,18 @@ class TestExpFloored:
         out = exp_floored(x)
         assert torch.equal(out[:501], torch.exp(x[:501]))
         assert torch.equal(out[501:], torch.zeros(5, dtype=F64))
+
+    def test_the_in_place_form_gives_the_same_bits_in_its_argument(self):
+        g = torch.Generator().manual_seed(3)
+        x = 400.0 * torch.randn(2000, dtype=F64, generator=g)  # a third below the floor
+        x[:3] = torch.tensor([-math.inf, math.nan, -700.0], dtype=F64)
+        buffer = x.clone()
+        out = exp_floored_(buffer)
+        assert out.data_ptr() == buffer.data_ptr()  # in place
+        reference = torch.where(x < -700.0, 0.0, torch.exp(x))  # exp's slow path, same values
+        assert torch.equal(out[2:], reference[2:])  # -700 itself: exp(-700), kept
+        assert bool(out[0] == 0) and bool(out[1].isnan())  # -inf -> 0; NaN stays NaN
+        assert torch.equal(exp_floored(x)[2:], out[2:]) and bool(exp_floored(x)[1].isnan())
 
 
 class TestLogsumexpFloored:

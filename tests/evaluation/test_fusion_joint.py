@@ -83,6 +83,29 @@ class TestHeadingKernel:
             heading_kernel(-0.1, 0.05)
 
 
+class TestHeadingBlur:
+    """The heading axis's circular blur against a dense circulant matrix (scipy), in linear
+    space, for kernels narrower and wider than the grid's wrap."""
+
+    @pytest.mark.parametrize("s", [0.5, 1.5, 4.0])
+    def test_against_scipy_circulant(self, s):
+        from scipy.linalg import circulant
+
+        from benchmark.evaluation.fusion_joint import _heading_blur
+
+        n = 12
+        kernel = heading_kernel(s * 0.05, 0.05)
+        r = (len(kernel) - 1) // 2
+        column = np.zeros(n)
+        for offset in range(-r, r + 1):  # the kernel wrapped onto the n headings
+            column[offset % n] += float(kernel[offset + r])
+        g = torch.Generator().manual_seed(int(10 * s))
+        log_f = 3.0 * torch.randn(n, 4, 5, dtype=torch.float64, generator=g)
+        ours = _heading_blur(log_f, kernel).exp().numpy()
+        expected = np.einsum("ij,jen->ien", circulant(column), log_f.exp().numpy())
+        np.testing.assert_allclose(ours, expected, rtol=1e-12)
+
+
 class TestFilterAndSmoothJoint:
     def test_position_evidence_resolves_a_heading_ambiguity(self):
         """Every frame sees the right place but cannot tell its heading from the opposite one.
