@@ -175,6 +175,16 @@ class TestTrueCells:
         assert int(cells[0]) == 12 and bool(inside[0])  # bin 0, row 2, column 2
 
 
+def assert_is_the_scans_minimum(fitted, nll) -> None:
+    """``fitted`` (a VolumeCalibration) is the minimum of ``nll(tau)`` over 2001 log-spaced
+    temperatures in the fit's bounds, and its ``nll_raw`` is ``nll(1)``."""
+    taus = np.exp(np.linspace(np.log(0.25), np.log(16), 2001))
+    scan = np.array([nll(t) for t in taus])
+    assert fitted.nll <= scan.min() + 1e-7
+    assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
+    assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
+
+
 class TestFitVolumeTemperature:
     @staticmethod
     def overconfident(n: int, tau: float, seed: int) -> tuple[torch.Tensor, ...]:
@@ -213,11 +223,7 @@ class TestFitVolumeTemperature:
         def nll(tau: float) -> float:
             return float(-log_softmax(flat / tau, axis=1)[np.arange(len(idx)), idx].mean())
 
-        taus = np.exp(np.linspace(np.log(0.25), np.log(16), 2001))
-        scan = np.array([nll(t) for t in taus])
-        assert fitted.nll <= scan.min() + 1e-7
-        assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
-        assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
+        assert_is_the_scans_minimum(fitted, nll)
 
     def test_each_marginal_gets_its_own_temperature(self):
         # a volume whose yaw and position are independent: p(k, cell) = p_yaw(k) p_pos(cell).
@@ -293,11 +299,7 @@ class TestFitVolumeTemperature:
             both = np.stack([np.log1p(-w) + at, np.full_like(at, np.log(w / 200))])
             return float(-logsumexp(both, axis=0).mean())
 
-        taus = np.exp(np.linspace(np.log(0.25), np.log(16), 2001))
-        scan = np.array([nll(t) for t in taus])
-        assert fitted.nll <= scan.min() + 1e-7
-        assert fitted.temperature == pytest.approx(taus[scan.argmin()], rel=0.01)
-        assert fitted.nll_raw == pytest.approx(nll(1.0), rel=1e-12)
+        assert_is_the_scans_minimum(fitted, nll)
 
     def test_a_bad_outlier_weight_is_refused(self):
         lv, axes, yaw, east, north = self.overconfident(5, 0.5, seed=5)
