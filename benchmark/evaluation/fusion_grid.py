@@ -258,11 +258,9 @@ def _spectral_apply(
 
 
 def _to_log(q: Tensor, peak: Tensor) -> Tensor:
-    """``log(max(q, tiny)) + peak``, same shape (``q`` is left as it was)."""
-    out = q.clamp_min(torch.finfo(q.dtype).tiny).log_()
-    if out.shape == torch.broadcast_shapes(out.shape, peak.shape):
-        return out.add_(peak)
-    return out + peak
+    """``log(max(q, tiny)) + peak``, ``q``'s shape (``peak`` broadcasts into it; ``q`` is left
+    as it was)."""
+    return q.clamp_min(torch.finfo(q.dtype).tiny).log_().add_(peak)
 
 
 def _yaw_transition(

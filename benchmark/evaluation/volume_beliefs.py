@@ -30,12 +30,12 @@ weight ``w`` (``FusionSettings.outlier_weight``; its uniform share read in cell 
 over the ``M`` cells): fitted on ``q`` alone, the wrong matches' frames, which the fusion's
 uniform share already explains, would soften every frame's vote (the quick units' volumes on
 standard/val: 1.83-1.91 vision-only and 1.30-1.37 gravity-aided without the outlier share,
-1.57-1.58 and 1.24-1.32 with it). With
-``w = 0`` the NLL is convex in ``beta = 1 / tau`` (``-beta s_c + logsumexp(beta s)``: a
-log-partition function), so a bounded scalar search finds its one minimum; with ``w > 0`` a
-scan brackets it first (:func:`fit_temperature`). Tempering keeps the order of the cells: the
-per-frame estimates stay the untempered marginals' maxima (a calibration changes how strongly a
-frame votes along a flight, not what it says; the "frame" rows do not move with it).
+1.57-1.58 and 1.24-1.32 with it). With ``w = 0`` the NLL is convex in ``beta = 1 / tau``
+(``-beta s_c + logsumexp(beta s)``: a log-partition function), so a bounded scalar search finds
+its one minimum; with ``w > 0`` a scan brackets it first (:func:`fit_temperature`). Tempering
+keeps the order of the cells: the per-frame estimates stay the untempered marginals' maxima (a
+calibration changes how strongly a frame votes along a flight, not what it says; the "frame"
+rows do not move with it).
 """
 
 from __future__ import annotations
